@@ -1,0 +1,60 @@
+"""The error hierarchy. Errors a user can fix carry the file and the fix, and print as one line.
+
+The CLI prints any :class:`RoseError` as ``error: <where>: <what>. <fix>`` and exits 1; anything
+else is a bug and prints a traceback (exit 2).
+"""
+
+from __future__ import annotations
+
+import os
+
+
+class RoseError(Exception):
+    """Root of every error rose_usd raises on purpose.
+
+    Args:
+        message: what is wrong, one sentence without a trailing period.
+        path: the file or folder concerned, if any.
+        hint: what the user should do about it, one sentence.
+    """
+
+    def __init__(self, message: str, *, path: str | os.PathLike | None = None, hint: str | None = None):
+        self.message = message
+        self.path = None if path is None else os.fspath(path)
+        self.hint = hint
+        super().__init__(self.one_line())
+
+    def one_line(self) -> str:
+        parts = []
+        if self.path:
+            parts.append(f"{self.path}: ")
+        parts.append(self.message.rstrip("."))
+        if self.hint:
+            parts.append(f". {self.hint.rstrip('.')}.")
+        else:
+            parts.append(".")
+        return "".join(parts).replace("\n", " ")
+
+
+class InputError(RoseError):
+    """A case's input files are missing, unreadable or inconsistent."""
+
+
+class ConfigError(RoseError):
+    """A configuration value (rose.toml, command line) is invalid."""
+
+
+class StageError(RoseError):
+    """The USD stage is malformed: composition errors, layer ownership, missing prerequisites."""
+
+
+class ValidationError(RoseError):
+    """A written stage fails USD validation or does not load in Newton."""
+
+
+class EnvironmentProblem(RoseError):
+    """A system dependency (LLVM for Mitsuba, a library) is missing or broken."""
+
+
+class MeshError(RoseError):
+    """A mesh is unusable (empty, non-manifold where that matters, wrong units)."""
