@@ -1,0 +1,1 @@
+"""Math without I/O: rigid transforms, camera models, mesh mass properties, metrics."""

@@ -1,0 +1,64 @@
+"""Mesh files: a minimal Wavefront OBJ writer (positions, per-vertex UVs, one material) and a
+reader that keeps vertex order. Reading any format goes through trimesh."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from rose_usd.errors import MeshError
+
+
+def write_obj(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    uv: np.ndarray | None = None,
+    color_linear: tuple[float, float, float] | None = None,
+    texture_file: str | None = None,
+) -> None:
+    """Write an OBJ (+ MTL beside it when a color or texture is given). ``uv`` is per vertex,
+    origin bottom-left (OBJ/USD convention); ``texture_file`` is relative to the OBJ's folder."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f"# rose_usd: {len(vertices)} vertices, {len(faces)} triangles, meters"]
+    has_mtl = color_linear is not None or texture_file is not None
+    if has_mtl:
+        lines.append(f"mtllib {path.stem}.mtl")
+    lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(vertices, dtype=float))
+    if uv is not None:
+        lines.extend(f"vt {u:.9g} {v:.9g}" for u, v in np.asarray(uv, dtype=float))
+    if has_mtl:
+        lines.append("usemtl material0")
+    f1 = np.asarray(faces, dtype=np.int64) + 1
+    if uv is not None:
+        lines.extend(f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in f1)
+    else:
+        lines.extend(f"f {a} {b} {c}" for a, b, c in f1)
+    path.write_text("\n".join(lines) + "\n")
+    if has_mtl:
+        kd = color_linear if color_linear is not None else (1.0, 1.0, 1.0)
+        mtl = ["newmtl material0", f"Kd {kd[0]:.6f} {kd[1]:.6f} {kd[2]:.6f}", "Ka 0 0 0", "Ks 0 0 0", "illum 1"]
+        if texture_file is not None:
+            mtl.append(f"map_Kd {texture_file}")
+        path.with_suffix(".mtl").write_text("\n".join(mtl) + "\n")
+
+
+def read_mesh_file(path: str | os.PathLike) -> trimesh.Trimesh:
+    """Load one triangle mesh (OBJ, PLY, GLB, STL...) keeping vertex order; scenes are merged."""
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError("mesh file not found", path=path, hint="check the path")
+    try:
+        loaded = trimesh.load(str(path), process=False, maintain_order=True)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise MeshError(f"cannot read the mesh ({type(exc).__name__}: {exc})", path=path, hint="export it again as OBJ, PLY or GLB") from None
+    if isinstance(loaded, trimesh.Scene):
+        loaded = loaded.to_mesh() if hasattr(loaded, "to_mesh") else loaded.dump(concatenate=True)
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise MeshError("the file holds no triangles", path=path, hint="export a triangle mesh")
+    return loaded

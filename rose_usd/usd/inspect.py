@@ -1,0 +1,300 @@
+"""``rose-usd inspect``: what a person would look for in usdview, as a dict (and text), no display.
+
+Layer stack with provenance, prims with types and applied schemas, physics values, mesh stats
+with watertightness, cameras, time range, trajectories, masks and gate results.
+:func:`normalize` turns a dump into the stable form kept under ``stages/`` and compared by
+``rose-usd diff``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdPhysics, UsdShade
+
+from rose_usd.usd import paths
+from rose_usd.usd import stage as stage_mod
+from rose_usd.usd.geom import read_mesh
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, (bool, int, str)) or value is None:
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else str(value)
+    if isinstance(value, Sdf.AssetPath):
+        return value.path
+    if isinstance(value, (Gf.Quatd, Gf.Quatf, Gf.Quath)):
+        return [value.GetReal(), *list(value.GetImaginary())]
+    if isinstance(value, (Gf.Matrix4d, Gf.Matrix3d, Gf.Matrix4f, Gf.Matrix3f)):
+        return np.array(value).tolist()
+    if hasattr(value, "__len__") and not isinstance(value, (dict,)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    return str(value)
+
+
+def _summarize_samples(attr: Usd.Attribute) -> dict[str, Any]:
+    times = attr.GetTimeSamples()
+    values = [attr.Get(t) for t in times]
+    out: dict[str, Any] = {"samples": len(times), "first_time": times[0], "last_time": times[-1]}
+    if values and isinstance(values[0], (int, float)) and not isinstance(values[0], bool):
+        arr = np.asarray(values, dtype=float)
+        out.update(min=float(np.nanmin(arr)), mean=float(np.nanmean(arr)), max=float(np.nanmax(arr)))
+    else:
+        out.update(first=_jsonable(values[0]), last=_jsonable(values[-1]))
+    return out
+
+
+def _attributes(prim: Usd.Prim, prefix: str) -> dict[str, Any]:
+    out = {}
+    for attr in prim.GetAttributes():
+        name = attr.GetName()
+        if not name.startswith(prefix) or not attr.HasAuthoredValue():
+            continue
+        out[name] = _summarize_samples(attr) if attr.GetNumTimeSamples() > 0 else _jsonable(attr.Get())
+    return out
+
+
+def _mesh_info(prim: Usd.Prim) -> dict[str, Any]:
+    import trimesh
+
+    mesh = read_mesh(prim, world=False)
+    tm = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
+    watertight = bool(tm.is_watertight)
+    info = {
+        "points": int(len(mesh.vertices)),
+        "triangles": int(len(mesh.faces)),
+        "watertight": watertight,
+        "winding_consistent": bool(tm.is_winding_consistent),
+        "volume_m3": float(tm.volume) if watertight else None,
+        "bounds_local_m": np.round(tm.bounds, 6).tolist(),
+        "color": "texture" if mesh.texture is not None else ("vertex" if mesh.vertex_colors is not None else "constant"),
+    }
+    if mesh.texture is not None:
+        info["texture"] = os.path.basename(str(mesh.texture))
+    return info
+
+
+def _physics_info(prim: Usd.Prim) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if prim.HasAPI(UsdPhysics.RigidBodyAPI):
+        out["rigid_body"] = True
+    if prim.HasAPI(UsdPhysics.MassAPI):
+        mass = UsdPhysics.MassAPI(prim)
+        for key, attr in (
+            ("mass_kg", mass.GetMassAttr()),
+            ("center_of_mass_m", mass.GetCenterOfMassAttr()),
+            ("diagonal_inertia", mass.GetDiagonalInertiaAttr()),
+            ("principal_axes_wxyz", mass.GetPrincipalAxesAttr()),
+        ):
+            if attr.HasAuthoredValue():
+                out[key] = _jsonable(attr.Get())
+    if prim.HasAPI(UsdPhysics.CollisionAPI):
+        out["collider"] = True
+        if prim.HasAPI(UsdPhysics.MeshCollisionAPI):
+            out["approximation"] = str(UsdPhysics.MeshCollisionAPI(prim).GetApproximationAttr().Get())
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial("physics")
+        if material and material.GetPrim().HasAPI(UsdPhysics.MaterialAPI):
+            api = UsdPhysics.MaterialAPI(material.GetPrim())
+            out["material"] = {
+                "path": str(material.GetPath()),
+                "static_friction": api.GetStaticFrictionAttr().Get(),
+                "dynamic_friction": api.GetDynamicFrictionAttr().Get(),
+                "restitution": api.GetRestitutionAttr().Get(),
+            }
+    if prim.IsA(UsdPhysics.Scene):
+        scene = UsdPhysics.Scene(prim)
+        out["gravity_direction"] = _jsonable(scene.GetGravityDirectionAttr().Get())
+        out["gravity_magnitude"] = scene.GetGravityMagnitudeAttr().Get()
+    return out
+
+
+def _xform_info(prim: Usd.Prim) -> dict[str, Any] | None:
+    xformable = UsdGeom.Xformable(prim)
+    ops = xformable.GetOrderedXformOps()
+    if not ops:
+        return None
+    out: dict[str, Any] = {"ops": [op.GetOpName() for op in ops]}
+    pose = np.array(xformable.ComputeLocalToWorldTransform(Usd.TimeCode.Default())).T
+    out["default_translation_m"] = pose[:3, 3].tolist()
+    times = sorted({t for op in ops for t in op.GetAttr().GetTimeSamples()})
+    if times:
+        positions = np.array([np.array(xformable.ComputeLocalToWorldTransform(Usd.TimeCode(t))).T[:3, 3] for t in times])
+        out["time_samples"] = len(times)
+        out["first_translation_m"] = positions[0].tolist()
+        out["last_translation_m"] = positions[-1].tolist()
+        out["path_length_m"] = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+    return out
+
+
+def dump(path: str | os.PathLike) -> dict[str, Any]:
+    """Everything worth seeing in a stage, as JSON-compatible data."""
+    path = Path(path)
+    stage = stage_mod.open_stage(path)
+    root = stage.GetRootLayer()
+    out: dict[str, Any] = {
+        "file": str(path),
+        "metadata": {
+            "defaultPrim": root.defaultPrim,
+            "upAxis": UsdGeom.GetStageUpAxis(stage),
+            "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
+            "kilogramsPerUnit": UsdPhysics.GetStageKilogramsPerUnit(stage),
+            "timeCodesPerSecond": stage.GetTimeCodesPerSecond(),
+            "framesPerSecond": stage.GetFramesPerSecond(),
+            "startTimeCode": stage.GetStartTimeCode(),
+            "endTimeCode": stage.GetEndTimeCode(),
+        },
+        "layers": [],
+        "prims": {},
+    }
+    for sub in root.subLayerPaths:
+        layer = Sdf.Layer.FindOrOpen(str((path.parent / sub).resolve()) if not os.path.isabs(sub) else sub)
+        name = Path(sub).stem
+        entry: dict[str, Any] = {"name": name, "file": sub}
+        if layer is not None:
+            prov = stage_mod.read_provenance(Path(layer.realPath)) or {}
+            count = [0]
+            layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: count.__setitem__(0, count[0] + 1))
+            entry.update(
+                specs=count[0],
+                stage=prov.get("stage"),
+                backend=prov.get("backend"),
+                wall_time_s=prov.get("wall_time_s"),
+                config=prov.get("config"),
+                results=prov.get("results"),
+                warnings=prov.get("warnings", []),
+                versions=prov.get("versions"),
+            )
+        out["layers"].append(entry)
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        p: dict[str, Any] = {"type": prim.GetTypeName()}
+        schemas = list(prim.GetAppliedSchemas())
+        if schemas:
+            p["apiSchemas"] = sorted(schemas)
+        if prim.IsA(UsdGeom.Imageable):
+            purpose = UsdGeom.Imageable(prim).ComputePurpose()
+            if purpose != UsdGeom.Tokens.default_:
+                p["purpose"] = str(purpose)
+        if prim.IsA(UsdGeom.Xformable) and not prim.IsA(UsdGeom.Camera):
+            xf = _xform_info(prim)
+            if xf:
+                p["xform"] = xf
+        if prim.IsA(UsdGeom.Mesh):
+            p["mesh"] = _mesh_info(prim)
+        phys = _physics_info(prim)
+        if phys:
+            p["physics"] = phys
+        if prim.IsA(UsdGeom.Camera):
+            from rose_usd.usd.camera import read_camera
+
+            n = int(stage.GetEndTimeCode()) + 1
+            track = read_camera(stage, prim.GetPath(), n)
+            centers = track.world_from_cv[:, :3, 3]
+            p["camera"] = {
+                "resolution": [track.width, track.height],
+                "K_frame0": np.round(track.K[0], 6).tolist(),
+                "frames": n,
+                "first_position_m": centers[0].tolist(),
+                "path_length_m": float(np.linalg.norm(np.diff(centers, axis=0), axis=1).sum()),
+            }
+        if prim.IsA(UsdLux.BoundableLightBase) or prim.IsA(UsdLux.NonboundableLightBase):
+            light = UsdLux.LightAPI(prim)
+            p["light"] = {"intensity": light.GetIntensityAttr().Get(), "color": _jsonable(light.GetColorAttr().Get())}
+        rose = _attributes(prim, "rose:")
+        if rose:
+            p["rose"] = rose
+        out["prims"][str(prim.GetPath())] = p
+    gate = stage.GetPrimAtPath(paths.GATE)
+    if gate:
+        out["gate"] = _attributes(gate, "rose:gate:")
+    return out
+
+
+# ----------------------------------------------------------------------------- normalize / text
+_VOLATILE = {"wall_time_s", "versions", "file", "case"}
+
+
+def normalize(data: Any, digits: int = 6) -> Any:
+    """The stable form of a dump: volatile entries (timings, versions, absolute paths) dropped,
+    floats rounded to ``digits`` significant digits, dict keys sorted."""
+    if isinstance(data, dict):
+        return {k: normalize(v, digits) for k, v in sorted(data.items()) if k not in _VOLATILE}
+    if isinstance(data, list):
+        return [normalize(v, digits) for v in data]
+    if isinstance(data, float):
+        if data == 0.0 or not math.isfinite(data):
+            return data
+        return float(f"{data:.{digits}g}")
+    return data
+
+
+def to_text(data: dict[str, Any]) -> str:
+    """A human-readable summary of a dump."""
+    lines = [f"stage {data['file']}"]
+    md = data["metadata"]
+    lines.append(
+        f"  upAxis {md['upAxis']}, metersPerUnit {md['metersPerUnit']:g}, kilogramsPerUnit {md['kilogramsPerUnit']:g}, "
+        f"{md['timeCodesPerSecond']:g} fps, time codes {md['startTimeCode']:g}..{md['endTimeCode']:g}, defaultPrim {md['defaultPrim']}"
+    )
+    lines.append("layers (strongest first):")
+    for layer in data["layers"]:
+        wall = f"{layer['wall_time_s']:.1f} s" if layer.get("wall_time_s") is not None else "-"
+        lines.append(f"  {layer['name']:<11} {layer.get('specs', 0):>5} specs  backend {layer.get('backend')}  {wall}")
+        for warning in layer.get("warnings") or []:
+            lines.append(f"      warning: {warning}")
+    lines.append("prims:")
+    for path, p in data["prims"].items():
+        depth = path.count("/") - 1
+        tag = p["type"] or "(over)"
+        extra = []
+        if "apiSchemas" in p:
+            extra.append("[" + ", ".join(p["apiSchemas"]) + "]")
+        if "purpose" in p:
+            extra.append(f"purpose={p['purpose']}")
+        lines.append(f"  {'  ' * depth}{path.rsplit('/', 1)[-1]} <{tag}> {' '.join(extra)}".rstrip())
+        pad = "  " * depth + "      "
+        if "mesh" in p:
+            m = p["mesh"]
+            vol = f", volume {m['volume_m3'] * 1e6:.1f} cm^3" if m.get("volume_m3") else ""
+            lines.append(f"{pad}mesh: {m['points']} points, {m['triangles']} triangles, {'watertight' if m['watertight'] else 'NOT watertight'}{vol}, color {m['color']}")
+        if "physics" in p:
+            ph = p["physics"]
+            if "mass_kg" in ph:
+                lines.append(f"{pad}mass {ph['mass_kg']:.4g} kg, inertia {np.round(ph.get('diagonal_inertia', []), 8).tolist()} kg m^2, CoM {np.round(ph.get('center_of_mass_m', []), 4).tolist()} m")
+            if "approximation" in ph:
+                mat = ph.get("material")
+                fr = f", friction {mat['dynamic_friction']:.3g}, restitution {mat['restitution']:.3g}" if mat else ""
+                lines.append(f"{pad}collider: approximation {ph['approximation']}{fr}")
+            if "gravity_magnitude" in ph:
+                lines.append(f"{pad}gravity {ph['gravity_magnitude']:g} m/s^2 along {ph['gravity_direction']}")
+        if "xform" in p and "time_samples" in p["xform"]:
+            xf = p["xform"]
+            lines.append(f"{pad}trajectory: {xf['time_samples']} samples, path {xf['path_length_m'] * 100:.1f} cm, from {np.round(xf['first_translation_m'], 3).tolist()} to {np.round(xf['last_translation_m'], 3).tolist()} m")
+        if "camera" in p:
+            c = p["camera"]
+            K = c["K_frame0"]
+            lines.append(f"{pad}camera: {c['resolution'][0]}x{c['resolution'][1]}, fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}, {c['frames']} frames, path {c['path_length_m'] * 100:.1f} cm")
+        if "light" in p:
+            lines.append(f"{pad}light: intensity {p['light']['intensity']:.3g}, color {np.round(p['light']['color'], 3).tolist()}")
+    if "gate" in data:
+        g = data["gate"]
+        ssim = g.get("rose:gate:ssim", {})
+        lines.append("gate:")
+        lines.append(
+            f"  SSIM mean {g.get('rose:gate:ssimMean', float('nan')):.4f} (min {ssim.get('min', float('nan')):.4f}) vs threshold "
+            f"{g.get('rose:gate:ssimThreshold', float('nan')):.2f}: {'pass' if g.get('rose:gate:ssimPassed') else 'FAIL'}"
+        )
+        objs = g.get("rose:gate:physics:objects", [])
+        disp = g.get("rose:gate:physics:displacement", [])
+        moves = ", ".join(f"{o} {d * 1000:.2f} mm" for o, d in zip(objs, disp))
+        lines.append(f"  physics: rest check over {g.get('rose:gate:physics:duration', 0):g} s: {moves or 'not run'}: {'pass' if g.get('rose:gate:physics:passed') else 'FAIL'}")
+        lines.append(f"  geometry: {'pass' if g.get('rose:gate:geometry:passed') else 'FAIL: ' + g.get('rose:gate:geometry:report', '')}")
+        lines.append(f"  overall: {'PASS' if g.get('rose:gate:passed') else 'FAIL'}")
+    return "\n".join(lines)
+
