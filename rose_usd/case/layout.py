@@ -1,0 +1,237 @@
+"""Finding and validating a case's inputs before any stage authors anything.
+
+A case is a folder (``rgb/`` or ``video.mp4``, optional ``depth/``, ``cam_K.txt``, ``rose.toml``,
+``perception/``, ``gt/``) or a video file. Every check here raises an InputError naming the file
+and the fix, so a bad case fails before a single layer is written.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import re
+from pathlib import Path
+
+import numpy as np
+
+from rose_usd.case.config import CaseConfig, load_case_config
+from rose_usd.errors import InputError
+from rose_usd.io import images
+from rose_usd.usd.camera import check_K
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm")
+DEFAULT_FPS = 30.0
+_NUMBER = re.compile(r"(\d+)")
+
+
+def _frame_number(path: Path) -> int | None:
+    nums = _NUMBER.findall(path.stem)
+    return int(nums[-1]) if nums else None
+
+
+def _sorted_frames(folder: Path, suffixes: tuple[str, ...], what: str) -> list[Path]:
+    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes and not p.name.startswith(".")]
+    if not files:
+        raise InputError(f"no {what} files ({'/'.join(suffixes)}) in the folder", path=folder, hint=f"put the {what} frames there, one file per frame")
+    numbers = [_frame_number(p) for p in files]
+    if all(n is not None for n in numbers):
+        order = sorted(range(len(files)), key=lambda i: (numbers[i], files[i].name))
+        files = [files[i] for i in order]
+        nums = [numbers[i] for i in order]
+        if len(set(nums)) != len(nums):
+            dup = next(n for n in nums if nums.count(n) > 1)
+            raise InputError(f"two {what} files carry frame number {dup}", path=folder, hint="keep one file per frame")
+        for prev, cur, prev_path in zip(nums, nums[1:], files):
+            if cur != prev + 1:
+                raise InputError(
+                    f"{what} frame(s) {prev + 1}..{cur - 1} missing after {prev_path.name}",
+                    path=folder,
+                    hint="frames must be numbered consecutively; restore the missing files or renumber",
+                )
+    else:
+        files.sort(key=lambda p: p.name)
+    return files
+
+
+class Case:
+    """A validated input case. Frames are read lazily; sizes and counts are checked up front."""
+
+    def __init__(self, root: Path, stage_names: tuple[str, ...] = ()):
+        self.root = Path(root)
+        if not self.root.exists():
+            raise InputError("case not found", path=self.root, hint="give a case folder or a video file")
+        self.video: Path | None = None
+        self.frame_paths: list[Path] = []
+        if self.root.is_file():
+            if self.root.suffix.lower() not in VIDEO_SUFFIXES:
+                raise InputError("not a video file or a case folder", path=self.root, hint=f"give a folder or one of {VIDEO_SUFFIXES}")
+            self.video = self.root
+            self.folder = self.root.parent
+            self.config = CaseConfig()
+        else:
+            self.folder = self.root
+            self.config = load_case_config(self.root, stage_names)
+            rgb_dir = self.root / "rgb"
+            videos = [self.root / f"video{s}" for s in VIDEO_SUFFIXES if (self.root / f"video{s}").is_file()]
+            if rgb_dir.is_dir():
+                self.frame_paths = _sorted_frames(rgb_dir, images.IMAGE_SUFFIXES, "RGB")
+            elif videos:
+                self.video = videos[0]
+            else:
+                raise InputError("case has neither rgb/ nor video.mp4", path=self.root, hint="put frames in rgb/ (PNG/JPEG, sorted by name) or the video as video.mp4")
+        if self.video is not None:
+            self._probe_video()
+        else:
+            self.width, self.height = images.image_size(self.frame_paths[0])
+            for p in self.frame_paths[1:]:
+                size = images.image_size(p)
+                if size != (self.width, self.height):
+                    raise InputError(
+                        f"frame is {size[0]}x{size[1]}, the first frame is {self.width}x{self.height}",
+                        path=p,
+                        hint="all frames of a case must have one size",
+                    )
+        self.depth_paths = self._find_depth()
+        self.K_path = self.root / "cam_K.txt" if self.root.is_dir() and (self.root / "cam_K.txt").is_file() else None
+        if self.K_path is not None:
+            self.K()  # validate now: a bad K fails before anything is written
+
+    # ------------------------------------------------------------------ frames
+    def _probe_video(self) -> None:
+        import cv2
+
+        cap = cv2.VideoCapture(str(self.video))
+        ok, frame = cap.read() if cap.isOpened() else (False, None)
+        if not ok:
+            raise InputError("cannot decode this video (corrupt or unsupported codec)", path=self.video, hint="re-encode it as H.264 MP4 or extract PNG frames into rgb/")
+        self.height, self.width = frame.shape[:2]
+        self._video_fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        cap.release()
+        self._video_count = count if count > 0 else None
+
+    @functools.cached_property
+    def _video_frames(self) -> list[Path]:
+        """Decode the video once into a cache folder of PNGs keyed by the video's content hash."""
+        import cv2
+
+        h = hashlib.sha256()
+        with open(self.video, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        cache = Path.home() / ".cache" / "rose_usd" / "frames" / h.hexdigest()[:16]
+        done = cache / ".complete"
+        if not done.is_file():
+            cache.mkdir(parents=True, exist_ok=True)
+            cap = cv2.VideoCapture(str(self.video))
+            i = 0
+            while True:
+                ok, frame = cap.read()
+                if not ok:
+                    break
+                cv2.imwrite(str(cache / f"{i:06d}.png"), frame)
+                i += 1
+            cap.release()
+            if i == 0:
+                raise InputError("the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4")
+            done.write_text(str(i))
+        n = int(done.read_text())
+        return [cache / f"{i:06d}.png" for i in range(n)]
+
+    @property
+    def frames(self) -> list[Path]:
+        return self._video_frames if self.video is not None else self.frame_paths
+
+    @property
+    def n_frames(self) -> int:
+        if self.video is not None:
+            return len(self._video_frames)
+        return len(self.frame_paths)
+
+    @property
+    def fps(self) -> float:
+        if self.config.fps is not None:
+            return self.config.fps
+        if self.video is not None and self._video_fps:
+            return self._video_fps
+        return DEFAULT_FPS
+
+    def frame_name(self, t: int) -> str:
+        return self.frames[t].stem
+
+    def rgb(self, t: int) -> np.ndarray:
+        """Frame t as 8-bit RGB (H, W, 3)."""
+        img = images.read_rgb(self.frames[t])
+        if img.shape[1] != self.width or img.shape[0] != self.height:
+            raise InputError(f"frame is {img.shape[1]}x{img.shape[0]}, expected {self.width}x{self.height}", path=self.frames[t], hint="all frames of a case must have one size")
+        return img
+
+    # ------------------------------------------------------------------ depth
+    def _find_depth(self) -> list[Path] | None:
+        depth_dir = self.folder / "depth" if self.root.is_dir() else None
+        if depth_dir is None or not depth_dir.is_dir():
+            return None
+        paths = _sorted_frames(depth_dir, images.DEPTH_SUFFIXES, "depth")
+        if self.video is None:
+            if len(paths) != len(self.frame_paths):
+                raise InputError(
+                    f"depth/ has {len(paths)} frames but rgb/ has {len(self.frame_paths)}",
+                    path=depth_dir,
+                    hint="give one depth map per RGB frame, or remove depth/",
+                )
+            for rgb_path, depth_path in zip(self.frame_paths, paths):
+                if _frame_number(rgb_path) != _frame_number(depth_path):
+                    raise InputError(f"depth frame {depth_path.name} pairs with RGB frame {rgb_path.name}", path=depth_path, hint="name depth and RGB files with the same frame numbers")
+        return paths
+
+    @property
+    def has_depth(self) -> bool:
+        return self.depth_paths is not None
+
+    def depth_m(self, t: int) -> np.ndarray:
+        """Metric depth of frame t [m] (H, W), 0 where invalid."""
+        if self.depth_paths is None:
+            raise InputError("case has no depth/ folder", path=self.folder, hint="this backend needs depth; add depth/ or choose a monocular backend")
+        depth = images.read_depth_m(self.depth_paths[t])
+        if depth.shape != (self.height, self.width):
+            raise InputError(
+                f"depth is {depth.shape[1]}x{depth.shape[0]}, RGB is {self.width}x{self.height}",
+                path=self.depth_paths[t],
+                hint="register and resize depth to the RGB frames",
+            )
+        return depth
+
+    # ------------------------------------------------------------------ intrinsics
+    def K(self) -> np.ndarray:
+        """The case's 3x3 intrinsics [px] from cam_K.txt, validated against the frame size."""
+        if self.K_path is None:
+            raise InputError("case has no cam_K.txt", path=self.folder, hint="write the 3x3 intrinsics (fx 0 cx / 0 fy cy / 0 0 1) to cam_K.txt")
+        try:
+            K = np.loadtxt(self.K_path, dtype=float)
+        except ValueError as exc:
+            raise InputError(f"not a numeric 3x3 matrix ({exc})", path=self.K_path, hint="write three rows of three numbers") from None
+        return check_K(K.reshape(3, 3) if K.size == 9 else K, self.width, self.height, path=self.K_path)
+
+    # ------------------------------------------------------------------ ground truth
+    @functools.cached_property
+    def gt(self):
+        """The case's ground truth (benchmark cases only); InputError if absent."""
+        from rose_usd.case.gt import GroundTruth
+
+        gt = GroundTruth(self.folder / "gt")
+        if gt.n_frames != self.n_frames:
+            raise InputError(f"ground truth has {gt.n_frames} frames, the case {self.n_frames}", path=self.folder / "gt" / "scene.json", hint="regenerate the case")
+        return gt
+
+    def input_files(self) -> list[Path]:
+        """Every input file a stage may read (for provenance hashes), ground truth excluded."""
+        files = list(self.frame_paths) if self.video is None else [self.video]
+        files += list(self.depth_paths or [])
+        for extra in ("cam_K.txt", "rose.toml"):
+            if (self.folder / extra).is_file():
+                files.append(self.folder / extra)
+        return files
+
+
+def load_case(path: str | Path, stage_names: tuple[str, ...] = ()) -> Case:
+    return Case(Path(path), stage_names)

@@ -1,0 +1,77 @@
+"""Build a :class:`RenderScene` from a composed rose stage: every renderable mesh (guide purpose
+excluded) with its look, the UsdLux lights, and the camera track."""
+
+from __future__ import annotations
+
+import numpy as np
+from pxr import Usd, UsdGeom, UsdLux
+
+from rose_usd.errors import StageError
+from rose_usd.render.lighting import Lighting, PointLight
+from rose_usd.render.scene import RenderItem, RenderScene
+from rose_usd.usd.geom import read_mesh
+
+
+def _animated(prim: Usd.Prim) -> bool:
+    """Whether the prim's world transform may change over time (it or an ancestor is animated)."""
+    p = prim
+    while p and not p.IsPseudoRoot():
+        if p.IsA(UsdGeom.Xformable) and UsdGeom.Xformable(p).TransformMightBeTimeVarying():
+            return True
+        p = p.GetParent()
+    return False
+
+
+def read_lighting(stage: Usd.Stage) -> Lighting:
+    """Lighting from UsdLux prims; a stage without lights renders unlit (radiance = albedo)."""
+    ambient = np.zeros(3)
+    points = []
+    found = False
+    for prim in stage.Traverse():
+        if prim.IsA(UsdLux.DomeLight):
+            light = UsdLux.DomeLight(prim)
+            ambient += float(light.GetIntensityAttr().Get()) * np.asarray(light.GetColorAttr().Get(), dtype=float)
+            found = True
+        elif prim.IsA(UsdLux.SphereLight):
+            light = UsdLux.SphereLight(prim)
+            intensity = float(light.GetIntensityAttr().Get()) * np.asarray(light.GetColorAttr().Get(), dtype=float)
+            pos = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float)[3, :3]
+            points.append(PointLight(tuple(pos.tolist()), tuple(intensity.tolist())))
+            found = True
+    if not found:
+        return Lighting.unlit()
+    return Lighting(ambient=tuple(ambient.tolist()), points=tuple(points))
+
+
+class StageRenderer:
+    """Renders a stage at its time codes: static meshes once, animated meshes re-posed per frame."""
+
+    def __init__(self, stage: Usd.Stage):
+        self.stage = stage
+        items = []
+        self._animated: dict[str, Usd.Prim] = {}
+        purposes = {UsdGeom.Tokens.default_, UsdGeom.Tokens.render}
+        for prim in stage.Traverse():
+            if not prim.IsA(UsdGeom.Mesh):
+                continue
+            imageable = UsdGeom.Imageable(prim)
+            if imageable.ComputePurpose() not in purposes or imageable.ComputeVisibility() == UsdGeom.Tokens.invisible:
+                continue
+            name = f"m{len(items)}"
+            if _animated(prim):
+                mesh = read_mesh(prim, world=False)
+                pose = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode(0)), dtype=float).T
+                self._animated[name] = prim
+                items.append(RenderItem(name, mesh, pose=pose))
+            else:
+                items.append(RenderItem(name, read_mesh(prim, world=True)))
+        if not items:
+            raise StageError("the stage has no renderable meshes", path=stage.GetRootLayer().identifier, hint="run the scene and object stages")
+        self.lighting = read_lighting(stage)
+        self.scene = RenderScene(items, self.lighting)
+
+    def pose_at(self, t: int) -> None:
+        """Move animated meshes to time code t."""
+        code = Usd.TimeCode(t)
+        for name, prim in self._animated.items():
+            self.scene.set_pose(name, np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(code), dtype=float).T)

@@ -1,0 +1,1 @@
+"""Seeded synthetic tabletop cases with full ground truth (``rose-usd bench generate``)."""

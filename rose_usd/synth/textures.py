@@ -1,0 +1,57 @@
+"""Procedural, seeded albedo textures (8-bit sRGB images) for tables, floors and walls."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def value_noise(rng: np.random.Generator, size: int, cells: int) -> np.ndarray:
+    """Smooth noise in [0, 1], shape (size, size), with about ``cells`` features per side; tileable."""
+    grid = rng.random((cells, cells))
+    tiled = np.tile(grid, (3, 3))
+    up = cv2.resize(tiled, (3 * size, 3 * size), interpolation=cv2.INTER_CUBIC)
+    return np.clip(up[size : 2 * size, size : 2 * size], 0.0, 1.0)
+
+
+def wood(rng: np.random.Generator, size: int = 512) -> np.ndarray:
+    """Wood-grain planks: sRGB uint8 (size, size, 3)."""
+    base = np.array(rng.choice([[150, 104, 66], [176, 132, 88], [120, 80, 50], [196, 160, 118]]), dtype=float)
+    y, x = np.mgrid[0:size, 0:size] / size
+    warp = value_noise(rng, size, 6) * 0.15
+    rings = 0.5 + 0.5 * np.sin((y + warp) * 2 * np.pi * rng.uniform(14, 22))
+    planks = (np.floor(x * 4) % 2) * 0.08
+    shade = 0.82 + 0.18 * rings - planks + 0.08 * (value_noise(rng, size, 24) - 0.5)
+    gaps = (np.abs((x * 4) % 1.0 - 0.0) < 0.006) | (np.abs((x * 4) % 1.0 - 1.0) < 0.006)
+    shade = np.where(gaps, 0.55, shade)
+    return np.clip(base[None, None] * shade[..., None], 0, 255).astype(np.uint8)
+
+
+def tiles(rng: np.random.Generator, size: int = 512, n: int = 4) -> np.ndarray:
+    """Floor tiles with grout and per-tile tint: sRGB uint8 (size, size, 3)."""
+    base = np.array(rng.choice([[200, 196, 188], [170, 176, 180], [150, 140, 128], [208, 200, 176]]), dtype=float)
+    y, x = np.mgrid[0:size, 0:size] / size
+    ix, iy = np.floor(x * n).astype(int), np.floor(y * n).astype(int)
+    tint = rng.uniform(0.88, 1.06, size=(n, n))[iy, ix]
+    grain = 0.94 + 0.06 * value_noise(rng, size, 32)
+    grout = (np.minimum((x * n) % 1.0, 1 - (x * n) % 1.0) < 0.02) | (np.minimum((y * n) % 1.0, 1 - (y * n) % 1.0) < 0.02)
+    img = base[None, None] * (tint * grain)[..., None]
+    img[grout] = base * 0.55
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def plaster(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """A painted wall with low-contrast mottling: sRGB uint8 (size, size, 3)."""
+    base = np.array(rng.choice([[214, 210, 198], [188, 200, 206], [206, 190, 176], [196, 206, 188]]), dtype=float)
+    shade = 0.93 + 0.07 * value_noise(rng, size, 8)
+    return np.clip(base[None, None] * shade[..., None], 0, 255).astype(np.uint8)
+
+
+def checker(size: int = 256, n: int = 8, colors=((230, 230, 230), (40, 40, 40))) -> np.ndarray:
+    """A checkerboard: sRGB uint8 (size, size, 3)."""
+    y, x = np.mgrid[0:size, 0:size] * n // size
+    mask = ((x + y) % 2).astype(bool)
+    img = np.empty((size, size, 3), np.uint8)
+    img[~mask] = colors[0]
+    img[mask] = colors[1]
+    return img

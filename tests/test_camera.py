@@ -1,0 +1,129 @@
+"""The OpenCV <-> USD camera conversion, both ways, checked against USD's own projection (GfFrustum)
+and against a Mitsuba render; plus intrinsics validation."""
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom
+from scipy.spatial.transform import Rotation
+
+from rose_usd.core import se3
+from rose_usd.errors import InputError
+from rose_usd.usd import camera as cam
+
+W, H = 320, 240
+K_OFFCENTER = np.array([[300.0, 0.0, 171.3], [0.0, 290.0, 112.6], [0.0, 0.0, 1.0]])
+
+
+def project_cv(K, world_from_cv, points):
+    """OpenCV pinhole projection of world points to pixel coordinates (centers at integers)."""
+    p = se3.transform_points(se3.invert(world_from_cv), points)
+    uvw = p @ K.T
+    return uvw[:, :2] / uvw[:, 2:3], p[:, 2]
+
+
+def test_pose_conversion_round_trip_both_ways():
+    """cv -> usd -> cv and usd -> cv -> usd are identities, and the axes flip as documented."""
+    rng = np.random.default_rng(0)
+    poses = se3.make_pose(Rotation.random(10, random_state=0).as_matrix(), rng.normal(size=(10, 3)))
+    np.testing.assert_allclose(cam.cv_camera_from_usd(cam.usd_camera_from_cv(poses)), poses, atol=1e-12)
+    np.testing.assert_allclose(cam.usd_camera_from_cv(cam.cv_camera_from_usd(poses)), poses, atol=1e-12)
+    usd = cam.usd_camera_from_cv(np.eye(4))
+    np.testing.assert_allclose(usd[:3, 0], [1, 0, 0])  # x right in both
+    np.testing.assert_allclose(usd[:3, 1], [0, -1, 0])  # USD +Y up = OpenCV -Y
+    np.testing.assert_allclose(usd[:3, 2], [0, 0, -1])  # USD looks down -Z = OpenCV +Z
+
+
+@pytest.mark.parametrize("K", [K_OFFCENTER, np.array([[250.0, 0, 159.5], [0, 250.0, 119.5], [0, 0, 1]])])
+def test_intrinsics_round_trip(K):
+    """K -> USD aperture/focal/offsets -> K is exact (fx != fy and an off-center principal point)."""
+    back = cam.intrinsics_from_usd(cam.intrinsics_to_usd(K, W, H), W, H)
+    np.testing.assert_allclose(back, K, atol=1e-9)
+
+
+def test_usd_camera_projects_like_opencv(tmp_path):
+    """Points projected by USD's own frustum (GfCamera) land where OpenCV puts them, to 1e-6 px."""
+    stage = Usd.Stage.CreateInMemory()
+    world_from_cv = se3.look_at([0.6, -0.5, 0.7], [0.02, 0.01, 0.05])
+    cam.author_camera(stage, "/Cam", world_from_cv[None], K_OFFCENTER, W, H)
+    gf_cam = UsdGeom.Camera(stage.GetPrimAtPath("/Cam")).GetCamera(Usd.TimeCode(0))
+    frustum = gf_cam.frustum
+    view_proj = np.array(frustum.ComputeViewMatrix() * frustum.ComputeProjectionMatrix())
+    points = np.random.default_rng(1).uniform(-0.1, 0.1, size=(50, 3))
+    uv_cv, z = project_cv(K_OFFCENTER, world_from_cv, points)
+    assert np.all(z > 0)
+    homo = np.hstack([points, np.ones((50, 1))]) @ view_proj  # USD: row vectors
+    ndc = homo[:, :2] / homo[:, 3:4]
+    # NDC [-1, 1] spans the image's outer pixel edges; y up. Back to OpenCV pixel centers:
+    u = (ndc[:, 0] + 1) / 2 * W - 0.5
+    v = (1 - ndc[:, 1]) / 2 * H - 0.5
+    np.testing.assert_allclose(np.stack([u, v], axis=1), uv_cv, atol=1e-6)
+
+
+def test_read_camera_returns_what_was_authored():
+    """author_camera then read_camera gives back the poses and the exact K of every frame."""
+    stage = Usd.Stage.CreateInMemory()
+    rng = np.random.default_rng(2)
+    poses = se3.make_pose(Rotation.random(5, random_state=2).as_matrix(), rng.normal(size=(5, 3)))
+    Ks = np.repeat(K_OFFCENTER[None], 5, axis=0)
+    Ks[3, 0, 0] = 310.0  # one frame zooms: intrinsics become time-sampled
+    cam.author_camera(stage, "/Cam", poses, Ks, W, H)
+    track = cam.read_camera(stage, "/Cam", 5)
+    np.testing.assert_allclose(track.world_from_cv, poses, atol=1e-9)
+    np.testing.assert_allclose(track.K, Ks, atol=1e-9)
+    assert (track.width, track.height) == (W, H)
+    focal = UsdGeom.Camera(stage.GetPrimAtPath("/Cam")).GetFocalLengthAttr()
+    assert focal.GetNumTimeSamples() == 5
+
+
+def test_mitsuba_render_lands_where_opencv_projects():
+    """A small sphere rendered by Mitsuba from an OpenCV camera appears at its OpenCV projection."""
+    from rose_usd.render.lighting import Lighting
+    from rose_usd.render.scene import RenderItem, RenderScene
+    from rose_usd.synth.shapes import sphere
+    from rose_usd.usd.geom import MeshData
+
+    world_from_cv = se3.look_at([0.5, -0.4, 0.5], [0.0, 0.0, 0.0])
+    center = np.array([0.06, 0.03, 0.02])
+    ball = sphere(0.01, center, subdivisions=4)
+    scene = RenderScene([RenderItem("ball", MeshData(ball.vertices, ball.faces, color=(1.0, 1.0, 1.0)), label=1)], Lighting.unlit())
+    uv, _ = project_cv(K_OFFCENTER, world_from_cv, center[None])
+    u, v = uv[0]
+    _, labels = scene.depth_and_labels(world_from_cv, K_OFFCENTER, W, H)
+    ys, xs = np.nonzero(labels == 1)
+    assert abs(xs.mean() - u) < 0.25 and abs(ys.mean() - v) < 0.25
+    img = scene.render_linear(world_from_cv, K_OFFCENTER, W, H, spp=16)[..., 0]
+    total = img.sum()
+    yy, xx = np.mgrid[0:H, 0:W]
+    # anti-aliased centroid: a half-pixel convention error would show as 0.5 px
+    assert abs((img * xx).sum() / total - u) < 0.05 and abs((img * yy).sum() / total - v) < 0.05
+
+
+def test_depth_is_z_depth():
+    """Rendered depth is distance along the optical axis, not along the ray."""
+    from rose_usd.render.lighting import Lighting
+    from rose_usd.render.scene import RenderItem, RenderScene
+    from rose_usd.synth.shapes import box
+    from rose_usd.usd.geom import MeshData
+
+    wall = box((10.0, 10.0, 0.01), center=(0.0, 0.0, -0.005))  # its top face is the plane z = 0
+    world_from_cv = se3.make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 1.5])  # looks straight down
+    scene = RenderScene([RenderItem("wall", MeshData(wall.vertices, wall.faces, color=(0.5, 0.5, 0.5)))], Lighting.unlit())
+    depth, _ = scene.depth_and_labels(world_from_cv, K_OFFCENTER, W, H)
+    np.testing.assert_allclose(depth, 1.5, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "K,message",
+    [
+        (np.array([[300, 0, 400], [0, 300, 120], [0, 0, 1.0]]), "outside"),
+        (np.array([[-300, 0, 160], [0, 300, 120], [0, 0, 1.0]]), "positive"),
+        (np.array([[np.nan, 0, 160], [0, 300, 120], [0, 0, 1.0]]), "NaN"),
+        (np.array([[300, 0, 160], [0, 300, 120], [0, 1, 1.0]]), "last row"),
+        (np.array([[3.0, 0, 160], [0, 3.0, 120], [0, 0, 1.0]]), "implausible"),
+        (np.eye(2), "shape"),
+    ],
+)
+def test_check_K_rejects_intrinsics_that_cannot_fit(K, message):
+    """Intrinsics that cannot belong to a 320x240 image get a one-line error."""
+    with pytest.raises(InputError, match=message):
+        cam.check_K(K, W, H, path="cam_K.txt")
