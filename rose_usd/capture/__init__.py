@@ -1,0 +1,13 @@
+"""capture: per-frame cameras (K_t, G_t), metric scale and the gravity-aligned world -> layers/world.usda."""
+
+from rose_usd.capture.config import CaptureConfig
+from rose_usd.stage_api import StageDef
+
+STAGE = StageDef(
+    name="capture",
+    layer="world",
+    needs=(),
+    config=CaptureConfig,
+    backends={"oracle": "rose_usd.capture.oracle:run"},
+    summary="cameras, intrinsics, metric scale and gravity -> layers/world.usda",
+)

@@ -1,0 +1,242 @@
+"""The ``rose-usd`` command line.
+
+Errors a user can fix print one line (``error: <file>: <what>. <fix>.``) and exit 1; anything else
+is a bug: traceback, exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from rose_usd.errors import ConfigError, RoseError
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SAMPLE_CASE = REPO_ROOT / "samples" / "push-box"
+
+
+def _parse_assignments(values: list[str] | None, what: str) -> dict:
+    out: dict = {}
+    for item in values or []:
+        if "=" not in item:
+            raise ConfigError(f"{what} {item!r} is not KEY=VALUE", hint=f"write e.g. {'capture=oracle' if what == '--backend' else 'gate.spp=16'}")
+        key, value = item.split("=", 1)
+        if what == "--set":
+            if "." not in key:
+                raise ConfigError(f"--set {item!r} needs STAGE.FIELD=VALUE", hint="write e.g. gate.spp=16")
+            stage, field = key.split(".", 1)
+            out.setdefault(stage.strip(), {})[field.strip().replace("-", "_")] = value.strip()
+        else:
+            out[key.strip()] = value.strip()
+    return out
+
+
+def _options(args):
+    from rose_usd.pipeline import Options
+
+    return Options(backends=_parse_assignments(args.backend, "--backend"), settings=_parse_assignments(args.set, "--set"), force=args.force)
+
+
+def _finish(out_dir: Path, validate: bool) -> int:
+    """Validate the stage and print its summary; exit status 0 if valid."""
+    from rose_usd.usd import inspect as usd_inspect
+    from rose_usd.usd.validate import validate as validate_stage
+
+    root = out_dir / "rose.usda"
+    print(usd_inspect.to_text(usd_inspect.dump(root)))
+    if validate:
+        report = validate_stage(root)
+        newton = report.newton or {}
+        print(
+            f"validation: {report.validators} UsdValidation validators, {len(report.errors)} error(s), {len(report.warnings)} warning(s); "
+            f"Newton add_usd: {newton.get('bodies', '?')} bodies, {newton.get('shapes', '?')} shapes"
+        )
+        for line in report.errors:
+            print(f"  error: {line}")
+        report.raise_if_invalid()
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    from rose_usd.pipeline import Pipeline
+
+    t0 = time.perf_counter()
+    pipe = Pipeline(args.case, args.output, _options(args))
+    pipe.run()
+    print(f"reconstructed {args.case} -> {args.output}/rose.usda in {time.perf_counter() - t0:.1f} s")
+    return _finish(Path(args.output), not args.no_validate)
+
+
+def cmd_run(args) -> int:
+    from rose_usd.pipeline import Pipeline
+
+    pipe = Pipeline(args.case, args.output, _options(args))
+    pipe.run(args.stage)
+    return 0
+
+
+def cmd_demo(args) -> int:
+    if not SAMPLE_CASE.is_dir():
+        raise RoseError("the bundled sample is missing", path=SAMPLE_CASE, hint="run from a full checkout of rose_usd")
+    args.case = str(SAMPLE_CASE)
+    return cmd_reconstruct(args)
+
+
+def cmd_inspect(args) -> int:
+    from rose_usd.usd import inspect as usd_inspect
+
+    data = usd_inspect.dump(args.stage)
+    if args.json:
+        print(json.dumps(usd_inspect.normalize(data) if args.normalized else data, indent=2, sort_keys=True))
+    else:
+        print(usd_inspect.to_text(data))
+    return 0
+
+
+def cmd_diff(args) -> int:
+    from rose_usd.usd.diff import compare, load_dump
+
+    lines = compare(load_dump(args.a), load_dump(args.b), rtol=args.rtol, atol=args.atol, ignore=tuple(args.ignore or ()))
+    for line in lines:
+        print(line)
+    print(f"{len(lines)} difference(s)" if lines else "stages match within tolerance")
+    return 1 if lines else 0
+
+
+def cmd_validate(args) -> int:
+    from rose_usd.usd.validate import validate as validate_stage
+
+    report = validate_stage(args.stage, with_newton=not args.no_newton)
+    for line in report.errors:
+        print(f"error: {line}")
+    for line in report.warnings:
+        print(f"warning: {line}")
+    newton = f"; Newton: {report.newton['bodies']} bodies, {report.newton['shapes']} shapes" if report.newton else ""
+    print(f"{report.validators} validators: {len(report.errors)} error(s), {len(report.warnings)} warning(s){newton}")
+    report.raise_if_invalid()
+    return 0
+
+
+def cmd_stages(args) -> int:
+    import dataclasses
+
+    from rose_usd import registry
+
+    for s in registry.STAGES:
+        print(f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]  backends: {', '.join(s.backends)}")
+        print(f"            {s.summary}")
+        for f in dataclasses.fields(s.config):
+            default = getattr(s.config(), f.name)
+            default = default.value if hasattr(default, "value") else default
+            print(f"              {s.name}.{f.name} = {default!r}")
+    return 0
+
+
+def cmd_bench_generate(args) -> int:
+    from rose_usd.synth.generate import GenerateConfig, generate_case
+    from rose_usd.synth.motion import Task
+    from rose_usd.synth.shapes import ObjectShape
+
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size {args.size!r} is not WIDTHxHEIGHT", hint="write e.g. --size 640x480") from None
+    config = GenerateConfig(task=Task(args.task), shape=ObjectShape(args.shape), seed=args.seed, n_frames=args.frames, width=width, height=height, fps=args.fps, spp=args.spp)
+    generate_case(config, args.output, overwrite=args.overwrite)
+    return 0
+
+
+def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-o", "--output", required=True, help="output folder (rose.usda, layers/, masks/, report/)")
+    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backend of a stage (repeatable); STAGE 'all' sets every stage that has it")
+    p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="override a stage setting (repeatable); see `rose-usd stages`")
+    p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from rose_usd.synth.motion import Task
+    from rose_usd.synth.shapes import ObjectShape
+
+    parser = argparse.ArgumentParser(prog="rose-usd", description="Casual video of a person moving an object -> simulator-ready OpenUSD stage.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("reconstruct", help="run every stage on a case (skips stages that are up to date)")
+    p.add_argument("case", help="case folder or video file")
+    _add_pipeline_flags(p)
+    p.add_argument("--no-validate", action="store_true", help="skip UsdValidation and the Newton load at the end")
+    p.set_defaults(func=cmd_reconstruct)
+
+    p = sub.add_parser("run", help="run one stage, first running stages it needs whose layers are missing or stale")
+    p.add_argument("stage", help="stage name (see `rose-usd stages`)")
+    p.add_argument("case", help="case folder or video file")
+    _add_pipeline_flags(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("demo", help="reconstruct the bundled sample case (samples/push-box)")
+    p.add_argument("-o", "--output", default="out/demo", help="output folder (default out/demo)")
+    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help=argparse.SUPPRESS)
+    p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help=argparse.SUPPRESS)
+    p.add_argument("--force", action="store_true", help="re-run every stage")
+    p.add_argument("--no-validate", action="store_true", help="skip validation at the end")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("inspect", help="dump a stage: layers, prims, schemas, physics, meshes, cameras, gate")
+    p.add_argument("stage", help="a .usda/.usd file (usually OUT/rose.usda)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--normalized", action="store_true", help="with --json: the stable form used by stages/ and diff")
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("diff", help="compare two stages (or --json dumps) with tolerances; exit 1 if they differ")
+    p.add_argument("a")
+    p.add_argument("b")
+    p.add_argument("--rtol", type=float, default=1e-4, help="relative tolerance (default 1e-4)")
+    p.add_argument("--atol", type=float, default=1e-6, help="absolute tolerance (default 1e-6)")
+    p.add_argument("--ignore", action="append", metavar="SUBSTRING", help="skip keys containing this (repeatable)")
+    p.set_defaults(func=cmd_diff)
+
+    p = sub.add_parser("validate", help="run every pxr.UsdValidation validator and Newton's add_usd on a stage")
+    p.add_argument("stage")
+    p.add_argument("--no-newton", action="store_true", help="skip the Newton load")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("stages", help="list the pipeline stages, their backends and settings")
+    p.set_defaults(func=cmd_stages)
+
+    bench = sub.add_parser("bench", help="benchmark cases with ground truth")
+    bsub = bench.add_subparsers(dest="bench_command", required=True)
+    p = bsub.add_parser("generate", help="render one synthetic case with full ground truth")
+    p.add_argument("-o", "--output", required=True, help="case folder to create")
+    p.add_argument("--task", default="push", choices=[t.value for t in Task])
+    p.add_argument("--shape", default="box", choices=[s.value for s in ObjectShape])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--frames", type=int, default=48)
+    p.add_argument("--size", default="320x240", help="WIDTHxHEIGHT (default 320x240)")
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--spp", type=int, default=16, help="samples per pixel (anti-aliasing)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing case folder")
+    p.set_defaults(func=cmd_bench_generate)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except RoseError as exc:
+        print(f"error: {exc.one_line()}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception:  # a bug: show everything
+        traceback.print_exc()
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class GateBackend(enum.Enum):
+    MITSUBA_NEWTON = "mitsuba-newton"  # re-render with Mitsuba, simulate with Newton
+
+
+@dataclass(frozen=True, kw_only=True)
+class GateConfig:
+    backend: GateBackend = GateBackend.MITSUBA_NEWTON
+    """How the stage is checked."""
+    ssim_threshold: float = 0.75
+    """Mean SSIM needed to pass [-] (default 0.75; the paper's real videos score 0.71-0.80)."""
+    spp: int = 8
+    """Samples per pixel of the re-render (anti-aliasing; shading is noise-free) (default 8)."""
+    frame_stride: int = 1
+    """Re-render every k-th frame (default 1: all frames)."""
+    exclude_interactor: bool = True
+    """Leave the interactor's pixels (hand, arm) out of the SSIM mean: it is not reconstructed (default true)."""
+    interactor_dilate_px: int = 3
+    """Grow the interactor mask by this many pixels before excluding it (default 3)."""
+    physics: bool = True
+    """Run the Newton rest check (default true)."""
+    physics_duration_s: float = 1.0
+    """Simulated time of the rest check [s] (default 1)."""
+    physics_dt_s: float = 1.0 / 600.0
+    """Time step of the rest check [s] (default 1/600)."""
+    physics_threshold_m: float = 0.005
+    """Largest displacement an object at rest may show [m] (default 0.005)."""
+    save_frames: bool = False
+    """Also write every re-rendered frame to report/frames/ (default false)."""

@@ -1,0 +1,13 @@
+"""object: metric object meshes with physics priors as rigid bodies -> layers/object.usda."""
+
+from rose_usd.object.config import ObjectConfig
+from rose_usd.stage_api import StageDef
+
+STAGE = StageDef(
+    name="object",
+    layer="object",
+    needs=("capture", "segment"),
+    config=ObjectConfig,
+    backends={"oracle": "rose_usd.object.oracle:run"},
+    summary="object meshes, mass priors, colliders, frame-0 poses -> layers/object.usda",
+)

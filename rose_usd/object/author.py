@@ -1,0 +1,98 @@
+"""Authoring layers/object.usda: one rigid body per object with its visual, collider, mass
+properties, physics material and prior provenance. Every object backend ends here."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+from pxr import Gf, UsdGeom
+
+from rose_usd.core.inertia import MassProperties
+from rose_usd.object.priors import PhysicsPrior
+from rose_usd.scene.author import check_collider
+from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths, schema
+from rose_usd.usd.geom import MeshData, author_mesh, author_preview_material, bind_material
+from rose_usd.usd.physics import Approximation, author_physics_material, bind_physics_material, make_collider, make_rigid_body, set_pose_ops
+
+
+@dataclass(frozen=True)
+class PhysicsValues:
+    """The values authored, with where they came from and how uncertain they are."""
+
+    prior: PhysicsPrior
+    source: str
+    """'table', 'user', 'oracle' (schema token)."""
+    density_kg_m3: float
+    friction: float
+    restitution: float
+    mass_sigma_kg: float
+    friction_sigma: float
+    restitution_sigma: float
+
+
+@dataclass(frozen=True)
+class ObjectModel:
+    name: str
+    mesh: MeshData
+    """In the object frame [m]."""
+    world_from_object_0: np.ndarray
+    """Pose at frame 0 (4, 4): the prim's default xform."""
+    mass: MassProperties
+    physics: PhysicsValues
+
+
+def collision_approximation(mesh: MeshData, convex_tolerance: float) -> tuple[Approximation, float]:
+    """Convex hull when the mesh is nearly convex, else convex decomposition; and volume / hull volume."""
+    tm = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
+    ratio = float(tm.volume / tm.convex_hull.volume)
+    return (Approximation.CONVEX_HULL if ratio >= 1.0 - convex_tolerance else Approximation.CONVEX_DECOMPOSITION), ratio
+
+
+def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float) -> dict:
+    """Write one object prim. Returns facts for the layer's provenance."""
+    check_collider(model.mesh.vertices, model.mesh.faces, f"object {model.name!r} mesh")
+    stage = ctx.stage
+    UsdGeom.Scope.Define(stage, paths.OBJECTS)
+    xform = UsdGeom.Xform.Define(stage, paths.object_path(model.name))
+    prim = xform.GetPrim()
+    set_pose_ops(xform, model.world_from_object_0)
+    make_rigid_body(
+        prim,
+        mass_kg=model.mass.mass_kg,
+        center_of_mass_m=model.mass.center_of_mass_m,
+        diagonal_inertia=model.mass.diagonal_inertia,
+        principal_axes_wxyz=model.mass.principal_axes_wxyz,
+    )
+    phys = model.physics
+    prim.ApplyAPI(schema.PHYSICS_PRIOR_API)
+    prim.GetAttribute("rose:prior:category").Set(phys.prior.category)
+    prim.GetAttribute("rose:prior:source").Set(phys.source)
+    prim.GetAttribute("rose:prior:densityRange").Set(Gf.Vec2f(*phys.prior.density_range_kg_m3))
+    prim.GetAttribute("rose:prior:density").Set(float(phys.density_kg_m3))
+    prim.GetAttribute("rose:prior:massUncertainty").Set(float(phys.mass_sigma_kg))
+    prim.GetAttribute("rose:prior:friction").Set(float(phys.friction))
+    prim.GetAttribute("rose:prior:frictionUncertainty").Set(float(phys.friction_sigma))
+    prim.GetAttribute("rose:prior:restitution").Set(float(phys.restitution))
+    prim.GetAttribute("rose:prior:restitutionUncertainty").Set(float(phys.restitution_sigma))
+    prim.GetAttribute("rose:prior:hollow").Set(bool(phys.prior.hollow))
+    prim.GetAttribute("rose:prior:shellThickness").Set(float(phys.prior.shell_thickness_m))
+
+    looks = paths.object_looks(model.name)
+    UsdGeom.Scope.Define(stage, looks)
+    visual = author_mesh(stage, paths.object_visual(model.name), model.mesh)
+    look = author_preview_material(stage, looks.AppendChild("Visual"), color=model.mesh.color, use_vertex_color=model.mesh.vertex_colors is not None)
+    bind_material(visual.GetPrim(), look)
+    collision = author_mesh(stage, paths.object_collision(model.name), MeshData(model.mesh.vertices, model.mesh.faces), purpose=UsdGeom.Tokens.guide)
+    approximation, convexity = collision_approximation(model.mesh, convex_tolerance)
+    make_collider(collision.GetPrim(), approximation)
+    material = author_physics_material(stage, looks.AppendChild("PhysicsMaterial"), friction=phys.friction, restitution=phys.restitution, density=phys.density_kg_m3)
+    bind_physics_material(collision.GetPrim(), material)
+    return {
+        "mass_kg": round(model.mass.mass_kg, 6),
+        "volume_m3": model.mass.volume_m3,
+        "approximation": approximation.value,
+        "volume_over_hull": round(convexity, 4),
+    }

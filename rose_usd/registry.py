@@ -1,0 +1,34 @@
+"""The one table of pipeline stages, in run order. The CLI, the docs and the tests iterate it."""
+
+from __future__ import annotations
+
+from rose_usd import capture, gate, object as object_stage, scene, segment, trajectory
+from rose_usd.stage_api import StageDef
+
+STAGES: tuple[StageDef, ...] = (
+    capture.STAGE,
+    segment.STAGE,
+    scene.STAGE,
+    object_stage.STAGE,
+    trajectory.STAGE,
+    gate.STAGE,
+)
+STAGE_NAMES: tuple[str, ...] = tuple(s.name for s in STAGES)
+BY_NAME: dict[str, StageDef] = {s.name: s for s in STAGES}
+
+
+def get(name: str) -> StageDef:
+    from rose_usd.errors import ConfigError
+
+    if name not in BY_NAME:
+        raise ConfigError(f"unknown stage {name!r}", hint=f"stages: {', '.join(STAGE_NAMES)}")
+    return BY_NAME[name]
+
+
+def closure(name: str) -> list[StageDef]:
+    """``name`` and every stage it needs, transitively, in run order."""
+    wanted = {get(name).name}
+    for stage in reversed(STAGES):
+        if stage.name in wanted:
+            wanted.update(stage.needs)
+    return [s for s in STAGES if s.name in wanted]

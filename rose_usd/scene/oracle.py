@@ -1,0 +1,34 @@
+"""Oracle scene: the ground-truth static parts with their looks, their manifold union as the
+collider, and the ground-truth lights."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rose_usd.errors import MeshError
+from rose_usd.render.lighting import Lighting
+from rose_usd.scene.author import ScenePart, author_scene
+from rose_usd.stage_api import StageContext
+from rose_usd.usd.geom import MeshData
+
+
+def run(ctx: StageContext) -> None:
+    import manifold3d
+
+    gt = ctx.case.gt
+    parts = [ScenePart(p.name, gt.part_mesh(p)) for p in gt.parts]
+    union = None
+    for part in parts:
+        m = manifold3d.Manifold(
+            manifold3d.Mesh(
+                vert_properties=np.ascontiguousarray(part.mesh.vertices, dtype=np.float32),
+                tri_verts=np.ascontiguousarray(part.mesh.faces, dtype=np.uint32),
+            )
+        )
+        if m.status() != manifold3d.Error.NoError:
+            raise MeshError(f"ground-truth part {part.name!r} is not a manifold ({m.status().name})", path=gt.root / "meshes", hint="regenerate the case")
+        union = m if union is None else union + m
+    mesh = union.to_mesh()
+    collision = MeshData(vertices=np.asarray(mesh.vert_properties, dtype=float)[:, :3], faces=np.asarray(mesh.tri_verts, dtype=np.int64))
+    author_scene(ctx, parts, collision, Lighting.from_json(gt.lighting))
+    ctx.record(collision_triangles=int(len(collision.faces)), parts=len(parts))

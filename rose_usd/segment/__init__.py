@@ -1,0 +1,14 @@
+"""segment: per-frame object and interactor masks -> layers/masks.usda + masks/."""
+
+from rose_usd.segment.config import SegmentConfig
+from rose_usd.stage_api import StageDef
+
+STAGE = StageDef(
+    name="segment",
+    layer="masks",
+    needs=("capture",),
+    config=SegmentConfig,
+    backends={"oracle": "rose_usd.segment.oracle:run"},
+    summary="object and interactor masks per frame -> layers/masks.usda + masks/",
+    side_dirs=("masks",),
+)

@@ -1,0 +1,67 @@
+"""Authoring mask tracks: PNGs under <out>/masks and their prims under /World/Masks.
+Every segment backend ends here, so all of them write the same layer."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom
+
+from rose_usd.io.images import write_mask
+from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths, schema
+from rose_usd.usd.geom import relative_asset
+
+INTERACTOR = "Interactor"
+
+
+@dataclass(frozen=True)
+class MaskTrack:
+    """One object's (or the interactor's) masks over the video."""
+
+    name: str
+    """Object name, or INTERACTOR."""
+    masks: Iterable[np.ndarray]
+    """Boolean (H, W) masks, one per frame, in frame order (consumed once)."""
+    confidence: np.ndarray | None = None
+    """Per-frame confidence in [0, 1]; 1 everywhere if None."""
+
+
+def author_tracks(ctx: StageContext, tracks: list[MaskTrack]) -> dict[str, np.ndarray]:
+    """Write each track's PNGs and prim. Returns visible pixel counts per track, shape (N,)."""
+    n = ctx.time_info.n_frames
+    stage = ctx.stage
+    folder = ctx.side_dir("masks")
+    final_root = ctx.out_dir / "masks"
+    UsdGeom.Scope.Define(stage, paths.MASKS)
+    UsdGeom.Scope.Define(stage, paths.OBJECT_MASKS)
+    counts = {}
+    for track in tracks:
+        is_interactor = track.name == INTERACTOR
+        prim_path = paths.INTERACTOR_MASK if is_interactor else paths.object_mask(track.name)
+        prim = UsdGeom.Scope.Define(stage, prim_path).GetPrim()
+        prim.ApplyAPI(schema.MASK_API)
+        prim.GetAttribute("rose:masks:role").Set("interactor" if is_interactor else "object")
+        prim.GetAttribute("rose:masks:objectName").Set("" if is_interactor else track.name)
+        file_attr = prim.GetAttribute("rose:masks:file")
+        count_attr = prim.GetAttribute("rose:masks:visiblePixels")
+        conf_attr = prim.GetAttribute("rose:masks:confidence")
+        conf = np.ones(n) if track.confidence is None else np.asarray(track.confidence, dtype=float)
+        visible = np.zeros(n, dtype=np.int64)
+        t = -1
+        for t, mask in enumerate(track.masks):
+            if t >= n:
+                raise ValueError(f"mask track {track.name!r} has more than {n} frames")
+            name = f"{track.name}/{t:06d}.png"
+            write_mask(folder / name, mask)
+            visible[t] = int(np.count_nonzero(mask))
+            code = Usd.TimeCode(t)
+            file_attr.Set(Sdf.AssetPath(relative_asset(final_root / name, ctx.layer_dir)), code)
+            count_attr.Set(int(visible[t]), code)
+            conf_attr.Set(float(conf[t]), code)
+        if t != n - 1:
+            raise ValueError(f"mask track {track.name!r} has {t + 1} frames, expected {n}")
+        counts[track.name] = visible
+    return counts

@@ -1,0 +1,1 @@
+"""Newton simulation of a rose stage (imported lazily: warp and newton are heavy)."""

@@ -1,0 +1,134 @@
+"""What a pipeline stage is: a definition (name, layer, upstream stages, config class, backends)
+and the context a backend runs in. Stages register in :mod:`rose_usd.registry`."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import hashlib
+import importlib
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pxr import Usd
+
+from rose_usd.case.layout import Case
+from rose_usd.errors import ConfigError
+from rose_usd.usd.stage import LayerWriter, TimeInfo
+
+
+@dataclass(frozen=True)
+class StageDef:
+    """A pipeline stage."""
+
+    name: str
+    """CLI and config name, e.g. ``capture``."""
+    layer: str
+    """The layer it owns, e.g. ``world`` (layers/world.usda)."""
+    needs: tuple[str, ...]
+    """Stages whose layers it reads."""
+    config: type
+    """Frozen dataclass; its ``backend`` field is an enum of this stage's backends."""
+    backends: Mapping[str, str]
+    """backend name -> ``module:function`` taking a StageContext."""
+    summary: str
+    """One line for the CLI help and the docs."""
+    side_dirs: tuple[str, ...] = ()
+    """Folders of ``<out>`` this stage writes besides its layer (e.g. ``masks``)."""
+
+    def backend_function(self, backend: str) -> Callable[["StageContext"], None]:
+        target = self.backends[backend]
+        module, func = target.split(":")
+        return getattr(importlib.import_module(module), func)
+
+
+@dataclass
+class StageContext:
+    """Everything a backend gets. Author only into ``stage`` (its edit target is the stage's own
+    layer) and into folders from ``side_dir``; read inputs from ``case`` and the composed ``stage``."""
+
+    stage_def: StageDef
+    config: Any
+    case: Case
+    out_dir: Path
+    time_info: TimeInfo
+    writer: LayerWriter
+
+    @property
+    def stage(self) -> Usd.Stage:
+        return self.writer.stage
+
+    @property
+    def layer_dir(self) -> Path:
+        """Folder of the layer being written (relative asset paths are anchored here)."""
+        return self.out_dir / "layers"
+
+    def side_dir(self, name: str) -> Path:
+        if name not in self.stage_def.side_dirs:
+            raise ValueError(f"stage {self.stage_def.name!r} did not declare side folder {name!r}")
+        return self.writer.side_dir(name)
+
+    def record(self, **values: Any) -> None:
+        """Add entries to the layer's provenance (e.g. fit residuals, timings, warnings)."""
+        self.writer.provenance.setdefault("results", {}).update(values)
+
+    def warn(self, message: str) -> None:
+        """A warning the user should see: printed and kept in the layer's provenance."""
+        from rose_usd.progress import say
+
+        self.writer.provenance.setdefault("warnings", []).append(message)
+        say(f"warning: {self.stage_def.name}: {message}")
+
+
+# ----------------------------------------------------------------------------- configs
+def config_to_dict(config: Any) -> dict[str, Any]:
+    out = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        out[f.name] = value.value if isinstance(value, enum.Enum) else value
+    return out
+
+
+def config_hash(config: Any) -> str:
+    return hashlib.sha256(json.dumps(config_to_dict(config), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def build_config(stage_def: StageDef, overrides: Mapping[str, Any], *, source: str) -> Any:
+    """The stage's config with ``overrides`` (field -> value) applied and type-checked."""
+    fields = {f.name: f for f in dataclasses.fields(stage_def.config)}
+    kwargs = {}
+    for key, value in overrides.items():
+        if key not in fields:
+            raise ConfigError(
+                f"stage {stage_def.name!r} has no setting {key!r}",
+                path=source,
+                hint=f"settings: {', '.join(sorted(fields))}",
+            )
+        default = getattr(stage_def.config(), key)
+        kwargs[key] = _coerce(stage_def.name, key, value, default, source)
+    return stage_def.config(**kwargs)
+
+
+def _coerce(stage: str, key: str, value: Any, default: Any, source: str) -> Any:
+    try:
+        if isinstance(default, enum.Enum):
+            return type(default)(value)
+        if isinstance(default, bool):
+            if isinstance(value, str):
+                if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                    raise ValueError(value)
+                return value.lower() in ("true", "1", "yes")
+            return bool(value)
+        if isinstance(default, int):
+            return int(value)
+        if isinstance(default, float):
+            return float(value)
+        if isinstance(default, tuple):
+            return tuple(value)
+        return value
+    except (ValueError, TypeError):
+        allowed = f" (one of {', '.join(m.value for m in type(default))})" if isinstance(default, enum.Enum) else ""
+        raise ConfigError(f"{stage}.{key} = {value!r} is not valid{allowed}", path=source, hint=f"the default is {default!r}") from None

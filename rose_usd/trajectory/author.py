@@ -1,0 +1,38 @@
+"""Authoring layers/trajectory.usda: time samples of each object's pose ops (the object stage's
+default stays frame 0, which Newton reads), per-frame confidence, and TUM files. Every trajectory
+backend ends here."""
+
+from __future__ import annotations
+
+import numpy as np
+from pxr import Usd, UsdGeom
+
+from rose_usd.errors import StageError
+from rose_usd.io.tum import write_tum
+from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths, schema
+from rose_usd.usd.physics import set_pose_ops
+
+
+def author_trajectory(ctx: StageContext, name: str, world_from_object: np.ndarray, confidence: np.ndarray, source: str) -> None:
+    """Time-sample ``world_from_object`` (N, 4, 4) and ``confidence`` (N,) on the object prim."""
+    n = ctx.time_info.n_frames
+    if world_from_object.shape != (n, 4, 4) or confidence.shape != (n,):
+        raise ValueError(f"author_trajectory: expected {n} poses and confidences")
+    prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
+    if not prim:
+        raise StageError(f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)")
+    xform = UsdGeom.Xformable(prim)
+    for t in range(n):
+        set_pose_ops(xform, world_from_object[t], Usd.TimeCode(t))
+    prim.ApplyAPI(schema.TRAJECTORY_API)
+    conf = prim.GetAttribute("rose:trajectory:confidence")
+    for t in range(n):
+        conf.Set(float(confidence[t]), Usd.TimeCode(t))
+    prim.GetAttribute("rose:trajectory:source").Set(source)
+    write_tum(
+        ctx.side_dir("trajectory") / f"{name}.tum",
+        np.arange(n) / ctx.time_info.fps,
+        world_from_object,
+        header=f"world_from_object of {name} (rose_usd trajectory stage, source {source})",
+    )

@@ -1,0 +1,51 @@
+"""Shared fixtures. The sample's oracle reconstruction is made once per session and reused."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("ROSE_USD_QUIET", "1")
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "samples" / "push-box"
+REFERENCE = REPO / "stages" / "push-box-oracle.json"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--update-reference", action="store_true", help="rewrite stages/*.json from this run (deliberate golden update)")
+
+
+@pytest.fixture(scope="session")
+def sample_case() -> Path:
+    assert SAMPLE.is_dir(), f"bundled sample missing: {SAMPLE}"
+    return SAMPLE
+
+
+@pytest.fixture(scope="session")
+def oracle_out(tmp_path_factory, sample_case) -> Path:
+    """The sample reconstructed with every stage's oracle backend (read-only for tests)."""
+    from rose_usd.pipeline import Pipeline
+
+    out = tmp_path_factory.mktemp("oracle") / "out"
+    Pipeline(sample_case, out).run()
+    return out
+
+
+@pytest.fixture
+def case_copy(tmp_path, sample_case) -> Path:
+    """A writable copy of the sample case, to break on purpose."""
+    dst = tmp_path / "case"
+    shutil.copytree(sample_case, dst)
+    return dst
+
+
+@pytest.fixture
+def out_copy(tmp_path, oracle_out) -> Path:
+    """A writable copy of the oracle reconstruction."""
+    dst = tmp_path / "out"
+    shutil.copytree(oracle_out, dst)
+    return dst

@@ -1,0 +1,63 @@
+"""Atomic layer writes: a stage that fails midway leaves the previous layer and side files intact."""
+
+import pytest
+from pxr import UsdGeom
+
+from rose_usd import registry
+from rose_usd.errors import StageError
+from rose_usd.pipeline import Pipeline
+from rose_usd.usd import paths
+from rose_usd.usd.stage import LayerWriter, TimeInfo, layer_file
+
+
+def _tree(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_writer_failure_changes_nothing(tmp_path):
+    """An exception inside LayerWriter leaves the old layer, its side folder and the root as they were."""
+    ti = TimeInfo(fps=30.0, n_frames=3)
+    with LayerWriter(tmp_path, "world", ti, {"stage": "capture"}) as w:
+        UsdGeom.Xform.Define(w.stage, paths.WORLD)
+    with LayerWriter(tmp_path, "masks", ti, {"stage": "segment"}) as w:
+        UsdGeom.Scope.Define(w.stage, paths.MASKS)
+        (w.side_dir("masks") / "a.png").write_bytes(b"old")
+    before = _tree(tmp_path)
+    with pytest.raises(RuntimeError, match="boom"):
+        with LayerWriter(tmp_path, "masks", ti, {"stage": "segment"}) as w:
+            UsdGeom.Scope.Define(w.stage, paths.OBJECT_MASKS)
+            (w.side_dir("masks") / "b.png").write_bytes(b"new")
+            raise RuntimeError("boom")
+    assert _tree(tmp_path) == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "staging or temp files left behind"
+
+
+def test_writer_rejects_foreign_specs(tmp_path):
+    """A layer that authored outside its claim is not committed."""
+    ti = TimeInfo(fps=30.0, n_frames=3)
+    with pytest.raises(StageError, match="does not own|may not define"):
+        with LayerWriter(tmp_path, "scene", ti, {"stage": "scene"}) as w:
+            UsdGeom.Xform.Define(w.stage, "/World/Objects/Intruder")
+    assert not layer_file(tmp_path, "scene").exists()
+
+
+def test_failing_stage_midway_keeps_previous_layer(out_copy, sample_case, monkeypatch):
+    """The trajectory stage crashing after authoring half its frames leaves trajectory.usda,
+    trajectory/*.tum and rose.usda byte-identical."""
+    import rose_usd.trajectory.author as author
+
+    before = _tree(out_copy)
+    real = author.set_pose_ops
+    calls = {"n": 0}
+
+    def flaky(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] > 20:
+            raise OSError("disk vanished")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(author, "set_pose_ops", flaky)
+    with pytest.raises(OSError, match="disk vanished"):
+        Pipeline(sample_case, out_copy).run_stage(registry.get("trajectory"))
+    assert calls["n"] > 20
+    assert _tree(out_copy) == before

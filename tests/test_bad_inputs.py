@@ -1,0 +1,141 @@
+"""Bad input gets one line naming the file and the fix, exit status 1, and nothing half-written."""
+
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from rose_usd.case import load_case
+from rose_usd.cli import main
+from rose_usd.errors import InputError
+
+
+def run_cli(capsys, *argv):
+    code = main(list(argv))
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def assert_one_line_error(code, err, *needles):
+    assert code == 1, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("error: ")
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+def test_missing_frame(capsys, case_copy, tmp_path):
+    """A gap in the frame numbers names the folder and the missing frame."""
+    (case_copy / "rgb" / "000010.png").unlink()
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "rgb", "frame(s) 10..10 missing", "000009.png")
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreadable_image(capsys, case_copy, tmp_path):
+    """A truncated PNG is named."""
+    (case_copy / "rgb" / "000005.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "000005.png", "cannot read")
+
+
+def test_mismatched_frame_counts(capsys, case_copy, tmp_path):
+    """Fewer depth maps than RGB frames is refused up front."""
+    (case_copy / "depth" / "000047.png").unlink()
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "depth", "47 frames", "48")
+
+
+def test_frames_of_different_sizes(capsys, case_copy, tmp_path):
+    """A frame of another size is named."""
+    img = cv2.imread(str(case_copy / "rgb" / "000003.png"))
+    cv2.imwrite(str(case_copy / "rgb" / "000003.png"), cv2.resize(img, (160, 120)))
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "000003.png", "160x120")
+
+
+def test_missing_K(case_copy):
+    """Asking a case without cam_K.txt for its intrinsics says what to write."""
+    (case_copy / "cam_K.txt").unlink()
+    with pytest.raises(InputError, match="no cam_K.txt") as info:
+        load_case(case_copy).K()
+    assert "\n" not in str(info.value) and "fx 0 cx" in str(info.value)
+
+
+def test_wrong_intrinsics(capsys, case_copy, tmp_path):
+    """A K whose principal point is off the image fails at load, naming cam_K.txt."""
+    np.savetxt(case_copy / "cam_K.txt", [[280.0, 0, 900.0], [0, 280.0, 120.0], [0, 0, 1]])
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "cam_K.txt", "outside the 320x240 image")
+
+
+def test_depth_in_meters_is_detected(case_copy):
+    """A uint16 depth PNG holding meters (values 0-3) is refused with the unit fix."""
+    cv2.imwrite(str(case_copy / "depth" / "000000.png"), np.full((240, 320), 2, np.uint16))
+    with pytest.raises(InputError, match="look like meters"):
+        load_case(case_copy).depth_m(0)
+
+
+def test_nan_and_zero_depth_become_invalid(case_copy):
+    """NaN, inf, zero and negative depth in a .npy read as invalid (0), not as distances."""
+    depth = np.full((240, 320), 1.5, np.float32)
+    depth[0, :4] = [np.nan, np.inf, 0.0, -1.0]
+    shutil.rmtree(case_copy / "depth")
+    (case_copy / "depth").mkdir()
+    for t in range(48):
+        np.save(case_copy / "depth" / f"{t:06d}.npy", depth)
+    d = load_case(case_copy).depth_m(0)
+    assert list(d[0, :5]) == [0.0, 0.0, 0.0, 0.0, 1.5]
+
+
+def test_depth_of_another_size(case_copy):
+    """Depth that does not match the RGB size is named with both sizes."""
+    cv2.imwrite(str(case_copy / "depth" / "000002.png"), np.full((120, 160), 1000, np.uint16))
+    with pytest.raises(InputError, match="depth is 160x120, RGB is 320x240"):
+        load_case(case_copy).depth_m(2)
+
+
+def test_corrupt_video(capsys, tmp_path):
+    """A video that cannot be decoded is named, with the fix."""
+    case = tmp_path / "vid"
+    case.mkdir()
+    (case / "video.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42 this is not a video")
+    code, err = run_cli(capsys, "reconstruct", str(case), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "video.mp4", "cannot decode")
+
+
+def test_rose_toml_typo(capsys, case_copy, tmp_path):
+    """A misspelled key in rose.toml is refused and the allowed keys are listed."""
+    text = (case_copy / "rose.toml").read_text().replace("category", "categroy")
+    (case_copy / "rose.toml").write_text(text)
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "rose.toml", "categroy")
+
+
+def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
+    """Unknown stage and backend names list the valid ones."""
+    code, err = run_cli(capsys, "run", "segmnt", str(sample_case), "-o", str(tmp_path / "o"))
+    assert_one_line_error(code, err, "unknown stage", "segment")
+    code, err = run_cli(capsys, "reconstruct", str(sample_case), "-o", str(tmp_path / "o"), "--backend", "capture=megasam")
+    assert_one_line_error(code, err, "no backend 'megasam'", "oracle")
+
+
+def test_object_never_visible_leaves_previous_output(capsys, case_copy, out_copy):
+    """An object that never appears fails the segment stage; its previous layer and masks stay."""
+    for mask in (case_copy / "gt" / "masks" / "Box").glob("*.png"):
+        cv2.imwrite(str(mask), np.zeros((240, 320), np.uint8))
+    before = {p: p.read_bytes() for p in [out_copy / "layers" / "masks.usda", *sorted((out_copy / "masks" / "Box").glob("*.png"))[:3]]}
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out_copy))
+    assert_one_line_error(code, err, "never visible", "Box")
+    for path, content in before.items():
+        assert path.read_bytes() == content
+    assert not [p for p in out_copy.iterdir() if p.name.startswith(".")]
+
+
+def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
+    """Oracle backends on a case without gt/ say which backend to choose instead."""
+    shutil.rmtree(case_copy / "gt")
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "no ground truth", "--backend")
