@@ -30,7 +30,9 @@ def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: 
     plt.close(fig)
 
     frames = sorted(samples)
-    fig, axes = plt.subplots(len(frames), 3, figsize=(9, 2.4 * len(frames)), dpi=110, squeeze=False)
+    cmap = plt.get_cmap("viridis").copy()
+    cmap.set_bad("0.6")  # excluded pixels (the interactor)
+    fig, axes = plt.subplots(len(frames), 3, figsize=(10, 2.5 * len(frames)), dpi=100, squeeze=False, layout="constrained")
     for row, frame in zip(axes, frames):
         original, rendered, ssim_map, exclude = samples[frame]
         shown = np.ma.masked_where(exclude, ssim_map) if exclude is not None else ssim_map
@@ -38,11 +40,10 @@ def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: 
         row[0].set_title(f"input, frame {frame}", fontsize=8)
         row[1].imshow(rendered)
         row[1].set_title("re-render (Mitsuba, from the stage)", fontsize=8)
-        im = row[2].imshow(shown, vmin=0.0, vmax=1.0, cmap="viridis")
+        im = row[2].imshow(shown, vmin=0.0, vmax=1.0, cmap=cmap)
         row[2].set_title(f"SSIM map, mean {ssim[frame]:.3f} (gray: excluded)", fontsize=8)
-        row[2].set_facecolor("0.6")
         for ax in row:
             ax.axis("off")
-    fig.colorbar(im, ax=axes[:, 2].tolist(), shrink=0.6)
-    fig.savefig(report_dir / "compare.png", bbox_inches="tight")
+    fig.colorbar(im, ax=axes[:, 2].tolist(), shrink=0.5, label="SSIM")
+    fig.savefig(report_dir / "compare.png")
     plt.close(fig)

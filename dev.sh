@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# One entry point on a fresh Debian machine (Python 3.11, pip, root or sudo). Idempotent: it
+# installs only what is missing, then runs the job.
+#
+#   ./dev.sh demo        reconstruct the bundled sample (samples/push-box) into out/demo
+#   ./dev.sh test        the test suite (what CI runs)
+#   ./dev.sh bench       the slow tests (benchmark job)
+#   ./dev.sh setup       only install
+#   ./dev.sh rose-usd …  any rose-usd command inside the environment
+set -euo pipefail
+cd "$(dirname "$0")"
+VENV=${ROSE_VENV:-.venv}
+PY=${PYTHON:-python3}
+
+# Debian packages: libllvm19 for Mitsuba's llvm_ad_rgb variant (Debian's default LLVM 15 crashes
+# it), libusb-1.0-0 for open3d.
+SYSTEM_PACKAGES=(libllvm19 libusb-1.0-0)
+
+log() { printf '[dev.sh] %s\n' "$*" >&2; }
+
+ensure_system() {
+  local missing=()
+  for pkg in "${SYSTEM_PACKAGES[@]}"; do
+    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "ok installed" || missing+=("$pkg")
+  done
+  [ ${#missing[@]} -eq 0 ] && return 0
+  local sudo=""
+  [ "$(id -u)" -eq 0 ] || sudo="sudo"
+  log "installing Debian packages: ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  $sudo apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null 2>&1 || {
+    $sudo apt-get update -q >/dev/null
+    $sudo apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null
+  }
+}
+
+ensure_venv() {
+  local stamp="$VENV/.rose-installed"
+  local want
+  want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+  if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ -x "$VENV/bin/rose-usd" ]; then
+    return 0
+  fi
+  [ -x "$VENV/bin/python" ] || { log "creating $VENV"; "$PY" -m venv "$VENV"; }
+  log "installing rose_usd and its dependencies into $VENV (first time: a few minutes)"
+  local logfile="$VENV/pip-install.log"
+  if ! { "$VENV/bin/python" -m pip install --upgrade pip && "$VENV/bin/python" -m pip install -e ".[test]"; } >"$logfile" 2>&1; then
+    tail -n 30 "$logfile" >&2
+    log "pip install failed (full log: $logfile)"
+    exit 1
+  fi
+  echo "$want" > "$stamp"
+}
+
+setup() { ensure_system; ensure_venv; }
+
+cmd=${1:-help}
+[ $# -gt 0 ] && shift
+case "$cmd" in
+  setup) setup ;;
+  demo) setup; exec "$VENV/bin/rose-usd" demo "$@" ;;
+  test) setup; ROSE_USD_QUIET=1 exec "$VENV/bin/python" -m pytest -q -m "not slow" "$@" ;;
+  bench) setup; ROSE_USD_QUIET=1 exec "$VENV/bin/python" -m pytest -q -m slow "$@" ;;
+  rose-usd) setup; exec "$VENV/bin/rose-usd" "$@" ;;
+  *) sed -n '2,11p' "$0"; exit 2 ;;
+esac
