@@ -12,7 +12,13 @@ from rose_usd import registry
 from rose_usd.case.layout import Case, load_case
 from rose_usd.errors import ConfigError, StageError
 from rose_usd.progress import say
-from rose_usd.stage_api import StageContext, StageDef, build_config, config_hash, config_to_dict
+from rose_usd.stage_api import (
+    StageContext,
+    StageDef,
+    build_config,
+    config_hash,
+    config_to_dict,
+)
 from rose_usd.usd import stage as usd_stage
 
 _hash_cache: dict[tuple[str, int, int], str] = {}

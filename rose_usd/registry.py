@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from rose_usd import capture, gate, object as object_stage, scene, segment, trajectory
+from rose_usd import capture, gate, scene, segment, trajectory
+from rose_usd import object as object_stage
 from rose_usd.stage_api import StageDef
 
 STAGES: tuple[StageDef, ...] = (

@@ -15,7 +15,7 @@ def test_stage_definition_is_complete(stage):
     backend enum matches the backends table, and every backend resolves to a callable."""
     assert stage.layer in paths.LAYER_ORDER
     assert stage.layer in paths.OWNERSHIP
-    params = getattr(stage.config, "__dataclass_params__")
+    params = stage.config.__dataclass_params__
     assert params.frozen
     config = stage.config()
     backend_enum = type(config.backend)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from rose_usd.capture.world import author_world
 from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.stage_api import StageContext
-from rose_usd.capture.world import author_world
 
 
 def run(ctx: StageContext) -> None:

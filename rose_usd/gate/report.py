@@ -30,8 +30,7 @@ def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: 
     plt.close(fig)
 
     frames = sorted(samples)
-    cmap = plt.get_cmap("viridis").copy()
-    cmap.set_bad("0.6")  # excluded pixels (the interactor)
+    cmap = plt.get_cmap("viridis").with_extremes(bad="0.6")  # gray: excluded pixels (the interactor)
     fig, axes = plt.subplots(len(frames), 3, figsize=(10, 2.5 * len(frames)), dpi=100, squeeze=False, layout="constrained")
     for row, frame in zip(axes, frames):
         original, rendered, ssim_map, exclude = samples[frame]

@@ -8,9 +8,9 @@ import json
 
 import cv2
 import numpy as np
-import trimesh
 from pxr import Usd, UsdGeom, UsdPhysics
 
+from rose_usd.core.watertight import collider_problems
 from rose_usd.gate.report import write_report
 from rose_usd.gate.ssim import masked_ssim
 from rose_usd.io.images import read_mask, write_rgb
@@ -49,14 +49,7 @@ def _geometry_check(stage: Usd.Stage) -> list[str]:
         if not (prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI)):
             continue
         mesh = read_mesh(prim, world=False)
-        tm = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
-        issues = []
-        if not tm.is_watertight:
-            issues.append("not watertight")
-        if not tm.is_winding_consistent:
-            issues.append("inconsistent winding")
-        if tm.is_watertight and tm.volume <= 0:
-            issues.append("negative volume")
+        issues = collider_problems(mesh.vertices, mesh.faces)
         if issues:
             problems.append(f"{prim.GetPath()}: {', '.join(issues)}")
     return problems

@@ -14,8 +14,20 @@ from rose_usd.object.priors import PhysicsPrior
 from rose_usd.scene.author import check_collider
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths, schema
-from rose_usd.usd.geom import MeshData, author_mesh, author_preview_material, bind_material
-from rose_usd.usd.physics import Approximation, author_physics_material, bind_physics_material, make_collider, make_rigid_body, set_pose_ops
+from rose_usd.usd.geom import (
+    MeshData,
+    author_mesh,
+    author_preview_material,
+    bind_material,
+)
+from rose_usd.usd.physics import (
+    Approximation,
+    author_physics_material,
+    bind_physics_material,
+    make_collider,
+    make_rigid_body,
+    set_pose_ops,
+)
 
 
 @dataclass(frozen=True)

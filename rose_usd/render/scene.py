@@ -20,7 +20,7 @@ import numpy as np
 from rose_usd.core import se3
 from rose_usd.core.color import linear_to_srgb8
 from rose_usd.errors import EnvironmentProblem
-from rose_usd.render.lighting import Lighting, PointLight
+from rose_usd.render.lighting import Lighting
 from rose_usd.render.variant import mitsuba
 from rose_usd.usd.geom import MeshData
 

@@ -76,7 +76,8 @@ def mitsuba():
             if name == "scalar_rgb" and not forced:
                 warnings.warn(
                     "Mitsuba runs its scalar_rgb variant (no usable LLVM 16+ found): rendering is slow. "
-                    "Install Debian's libllvm19 (./dev.sh does) or set DRJIT_LIBLLVM_PATH."
+                    "Install Debian's libllvm19 (./dev.sh does) or set DRJIT_LIBLLVM_PATH.",
+                    stacklevel=2,
                 )
             return mi
         except Exception as exc:  # a broken backend must fall through to the next variant

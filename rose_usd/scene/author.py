@@ -7,14 +7,20 @@ import shutil
 from dataclasses import dataclass
 
 import numpy as np
-import trimesh
 from pxr import Gf, UsdGeom, UsdLux
 
+from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import MeshError
 from rose_usd.render.lighting import Lighting
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
-from rose_usd.usd.geom import MeshData, author_mesh, author_preview_material, bind_material, relative_asset
+from rose_usd.usd.geom import (
+    MeshData,
+    author_mesh,
+    author_preview_material,
+    bind_material,
+    relative_asset,
+)
 from rose_usd.usd.physics import Approximation, make_collider
 
 
@@ -27,14 +33,7 @@ class ScenePart:
 
 def check_collider(vertices: np.ndarray, faces: np.ndarray, what: str) -> None:
     """Raise MeshError unless the mesh is watertight, consistently wound and encloses volume."""
-    tm = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
-    problems = []
-    if not tm.is_watertight:
-        problems.append("not watertight")
-    if not tm.is_winding_consistent:
-        problems.append("inconsistent winding")
-    if tm.is_watertight and tm.volume <= 0:
-        problems.append("inside-out (negative volume)")
+    problems = collider_problems(vertices, faces)
     if problems:
         raise MeshError(f"{what} is {', '.join(problems)}", hint="repair it (the scene backend must produce a closed 2-manifold)")
 

@@ -28,9 +28,11 @@ def simulate_rest(stage: Usd.Stage, object_paths: dict[str, str], *, duration_s:
     Args:
         object_paths: object name -> prim path of its rigid body.
     """
-    import newton
     import warp as wp
 
+    from rose_usd.sim.engine import newton as load_newton
+
+    newton = load_newton()
     builder = newton.ModelBuilder()
     result = builder.add_usd(stage)
     body_of = dict(result.get("path_body_map", {}))

@@ -159,10 +159,10 @@ def dump(path: str | os.PathLike) -> dict[str, Any]:
         entry: dict[str, Any] = {"name": name, "file": sub}
         if layer is not None:
             prov = stage_mod.read_provenance(Path(layer.realPath)) or {}
-            count = [0]
-            layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: count.__setitem__(0, count[0] + 1))
+            specs: list[Sdf.Path] = []
+            layer.Traverse(Sdf.Path.absoluteRootPath, specs.append)
             entry.update(
-                specs=count[0],
+                specs=len(specs),
                 stage=prov.get("stage"),
                 backend=prov.get("backend"),
                 wall_time_s=prov.get("wall_time_s"),

@@ -51,9 +51,9 @@ def usd_validation(stage: Usd.Stage) -> tuple[int, list[str], list[str]]:
 
 def newton_load(path: str | os.PathLike) -> dict:
     """Load a stage with Newton's ``ModelBuilder.add_usd``; returns counts of what it built."""
-    import newton  # heavy: imported only here
+    from rose_usd.sim.engine import newton as load_newton  # heavy: imported only here
 
-    builder = newton.ModelBuilder()
+    builder = load_newton().ModelBuilder()
     result = builder.add_usd(str(path))
     return {
         "bodies": int(builder.body_count),
