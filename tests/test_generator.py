@@ -8,7 +8,7 @@ import pytest
 from rose_usd.case import load_case
 from rose_usd.case.gt import GroundTruth
 from rose_usd.core import se3
-from rose_usd.io.images import read_mask
+from rose_usd.io.images import read_depth_m, read_mask
 from rose_usd.synth.generate import GenerateConfig, generate_case
 from rose_usd.synth.motion import Task
 from rose_usd.synth.shapes import ObjectShape
@@ -32,7 +32,7 @@ def test_layout_is_a_valid_case(small_case):
 
 
 def test_depth_agrees_with_ground_truth_geometry(small_case):
-    """Depth at the object's mask pixels back-projects onto the ground-truth object surface (< 2 mm)."""
+    """Clean depth (gt/depth) at the object's mask pixels back-projects onto the true object surface (< 2 mm)."""
     import trimesh
 
     case = load_case(small_case)
@@ -41,7 +41,7 @@ def test_depth_agrees_with_ground_truth_geometry(small_case):
     tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
     K = case.K()
     for t in (0, 6, 11):
-        depth = case.depth_m(t)
+        depth = read_depth_m(gt.depth_dir / f"{t:06d}.png")
         mask = read_mask(gt.mask_dir("Mug") / f"{t:06d}.png") & (depth > 0)
         v, u = np.nonzero(mask)
         assert len(u) > 10
@@ -71,3 +71,35 @@ def test_same_seed_same_case(tmp_path):
     b = generate_case(cfg, tmp_path / "b")
     for rel in ("rgb/000002.png", "depth/000001.png", "gt/camera.tum", "gt/scene.json"):
         assert hashlib.sha256((a / rel).read_bytes()).digest() == hashlib.sha256((b / rel).read_bytes()).digest(), rel
+
+
+@pytest.mark.parametrize("task", list(Task), ids=lambda t: t.value)
+def test_every_task_starts_and_ends_at_rest_on_a_support(task, tmp_path):
+    """Each task's objects rest at the start and the end (on the table or on each other), move in
+    between, and stay over the table."""
+    case = generate_case(GenerateConfig(task=task, shape=ObjectShape.BOX, seed=21, n_frames=30, width=64, height=48, spp=1), tmp_path / task.value)
+    gt = GroundTruth(case / "gt")
+    layout = gt.data["layout"]
+    half = np.asarray(layout["table_half_extent"])
+    moved = []
+    for obj in gt.objects:
+        poses = gt.object_poses(obj.name)
+        mesh = gt.object_mesh(obj.name)
+        np.testing.assert_allclose(poses[1], poses[0], atol=1e-9)
+        np.testing.assert_allclose(poses[-1], poses[-2], atol=1e-9)
+        for t in (0, len(poses) - 1):
+            lowest = se3.transform_points(poses[t], mesh.vertices)[:, 2].min()
+            assert lowest >= -1e-6
+            center = poses[t][:2, 3] - np.asarray(layout["table_center"])
+            assert np.all(np.abs(center) < half)
+        moved.append(float(np.linalg.norm(poses[-1][:3, 3] - poses[0][:3, 3])) + se3.rotation_angle_deg(poses[-1][:3, :3].T @ poses[0][:3, :3]) / 100)
+    if task is Task.UNSTACK:
+        base, top = gt.objects
+        assert moved[0] == pytest.approx(0.0, abs=1e-9)  # the base stays
+        start_top = se3.transform_points(gt.object_poses("Top")[0], gt.object_mesh("Top").vertices)[:, 2].min()
+        base_height = gt.object_mesh("Base").vertices[:, 2].max()
+        assert start_top == pytest.approx(base_height, abs=1e-6)  # the top starts on the base
+        end_top = se3.transform_points(gt.object_poses("Top")[-1], gt.object_mesh("Top").vertices)[:, 2].min()
+        assert end_top == pytest.approx(0.0, abs=1e-6)  # and ends on the table
+    else:
+        assert max(moved) > 0.05

@@ -12,6 +12,7 @@ object at frame 0)::
     gt/objects/<Name>.tum    world_from_object, TUM format
     gt/interactor.obj/.tum   the interactor proxy and its poses
     gt/masks/<Name>/NNNNNN.png, gt/masks/interactor/NNNNNN.png   8-bit masks (255 = visible)
+    gt/depth/NNNNNN.png      clean metric depth, uint16 millimeters (the case's depth/ is a sensor's)
 
 Colors in scene.json are linear RGB; textures are sRGB PNGs with per-vertex UVs in the OBJ.
 """
@@ -166,6 +167,11 @@ class GroundTruth:
     def object_mesh(self, name: str) -> MeshData:
         obj = self.object(name)
         return self.mesh(obj.mesh, obj.appearance)
+
+    @property
+    def depth_dir(self) -> Path:
+        """Folder of clean depth maps (uint16 mm), one per frame."""
+        return self.root / self.data.get("depth", "depth")
 
     def mask_dir(self, name: str) -> Path:
         """Folder of ground-truth masks of an object name or ``"interactor"``."""

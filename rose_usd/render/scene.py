@@ -38,6 +38,8 @@ class RenderItem:
     """Value this mesh gets in label images (0 = background)."""
     pose: np.ndarray = field(default_factory=lambda: np.eye(4))
     """world_from_local (4, 4)."""
+    casts_shadow: bool = True
+    """Whether the item blocks the point lights (the benchmark's interactor proxy does not)."""
 
 
 def _make_integrator_class(mi, dr):
@@ -48,6 +50,7 @@ def _make_integrator_class(mi, dr):
             super().__init__(props)
             self.ambient = mi.Color3f(1.0)
             self.lights: list[tuple] = []
+            self.shadow_scene = None  # the scene shadow rays test (items that cast shadows)
 
         def configure(self, lighting: Lighting) -> None:
             self.ambient = mi.Color3f(*lighting.ambient)
@@ -66,7 +69,8 @@ def _make_integrator_class(mi, dr):
                 dist2 = dr.squared_norm(to_light)
                 cos = dr.maximum(dr.dot(n, to_light * dr.rsqrt(dist2)), 0.0)
                 lit = valid & (cos > 0)
-                visible = lit & ~scene.ray_test(si.spawn_ray_to(position), lit)
+                occluders = self.shadow_scene if self.shadow_scene is not None else scene
+                visible = lit & ~occluders.ray_test(si.spawn_ray_to(position), lit)
                 radiance += dr.select(visible, albedo * intensity * cos / dist2, 0.0)
             return dr.select(valid, radiance, 0.0), valid, []
 
@@ -98,6 +102,15 @@ class RenderScene:
         self.params = mi.traverse(self.scene)
         self.integrator = _make_integrator_class(mi, dr)()
         self.integrator.configure(lighting)
+        self.shadow_params = None
+        if not all(item.casts_shadow for item in items):
+            # shadow rays test a second scene holding only the items that cast shadows
+            shadow_dict = {"type": "scene"}
+            for item in items:
+                if item.casts_shadow:
+                    shadow_dict[item.name] = self._mesh(item)
+            self.integrator.shadow_scene = mi.load_dict(shadow_dict)
+            self.shadow_params = mi.traverse(self.integrator.shadow_scene)
         self._shapes = {shape.id(): shape for shape in self.scene.shapes()}
 
     # ------------------------------------------------------------------ building
@@ -138,8 +151,12 @@ class RenderScene:
         if np.array_equal(item.pose, world_from_local):
             return
         item.pose = np.array(world_from_local, dtype=float)
-        self.params[f"{name}.vertex_positions"] = self.dr.ravel(self.mi.Point3f(self._world_vertices(item.mesh.vertices, item.pose).T.copy()))
+        positions = self.dr.ravel(self.mi.Point3f(self._world_vertices(item.mesh.vertices, item.pose).T.copy()))
+        self.params[f"{name}.vertex_positions"] = positions
         self.params.update()
+        if self.shadow_params is not None and item.casts_shadow:
+            self.shadow_params[f"{name}.vertex_positions"] = positions
+            self.shadow_params.update()
 
     # ------------------------------------------------------------------ rendering
     def _sensor(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int):
@@ -187,6 +204,12 @@ class RenderScene:
     def depth_and_labels(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
         """Z-depth [m] (0 where nothing is hit) and item labels, both (H, W), from one ray per pixel
         center (OpenCV convention: pixel (u, v) centered at integer coordinates)."""
+        surface = self.surface(world_from_cv, K, width, height)
+        return surface.depth, surface.labels
+
+    def surface(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, with_albedo: bool = False) -> "Surface":
+        """What one ray per pixel center sees: z-depth, labels and (optionally) albedo and the
+        cosine between the surface normal and the ray (for sensor models)."""
         mi, dr = self.mi, self.dr
         if not self.variant.startswith(("llvm", "cuda")):
             raise EnvironmentProblem(
@@ -207,4 +230,26 @@ class RenderScene:
         for name, item in self.items.items():
             if item.label:
                 labels = dr.select(si.shape == mi.ShapePtr(self._shapes[name]), item.label, labels)
-        return depth, np.asarray(labels, dtype=np.uint8).reshape(height, width)
+        out = Surface(depth=depth, labels=np.asarray(labels, dtype=np.uint8).reshape(height, width))
+        if with_albedo:
+            valid = si.is_valid()
+            albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
+            cos = dr.abs(dr.dot(si.n, ray.d))
+            # a Color3f of N lanes converts to a (3, N) array
+            out.albedo = np.asarray(albedo, dtype=np.float32).reshape(3, -1).T.reshape(height, width, 3)
+            out.cos_incidence = np.where(hit, np.asarray(cos, dtype=np.float32), 0.0).reshape(height, width)
+        return out
+
+
+@dataclass
+class Surface:
+    """Per-pixel buffers from :meth:`RenderScene.surface`."""
+
+    depth: np.ndarray
+    """Z-depth [m], (H, W), 0 where no surface."""
+    labels: np.ndarray
+    """Item label per pixel, (H, W) uint8."""
+    albedo: np.ndarray | None = None
+    """Linear RGB albedo, (H, W, 3)."""
+    cos_incidence: np.ndarray | None = None
+    """|cos| between the geometric normal and the ray, (H, W)."""

@@ -1,10 +1,17 @@
-"""Generate one seeded synthetic case: a tabletop room, a target object moved by a hand proxy,
-filmed by a hand-held camera, rendered with Mitsuba (RGB, metric depth, object and interactor
-masks) and written in the case layout with full ground truth (rose_usd.case.gt).
+"""Generate one seeded synthetic case: a tabletop room, one or two target objects, a hand proxy
+that performs one of the paper's five tasks, and a hand-held camera. It is rendered with Mitsuba
+(RGB, clean metric depth, a depth sensor's reading, and the object and interactor masks) and written
+in the case layout with full ground truth (rose_usd.case.gt).
+
+The written case is the ``rgbd`` perception mode: ``depth/`` holds sensor depth with realistic
+errors (rose_usd.synth.sensor). Clean depth is ground truth, in ``gt/depth/``. Other modes are
+derived from this case by rose_usd.bench.modes.
 """
 
 from __future__ import annotations
 
+import colorsys
+import dataclasses
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,11 +33,13 @@ from rose_usd.render.lighting import Lighting, PointLight
 from rose_usd.render.scene import RenderItem, RenderScene
 from rose_usd.synth import shapes, textures
 from rose_usd.synth.motion import Task, hand_trajectory, handheld_camera, task_motion
+from rose_usd.synth.sensor import sample_misregistration, sensor_depth
 from rose_usd.usd.geom import MeshData
 
-OBJECT_LABEL = 1
-INTERACTOR_LABEL = 2
+INTERACTOR_LABEL = 255
 SKIN_LINEAR = tuple(srgb_to_linear(np.array([224, 172, 140]) / 255.0).tolist())
+GENERATOR_VERSION = 3
+"""Bumped whenever a change to the generator changes the cases it writes."""
 
 
 @dataclass(frozen=True)
@@ -40,9 +49,9 @@ class GenerateConfig:
     task: Task = Task.PUSH
     """Manipulation task staged in the video."""
     shape: shapes.ObjectShape = shapes.ObjectShape.BOX
-    """Target object shape."""
+    """Shape of the manipulated object (UNSTACK adds a box underneath it)."""
     seed: int = 0
-    """Seed of every random choice (scene, object, motion, camera)."""
+    """Seed of every random choice (scene, objects, motion, camera, sensor)."""
     n_frames: int = 48
     """Number of video frames."""
     width: int = 320
@@ -64,28 +73,41 @@ class _Part:
     uv: np.ndarray | None = None
 
 
+@dataclass
+class _Object:
+    name: str
+    spec: shapes.ShapeSpec
+    part: _Part
+    category: str
+    density: float
+    friction: float
+    restitution: float
+    specular: bool
+    poses: np.ndarray
+    label: int
+
+
 def _planar_uv(vertices: np.ndarray, axes: tuple[int, int], meters_per_tile: float) -> np.ndarray:
     return np.stack([vertices[:, axes[0]], vertices[:, axes[1]]], axis=1) / meters_per_tile
 
 
 def _random_color(rng: np.random.Generator, *, saturated: bool) -> tuple[float, float, float]:
-    import colorsys
-
     h = rng.uniform(0, 1)
     s = rng.uniform(0.55, 0.9) if saturated else rng.uniform(0.05, 0.3)
     v = rng.uniform(0.55, 0.9)
     return tuple(srgb_to_linear(np.array(colorsys.hsv_to_rgb(h, s, v))).tolist())
 
 
-def _static_scene(rng: np.random.Generator) -> tuple[list[_Part], dict]:
-    """Table (top at z = 0), legs, floor, four walls, clutter. Returns parts and layout facts."""
+def _static_scene(rng: np.random.Generator, keep_clear_m: float) -> tuple[list[_Part], dict]:
+    """Table (top at z = 0), legs, floor, four walls, clutter outside ``keep_clear_m`` of the origin."""
     parts: list[_Part] = []
-    top_x, top_y = rng.uniform(1.0, 1.3), rng.uniform(0.7, 0.9)
+    top_x, top_y = rng.uniform(1.0, 1.3), rng.uniform(0.75, 0.9)
     thickness = 0.04
     height = rng.uniform(0.72, 0.78)
-    cx, cy = rng.uniform(-0.12, 0.12), rng.uniform(-0.08, 0.08)  # table center (the object is at the origin)
+    cx, cy = rng.uniform(-0.12, 0.12), rng.uniform(-0.06, 0.06)  # table center (the object is at the origin)
     top = shapes.box((top_x, top_y, thickness), center=(cx, cy, -thickness / 2))
-    parts.append(_Part("TableTop", top, texture=textures.wood(rng), uv=_planar_uv(top.vertices, (0, 1), 0.6)))
+    kind = str(rng.choice(list(textures.TABLE_TEXTURES)))
+    parts.append(_Part("TableTop", top, texture=textures.TABLE_TEXTURES[kind](rng), uv=_planar_uv(top.vertices, (0, 1), rng.uniform(0.5, 0.8))))
     leg_color = tuple(srgb_to_linear(np.array([60, 48, 40]) / 255.0).tolist())
     legs = []
     for sx in (-1, 1):
@@ -101,14 +123,13 @@ def _static_scene(rng: np.random.Generator) -> tuple[list[_Part], dict]:
         wall = shapes.box((ex, ey, wall_h), center=(cx + dx, cy + dy, -height + wall_h / 2))
         axes = (1, 2) if ex < ey else (0, 2)
         parts.append(_Part(f"Wall{i}", wall, texture=wall_tex, uv=_planar_uv(wall.vertices, axes, 1.5)))
-    # clutter on the table, away from the object's workspace around the origin
     n_clutter = int(rng.integers(2, 4))
     placed: list[tuple[float, float, float]] = []
     for k in range(n_clutter):
         for _ in range(200):
             x = rng.uniform(cx - top_x / 2 + 0.1, cx + top_x / 2 - 0.1)
             y = rng.uniform(cy - top_y / 2 + 0.1, cy + top_y / 2 - 0.1)
-            if np.hypot(x, y) > 0.32 and all(np.hypot(x - px, y - py) > pr + 0.1 for px, py, pr in placed):
+            if np.hypot(x, y) > keep_clear_m and all(np.hypot(x - px, y - py) > pr + 0.1 for px, py, pr in placed):
                 break
         kind = rng.choice(["box", "cylinder", "sphere"])
         if kind == "box":
@@ -125,33 +146,31 @@ def _static_scene(rng: np.random.Generator) -> tuple[list[_Part], dict]:
             mesh = shapes.sphere(radius, (x, y, radius))
         placed.append((x, y, radius))
         parts.append(_Part(f"Clutter{k}", mesh, color_linear=_random_color(rng, saturated=bool(rng.random() < 0.5))))
-    return parts, {"table_center": (cx, cy), "table_half_extent": (top_x / 2, top_y / 2), "table_height": height}
+    layout = {"table_center": (cx, cy), "table_half_extent": (top_x / 2, top_y / 2), "table_height": height, "table_texture": kind}
+    return parts, layout
 
 
 def _lighting(rng: np.random.Generator) -> Lighting:
     ambient = rng.uniform(0.35, 0.5)
-    az = rng.uniform(-np.pi, np.pi)
-    pos = np.array([0.8 * np.cos(az), 0.8 * np.sin(az), rng.uniform(1.3, 1.8)])
-    irradiance = rng.uniform(0.5, 0.7)  # at the object, facing the light
-    intensity = irradiance * float(pos @ pos)
-    warm = np.array([1.0, rng.uniform(0.93, 1.0), rng.uniform(0.85, 0.97)])
-    return Lighting(ambient=(ambient,) * 3, points=(PointLight(tuple(pos.tolist()), tuple((intensity * warm).tolist())),))
+    lights = []
+    for i in range(int(rng.integers(1, 3))):
+        az = rng.uniform(-np.pi, np.pi)
+        pos = np.array([rng.uniform(0.5, 1.0) * np.cos(az), rng.uniform(0.5, 1.0) * np.sin(az), rng.uniform(1.3, 1.9)])
+        irradiance = rng.uniform(0.45, 0.65) / (1.0 + 0.6 * i)  # at the object, facing the light
+        warm = np.array([1.0, rng.uniform(0.93, 1.0), rng.uniform(0.85, 0.97)])
+        lights.append(PointLight(tuple(pos.tolist()), tuple((irradiance * float(pos @ pos) * warm).tolist())))
+    return Lighting(ambient=(ambient,) * 3, points=tuple(lights))
 
 
 def _intrinsics(rng: np.random.Generator, width: int, height: int) -> np.ndarray:
     hfov = np.radians(rng.uniform(58.0, 66.0))
     f = width / (2.0 * np.tan(hfov / 2.0))
-    return np.array([[f, 0.0, (width - 1) / 2.0 + rng.uniform(-2, 2)], [0.0, f, (height - 1) / 2.0 + rng.uniform(-2, 2)], [0.0, 0.0, 1.0]])
+    scale = width / 640.0
+    return np.array([[f, 0.0, (width - 1) / 2.0 + rng.uniform(-4, 4) * scale], [0.0, f, (height - 1) / 2.0 + rng.uniform(-4, 4) * scale], [0.0, 0.0, 1.0]])
 
 
 def _mesh_data(part: _Part, texture_path: Path | None) -> MeshData:
-    return MeshData(
-        vertices=np.asarray(part.mesh.vertices, dtype=float),
-        faces=np.asarray(part.mesh.faces, dtype=np.int64),
-        color=part.color_linear,
-        uv=part.uv,
-        texture=texture_path,
-    )
+    return MeshData(vertices=np.asarray(part.mesh.vertices, dtype=float), faces=np.asarray(part.mesh.faces, dtype=np.int64), color=part.color_linear, uv=part.uv, texture=texture_path)
 
 
 def _write_part(gt_dir: Path, rel_mesh: str, part: _Part) -> tuple[gtfmt.Appearance, Path | None]:
@@ -161,9 +180,33 @@ def _write_part(gt_dir: Path, rel_mesh: str, part: _Part) -> tuple[gtfmt.Appeara
         texture_rel = str(Path(rel_mesh).with_suffix(".png"))
         texture_path = gt_dir / texture_rel
         images.write_rgb(texture_path, part.texture)
-    write_obj(gt_dir / rel_mesh, part.mesh.vertices, part.mesh.faces, uv=part.uv if part.texture is not None else None,
-              color_linear=part.color_linear, texture_file=Path(texture_rel).name if texture_rel else None)
+    write_obj(
+        gt_dir / rel_mesh,
+        part.mesh.vertices,
+        part.mesh.faces,
+        uv=part.uv if part.texture is not None else None,
+        color_linear=part.color_linear,
+        texture_file=Path(texture_rel).name if texture_rel else None,
+    )
     return gtfmt.Appearance(part.color_linear, texture_rel), texture_path
+
+
+def _make_object(rng, shape: shapes.ObjectShape, name: str, label: int) -> _Object:
+    spec = shapes.sample_object(shape, rng)
+    category = shapes.SHAPE_CATEGORY[shape]
+    prior = PRIORS[category]
+    return _Object(
+        name=name,
+        spec=spec,
+        part=_Part(name, spec.mesh, color_linear=_random_color(rng, saturated=True)),
+        category=category,
+        density=float(rng.uniform(*prior.density_range_kg_m3)),
+        friction=float(np.clip(rng.normal(prior.friction, prior.friction_sigma / 2), 0.2, 1.0)),
+        restitution=float(np.clip(rng.normal(prior.restitution, prior.restitution_sigma / 2), 0.0, 0.8)),
+        specular=shape is shapes.ObjectShape.CAN,  # metal cans mirror the depth sensor's pattern away
+        poses=np.zeros((0, 4, 4)),
+        label=label,
+    )
 
 
 def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: bool = False) -> Path:
@@ -184,25 +227,54 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
     n, W, H = config.n_frames, config.width, config.height
     gt_dir = tmp_dir / "gt"
 
-    parts, layout = _static_scene(rng)
+    parts, layout = _static_scene(rng, keep_clear_m=0.36)
     lighting = _lighting(rng)
     K = _intrinsics(rng, W, H)
+    table = {"table_center": layout["table_center"], "table_half_extent": layout["table_half_extent"]}
 
-    # the target object, resting at the origin with a random yaw
-    spec = shapes.sample_object(config.shape, rng)
-    category = shapes.SHAPE_CATEGORY[config.shape]
-    prior = PRIORS[category]
-    name = config.shape.value.capitalize()
-    start = se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-np.pi, np.pi)), [0.0, 0.0, 0.0])
-    motion = task_motion(config.task, n, start, spec.size_m, rng, table_half_extent=layout["table_half_extent"])
-    hand_poses = hand_trajectory(motion, n)
-    density = float(rng.uniform(*prior.density_range_kg_m3))
-    obj_part = _Part(name, spec.mesh, color_linear=_random_color(rng, saturated=True))
+    # ---------------------------------------------------------------- objects and their motion
+    objects: list[_Object] = []
+    if config.task is Task.UNSTACK:
+        base = _make_object(rng, shapes.ObjectShape.BOX, "Base", 1)
+        ext = (rng.uniform(0.10, 0.14), rng.uniform(0.10, 0.14), rng.uniform(0.05, 0.08))
+        base.spec = shapes.ShapeSpec(shapes.ObjectShape.BOX, shapes.box(ext, center=(0.0, 0.0, ext[2] / 2)), ext)
+        base.part.mesh = base.spec.mesh
+        base_pose = se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-np.pi, np.pi)), [0.0, 0.0, 0.0])
+        base.poses = np.repeat(base_pose[None], n, axis=0)
+        top = _make_object(rng, config.shape, "Top", 2)
+        top_start = se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-np.pi, np.pi)), [0.0, 0.0, ext[2]])
+        motion = task_motion(config.task, n, top_start, top.spec.size_m, rng, support=(np.zeros(2), 0.5 * float(np.hypot(ext[0], ext[1]))), **table)
+        top.poses = motion.world_from_object
+        objects = [base, top]
+        manipulated = top
+    else:
+        obj = _make_object(rng, config.shape, config.shape.value.capitalize(), 1)
+        start = se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-np.pi, np.pi)), [0.0, 0.0, 0.0])
+        motion = task_motion(config.task, n, start, obj.spec.size_m, rng, **table)
+        obj.poses = motion.world_from_object
+        objects = [obj]
+        manipulated = obj
     hand_part = _Part("Interactor", shapes.hand_proxy(), color_linear=SKIN_LINEAR)
 
-    # camera: looks at the middle of the object's path, from a hand-held path
-    path_center = motion.world_from_object[:, :3, 3].mean(axis=0) + np.array([0.0, 0.0, 0.5 * spec.size_m[2]])
-    cam_poses = handheld_camera(n, path_center, rng, fps=config.fps)
+    # camera: looks at the middle of the manipulated object's path, from a hand-held path
+    path_center = manipulated.poses[:, :3, 3].mean(axis=0) + np.array([0.0, 0.0, 0.5 * manipulated.spec.size_m[2]])
+    cam_poses = handheld_camera(
+        n,
+        path_center,
+        rng,
+        fps=config.fps,
+        distance_m=(0.55, 0.85),
+        elevation_deg=(28.0, 50.0),
+        sweep_deg=float(rng.uniform(8.0, 20.0)),
+        shake_m=float(rng.uniform(0.002, 0.004)),
+        shake_deg=float(rng.uniform(0.3, 0.6)),
+    )
+
+    # the hand reaches in from above and from the far side of the objects, not past the camera
+    away = manipulated.poses[0, :3, 3] - cam_poses[:, :3, 3].mean(axis=0)
+    away[2] = 0.0
+    approach = 0.5 * away / max(float(np.linalg.norm(away)), 1e-9) + np.array([0.0, 0.0, 1.0])
+    hand_poses = hand_trajectory(dataclasses.replace(motion, approach_dir=approach / np.linalg.norm(approach)), n)
 
     # ---------------------------------------------------------------- ground truth files
     items = []
@@ -212,36 +284,49 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
         appearance, tex_path = _write_part(gt_dir, rel, part)
         part_entries.append(gtfmt.part_json(part.name, rel, appearance))
         items.append(RenderItem(part.name, _mesh_data(part, tex_path)))
-    obj_rel = f"objects/{name}.obj"
-    obj_appearance, _ = _write_part(gt_dir, obj_rel, obj_part)
-    items.append(RenderItem(name, _mesh_data(obj_part, None), label=OBJECT_LABEL, pose=motion.world_from_object[0]))
-    hand_appearance, _ = _write_part(gt_dir, "interactor.obj", hand_part)
-    items.append(RenderItem("Interactor", _mesh_data(hand_part, None), label=INTERACTOR_LABEL, pose=hand_poses[0]))
-
     timestamps = np.arange(n) / config.fps
+    object_entries = []
+    for obj in objects:
+        rel = f"objects/{obj.name}.obj"
+        appearance, _ = _write_part(gt_dir, rel, obj.part)
+        items.append(RenderItem(obj.name, _mesh_data(obj.part, None), label=obj.label, pose=obj.poses[0]))
+        write_tum(gt_dir / f"objects/{obj.name}.tum", timestamps, obj.poses, header=f"world_from_object of {obj.name}")
+        truth = gtfmt.GtObject(
+            name=obj.name,
+            category=obj.category,
+            mesh=rel,
+            trajectory=f"objects/{obj.name}.tum",
+            appearance=appearance,
+            density_kg_m3=obj.density,
+            friction=obj.friction,
+            restitution=obj.restitution,
+            hollow=PRIORS[obj.category].hollow,
+            shell_thickness_m=PRIORS[obj.category].shell_thickness_m,
+        )
+        mp = mass_properties(obj.spec.mesh.vertices, obj.spec.mesh.faces, obj.density)
+        object_entries.append(dict(gtfmt.object_json(truth), mass_kg=mp.mass_kg, size_m=list(obj.spec.size_m), specular=obj.specular, label=obj.label))
+    hand_appearance, _ = _write_part(gt_dir, "interactor.obj", hand_part)
+    # the interactor proxy casts no shadow: the reconstruction does not contain the hand, and a
+    # shadow of it (often of an arm outside the image) is not something a perfect reconstruction
+    # could reproduce, so it would only blur what the SSIM gate measures
+    items.append(RenderItem("Interactor", _mesh_data(hand_part, None), label=INTERACTOR_LABEL, pose=hand_poses[0], casts_shadow=False))
     write_tum(gt_dir / "camera.tum", timestamps, cam_poses, header="world_from_camera, OpenCV camera axes")
-    write_tum(gt_dir / f"objects/{name}.tum", timestamps, motion.world_from_object, header=f"world_from_object of {name}")
     write_tum(gt_dir / "interactor.tum", timestamps, hand_poses, header="world_from_interactor")
     np.savetxt(gt_dir / "K.txt", K, fmt="%.9f")
     np.savetxt(tmp_dir / "cam_K.txt", K, fmt="%.9f")
     np.savetxt(gt_dir / "gravity.txt", np.array([[0.0, 0.0, -1.0]]), fmt="%.9f", header="unit gravity (down) direction in the world frame")
-    mp = mass_properties(spec.mesh.vertices, spec.mesh.faces, density)
-    gt_object = gtfmt.GtObject(
-        name=name,
-        category=category,
-        mesh=obj_rel,
-        trajectory=f"objects/{name}.tum",
-        appearance=obj_appearance,
-        density_kg_m3=density,
-        friction=float(np.clip(rng.normal(prior.friction, prior.friction_sigma / 2), 0.2, 1.0)),
-        restitution=float(np.clip(rng.normal(prior.restitution, prior.restitution_sigma / 2), 0.0, 0.8)),
-        hollow=prior.hollow,
-        shell_thickness_m=prior.shell_thickness_m,
-    )
+    misregistration = sample_misregistration(rng)
     gtfmt.write_manifest(
         gt_dir,
         {
-            "generator": {"task": config.task.value, "shape": config.shape.value, "seed": config.seed, "spp": config.spp},
+            "generator": {
+                "version": GENERATOR_VERSION,
+                "task": config.task.value,
+                "shape": config.shape.value,
+                "seed": config.seed,
+                "spp": config.spp,
+                "depth_misregistration_px": list(misregistration),
+            },
             "fps": config.fps,
             "width": W,
             "height": H,
@@ -253,39 +338,47 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
             "lighting": lighting.to_json(),
             "layout": {k: list(v) if isinstance(v, tuple) else v for k, v in layout.items()},
             "parts": part_entries,
-            "objects": [dict(gtfmt.object_json(gt_object), mass_kg=mp.mass_kg, size_m=list(spec.size_m))],
+            "objects": object_entries,
             "interactor": gtfmt.interactor_json(gtfmt.GtInteractor("interactor.obj", "interactor.tum", hand_appearance)),
+            "depth": "depth",
+            "interactor_label": INTERACTOR_LABEL,
         },
     )
 
     # ---------------------------------------------------------------- render
     scene = RenderScene(items, lighting)
-    first_box = None
-    visible = np.zeros(n, dtype=int)
+    specular = frozenset(obj.label for obj in objects if obj.specular)
+    first_box: dict[str, tuple[int, list[int]]] = {}
+    visible = {obj.name: 0 for obj in objects}
     for t in progress(range(n), "render", total=n):
-        scene.set_pose(name, motion.world_from_object[t])
+        for obj in objects:
+            scene.set_pose(obj.name, obj.poses[t])
         scene.set_pose("Interactor", hand_poses[t])
         rgb = scene.render_srgb8(cam_poses[t], K, W, H, spp=config.spp, seed=t)
-        depth, labels = scene.depth_and_labels(cam_poses[t], K, W, H)
+        surface = scene.surface(cam_poses[t], K, W, H, with_albedo=True)
         stem = f"{t:06d}"
         images.write_rgb(tmp_dir / "rgb" / f"{stem}.png", rgb)
-        images.write_depth_mm(tmp_dir / "depth" / f"{stem}.png", depth)
-        obj_mask = labels == OBJECT_LABEL
-        images.write_mask(gt_dir / "masks" / name / f"{stem}.png", obj_mask)
-        images.write_mask(gt_dir / "masks" / "interactor" / f"{stem}.png", labels == INTERACTOR_LABEL)
-        visible[t] = int(obj_mask.sum())
-        if first_box is None and obj_mask.any():
-            ys, xs = np.nonzero(obj_mask)
-            first_box = (t, [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1])
-    if first_box is None:
-        raise RuntimeError(f"generator bug: the object is never visible (seed {config.seed})")
+        images.write_depth_mm(gt_dir / "depth" / f"{stem}.png", surface.depth)
+        images.write_depth_mm(tmp_dir / "depth" / f"{stem}.png", sensor_depth(surface, rng, specular_labels=specular, misregistration_px=misregistration))
+        for obj in objects:
+            mask = surface.labels == obj.label
+            images.write_mask(gt_dir / "masks" / obj.name / f"{stem}.png", mask)
+            if mask.any():
+                visible[obj.name] += 1
+                if obj.name not in first_box:
+                    ys, xs = np.nonzero(mask)
+                    first_box[obj.name] = (t, [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1])
+        images.write_mask(gt_dir / "masks" / "interactor" / f"{stem}.png", surface.labels == INTERACTOR_LABEL)
+    missing = [obj.name for obj in objects if obj.name not in first_box]
+    if missing:
+        raise RuntimeError(f"generator bug: object(s) {missing} never visible (seed {config.seed})")
 
-    prompt_frame, box = first_box
-    (tmp_dir / "rose.toml").write_text(
-        f"# synthetic case: task {config.task.value}, shape {config.shape.value}, seed {config.seed}\n"
-        f"fps = {config.fps:g}\n\n[[objects]]\nname = \"{name}\"\ncategory = \"{category}\"\n"
-        f"prompt = {{ frame = {prompt_frame}, box = [{box[0]}, {box[1]}, {box[2]}, {box[3]}] }}\n"
-    )
+    toml = [f"# synthetic case: task {config.task.value}, shape {config.shape.value}, seed {config.seed}", f"fps = {config.fps:g}", ""]
+    for obj in objects:
+        frame, box = first_box[obj.name]
+        toml += ["[[objects]]", f'name = "{obj.name}"', f'category = "{obj.category}"', f"prompt = {{ frame = {frame}, box = [{box[0]}, {box[1]}, {box[2]}, {box[3]}] }}", ""]
+    (tmp_dir / "rose.toml").write_text("\n".join(toml))
     tmp_dir.rename(out_dir)
-    say(f"wrote {out_dir} ({n} frames {W}x{H}, object visible in {int((visible > 0).sum())} frames)")
+    seen = ", ".join(f"{k} visible in {v} frames" for k, v in visible.items())
+    say(f"wrote {out_dir} ({config.task.value}, {n} frames {W}x{H}, {seen})")
     return out_dir

@@ -55,3 +55,28 @@ def checker(size: int = 256, n: int = 8, colors=((230, 230, 230), (40, 40, 40)))
     img[~mask] = colors[0]
     img[mask] = colors[1]
     return img
+
+
+def marble(rng: np.random.Generator, size: int = 512) -> np.ndarray:
+    """Light stone with soft veins: sRGB uint8 (size, size, 3)."""
+    base = np.array(rng.choice([[226, 222, 214], [200, 204, 208], [214, 200, 186]]), dtype=float)
+    y, x = np.mgrid[0:size, 0:size] / size
+    turb = value_noise(rng, size, 5) + 0.5 * value_noise(rng, size, 11)
+    veins = np.abs(np.sin((x + y + 0.9 * turb) * 2 * np.pi * rng.uniform(2.0, 3.5))) ** 0.25
+    shade = 0.72 + 0.28 * veins + 0.04 * (value_noise(rng, size, 40) - 0.5)
+    return np.clip(base[None, None] * shade[..., None], 0, 255).astype(np.uint8)
+
+
+def cloth(rng: np.random.Generator, size: int = 512) -> np.ndarray:
+    """A woven tablecloth: two-color weave with a plaid: sRGB uint8 (size, size, 3)."""
+    palette = rng.choice([[[178, 52, 48], [236, 228, 214]], [[52, 88, 150], [230, 230, 226]], [[70, 120, 80], [228, 222, 200]]])
+    a, b = (np.array(c, dtype=float) for c in palette)
+    y, x = np.mgrid[0:size, 0:size] / size
+    n = int(rng.integers(5, 9))
+    stripes = (((np.floor(x * n * 2) % 2) + (np.floor(y * n * 2) % 2)) / 2.0)
+    weave = 0.9 + 0.1 * np.sin(x * size * np.pi / 2) * np.sin(y * size * np.pi / 2)
+    img = (a[None, None] * stripes[..., None] + b[None, None] * (1 - stripes[..., None])) * weave[..., None]
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+TABLE_TEXTURES = {"wood": wood, "marble": marble, "cloth": cloth}
