@@ -1,0 +1,69 @@
+"""MegaSaM's final output ``<scene>_sgd_cvd_hr.npz`` (formats.md).
+
+Keys: ``images`` uint8 [N,H,W,3] RGB; ``depths`` float16 [N,H,W], 1/disparity clipped to
+[1e-3, 1e2]; ``intrinsic`` 3x3 [px of those images]; ``cam_c2w`` [N,4,4] camera-to-world, OpenCV
+camera axes. Depth and translation are NOT metric: metric = alpha * depth + beta for an unknown
+per-video alpha, beta. The tracking step's ``<scene>_droid.npz`` has the same keys, float32 depths.
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rose_usd.errors import InputError
+
+KEYS = ("images", "depths", "intrinsic", "cam_c2w")
+DEPTH_CLIP = (1e-3, 1e2)
+
+
+@dataclass
+class MegaSamOutput:
+    images: np.ndarray
+    """RGB frames as MegaSaM processed them, uint8 (N, H, W, 3)."""
+    depths: np.ndarray
+    """Up-to-scale depth (1/disparity), (N, H, W)."""
+    intrinsic: np.ndarray
+    """3x3 intrinsics in pixels of ``images``."""
+    cam_c2w: np.ndarray
+    """Camera-to-world poses, OpenCV axes, up-to-scale translation, (N, 4, 4)."""
+
+
+def read_megasam(path: str | os.PathLike) -> MegaSamOutput:
+    """Read and check a MegaSaM npz; InputError naming the problem otherwise."""
+    path = Path(path)
+    hint = "give MegaSaM's <scene>_sgd_cvd_hr.npz (keys images, depths, intrinsic, cam_c2w)"
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise InputError(f"cannot read this npz ({exc})", path=path, hint=hint) from None
+    missing = [k for k in KEYS if k not in data.files]
+    if missing:
+        raise InputError(f"MegaSaM npz lacks key(s) {missing} (has {sorted(data.files)})", path=path, hint=hint)
+    out = MegaSamOutput(*(data[k] for k in KEYS))
+    n = len(out.cam_c2w)
+    if out.images.ndim != 4 or out.images.shape[-1] != 3 or out.images.dtype != np.uint8:
+        raise InputError(f"images are {out.images.dtype} {out.images.shape}, expected uint8 [N,H,W,3]", path=path, hint=hint)
+    if out.depths.shape != out.images.shape[:3]:
+        raise InputError(f"depths {out.depths.shape} do not match images {out.images.shape[:3]}", path=path, hint=hint)
+    if out.intrinsic.shape != (3, 3) or out.cam_c2w.shape != (n, 4, 4) or len(out.images) != n:
+        raise InputError(f"intrinsic {out.intrinsic.shape} / cam_c2w {out.cam_c2w.shape} / {len(out.images)} images disagree", path=path, hint=hint)
+    if not (np.all(np.isfinite(out.cam_c2w)) and np.all(np.isfinite(out.intrinsic))):
+        raise InputError("poses or intrinsics contain NaN", path=path, hint=hint)
+    return out
+
+
+def write_megasam(path: str | os.PathLike, out: MegaSamOutput, *, depth_dtype=np.float16) -> None:
+    """Write the npz exactly as MegaSaM does (np.savez, depths clipped and cast)."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    np.savez(
+        path,
+        images=np.asarray(out.images, dtype=np.uint8),
+        depths=np.clip(out.depths, *DEPTH_CLIP).astype(depth_dtype),
+        intrinsic=np.asarray(out.intrinsic, dtype=np.float32),
+        cam_c2w=np.asarray(out.cam_c2w, dtype=np.float32),
+    )

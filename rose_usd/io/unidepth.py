@@ -1,0 +1,52 @@
+"""UniDepth per-frame outputs (formats.md): ``.npz`` with ``depth`` float32 [H,W] in meters,
+``fov`` in degrees (horizontal), optional ``intrinsics`` 3x3 and ``confidence`` [H,W]."""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rose_usd.errors import InputError
+
+
+@dataclass
+class UniDepthFrame:
+    depth_m: np.ndarray
+    fov_deg: float
+    intrinsics: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+
+
+def read_unidepth(path: str | os.PathLike) -> UniDepthFrame:
+    path = Path(path)
+    hint = "give UniDepth's per-frame npz (depth [H,W] meters, fov degrees)"
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise InputError(f"cannot read this npz ({exc})", path=path, hint=hint) from None
+    missing = [k for k in ("depth", "fov") if k not in data.files]
+    if missing:
+        raise InputError(f"UniDepth npz lacks key(s) {missing} (has {sorted(data.files)})", path=path, hint=hint)
+    depth = np.asarray(data["depth"], dtype=np.float32)
+    if depth.ndim != 2:
+        raise InputError(f"depth has shape {depth.shape}, expected [H, W]", path=path, hint=hint)
+    fov = float(np.asarray(data["fov"]).reshape(-1)[0])
+    if not 1.0 < fov < 179.0:
+        raise InputError(f"fov {fov:g} is not a field of view in degrees", path=path, hint=hint)
+    intr = np.asarray(data["intrinsics"], dtype=float).reshape(3, 3) if "intrinsics" in data.files else None
+    conf = np.asarray(data["confidence"], dtype=np.float32) if "confidence" in data.files else None
+    return UniDepthFrame(depth, fov, intr, conf)
+
+
+def write_unidepth(path: str | os.PathLike, frame: UniDepthFrame) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    extra = {}
+    if frame.intrinsics is not None:
+        extra["intrinsics"] = np.asarray(frame.intrinsics, dtype=np.float32)
+    if frame.confidence is not None:
+        extra["confidence"] = np.asarray(frame.confidence, dtype=np.float32)
+    np.savez(path, depth=np.asarray(frame.depth_m, dtype=np.float32), fov=np.float32(frame.fov_deg), **extra)
