@@ -150,6 +150,33 @@ def cmd_bench_generate(args) -> int:
     return 0
 
 
+def cmd_bench_run(args) -> int:
+    from rose_usd.bench.modes import PerceptionMode
+    from rose_usd.bench.report import build_report
+    from rose_usd.bench.runner import DEFAULT_CASES, run_suite
+
+    mode = PerceptionMode(args.mode)
+    backends = _parse_assignments(args.backend, "--backend") or {"all": "oracle"}
+    settings = _parse_assignments(args.set, "--set")
+    tag = "-".join(f"{k}={v}" for k, v in sorted(backends.items())).replace("all=", "")
+    out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"{args.suite}-{mode.value}-{tag}"
+    command = "rose-usd " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("rose-usd") else f"rose-usd bench run --suite {args.suite} --mode {mode.value}"
+    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command)
+    report = build_report(out)
+    failed = [c["case"] for c in summary["cases"] if "error" in c]
+    print(f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed -> {out}/results.json, {report}")
+    print(report.read_text().split("## Per case")[0])
+    return 1 if failed else 0
+
+
+def cmd_bench_report(args) -> int:
+    from rose_usd.bench.report import build_report
+
+    report = build_report(Path(args.results))
+    print(report.read_text())
+    return 0
+
+
 def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="output folder (rose.usda, layers/, masks/, report/)")
     p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backend of a stage (repeatable); STAGE 'all' sets every stage that has it")
@@ -219,6 +246,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (anti-aliasing)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing case folder")
     p.set_defaults(func=cmd_bench_generate)
+    p = bsub.add_parser("run", help="run a suite of generated cases in one perception mode and score every stage")
+    p.add_argument("--suite", default="small", help="suite name: small (CI) or default (5 tasks x 2 seeds, 640x480)")
+    p.add_argument("--mode", default="rgbd", choices=["rgbd", "mono-imported", "rgb"], help="what the cases give the pipeline")
+    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default all=oracle)")
+    p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="stage settings")
+    p.add_argument("-o", "--output", help="results folder (default benchmarks/results/SUITE-MODE-BACKENDS)")
+    p.add_argument("--cases", help="where generated cases are cached (default benchmarks/cases)")
+    p.set_defaults(func=cmd_bench_run)
+    p = bsub.add_parser("report", help="write report.md and plots for a results folder")
+    p.add_argument("results", help="a folder with results.json")
+    p.set_defaults(func=cmd_bench_report)
     return parser
 
 

@@ -1,0 +1,233 @@
+"""Score one reconstruction against its case's ground truth (architecture.md section 5).
+
+Frames: the reconstruction's world is registered to the ground-truth world by the camera poses
+(rose_usd.core.metrics.align_poses; identity for a perfect capture), so a world that is right up
+to its arbitrary yaw and origin is not penalized, while every other error is. Each reconstructed
+object frame is matched to the ground-truth object frame by registering its mesh to the true mesh
+at frame 0 (ICP), so trajectories of differently-anchored object frames compare fairly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from pxr import Usd, UsdGeom
+
+from rose_usd.case.gt import GroundTruth
+from rose_usd.core import metrics, se3
+from rose_usd.io.images import read_depth_m, read_mask
+from rose_usd.render.lighting import Lighting
+from rose_usd.render.scene import RenderItem, RenderScene
+from rose_usd.usd import paths
+from rose_usd.usd.camera import read_camera
+from rose_usd.usd.geom import MeshData, read_mesh
+from rose_usd.usd.stage import open_stage
+
+
+@dataclass
+class ObjectScore:
+    name: str
+    chamfer_m: float
+    """Symmetric Chamfer of the object mesh against the true mesh, in the true object frame at frame 0."""
+    ape_translation_m: float
+    ape_rotation_deg: float
+    rpe_translation_m: float
+    rpe_rotation_deg: float
+    ape_translation_per_frame_m: list[float] = field(default_factory=list)
+    mass_kg: float | None = None
+    true_mass_kg: float | None = None
+
+
+@dataclass
+class CaseScore:
+    camera_ape_translation_m: float
+    camera_ape_rotation_deg: float
+    camera_rpe_translation_m: float
+    camera_rpe_rotation_deg: float
+    gravity_error_deg: float
+    scale_error: float
+    """|s - 1| of the Sim(3) scale registering the reconstructed camera centers to the true ones."""
+    scene_chamfer_m: float
+    scene_chamfer_visible_m: float
+    """Mean over sampled frames of the Chamfer between what the true and reconstructed scenes show."""
+    objects: list[ObjectScore]
+    ssim_mean: float | None
+    gate_passed: bool | None
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def _rec_poses(stage: Usd.Stage, path, n: int) -> np.ndarray:
+    xf = UsdGeom.Xformable(stage.GetPrimAtPath(path))
+    return np.array([np.array(xf.ComputeLocalToWorldTransform(Usd.TimeCode(t))).T for t in range(n)])
+
+
+def _meshes(stage: Usd.Stage, root, time: Usd.TimeCode = Usd.TimeCode.Default()) -> tuple[np.ndarray, np.ndarray]:
+    """All renderable meshes under ``root`` merged, in world coordinates at ``time``."""
+    purposes = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
+    verts, faces, offset = [], [], 0
+    prim = stage.GetPrimAtPath(root)
+    if not prim:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    for p in Usd.PrimRange(prim):
+        if p.IsA(UsdGeom.Mesh) and UsdGeom.Imageable(p).ComputePurpose() in purposes:
+            m = read_mesh(p, time, world=True)
+            verts.append(m.vertices)
+            faces.append(m.faces + offset)
+            offset += len(m.vertices)
+    if not verts:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def _backproject(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
+    v, u = np.nonzero(mask)
+    z = depth[v, u]
+    pts = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    return se3.transform_points(world_from_cv, pts)
+
+
+def _static_pixels(gt: GroundTruth, t: int, stride_px: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """True depth of frame t and the pixels showing the static scene (objects, interactor and
+    pixels without depth removed), subsampled every ``stride_px``."""
+    depth = read_depth_m(gt.depth_dir / f"{t:06d}.png")
+    mask = depth > 0
+    for obj in gt.objects:
+        mask &= ~read_mask(gt.mask_dir(obj.name) / f"{t:06d}.png")
+    mask &= ~read_mask(gt.mask_dir("interactor") / f"{t:06d}.png")
+    sub = np.zeros_like(mask)
+    sub[::stride_px, ::stride_px] = True
+    return depth, mask & sub
+
+
+def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    return points if len(points) <= count else points[rng.choice(len(points), size=count, replace=False)]
+
+
+def _icp_correction(rec_points: np.ndarray, true_surface: metrics.SurfaceDistance, true_points: np.ndarray) -> np.ndarray:
+    """Rigid world correction C (4, 4) bringing the reconstructed object points onto the true
+    surface (point-to-point ICP against dense true samples; identity when they already agree)."""
+    from scipy.spatial import cKDTree
+
+    if np.mean(true_surface(rec_points)) < 1e-6:
+        return np.eye(4)
+    tree = cKDTree(true_points)
+    correction = np.eye(4)
+    src = rec_points.copy()
+    for _ in range(30):
+        dist, idx = tree.query(src)
+        keep = dist < max(0.02, 3 * np.median(dist))
+        step, _ = metrics.umeyama_sim3(src[keep], true_points[idx[keep]])
+        step[:3, :3] /= np.cbrt(np.linalg.det(step[:3, :3]))  # rigid only
+        src = se3.transform_points(step, src)
+        correction = step @ correction
+        if np.linalg.norm(step[:3, 3]) < 1e-6 and se3.rotation_angle_deg(step[:3, :3]) < 1e-4:
+            break
+    return correction
+
+
+def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> CaseScore:
+    """Metrics of the stage in ``out_dir`` against the ground truth of ``case_dir``."""
+    rng = np.random.default_rng(seed)
+    gt = GroundTruth(case_dir / "gt")
+    stage = open_stage(out_dir / "rose.usda")
+    n = gt.n_frames
+    true_cams = gt.camera_poses()
+    track = read_camera(stage, paths.CAMERA, n)
+
+    # ---------------------------------------------------------------- cameras and world
+    align = metrics.align_poses(track.world_from_cv, true_cams)  # rec world -> true world
+    cams = np.einsum("ij,njk->nik", align, track.world_from_cv)
+    cam_ape, cam_rpe = metrics.ape(cams, true_cams), metrics.rpe(cams, true_cams)
+    up = align[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    true_up = -gt.gravity / np.linalg.norm(gt.gravity)
+    gravity_err = float(np.degrees(np.arccos(np.clip(up @ true_up, -1.0, 1.0))))
+    _, scale = metrics.umeyama_sim3(track.world_from_cv[:, :3, 3], true_cams[:, :3, 3])
+
+    # ---------------------------------------------------------------- scene
+    true_parts = [gt.part_mesh(p) for p in gt.parts]
+    tv = np.concatenate([m.vertices for m in true_parts])
+    tf = np.concatenate([m.faces + off for m, off in zip(true_parts, np.cumsum([0] + [len(m.vertices) for m in true_parts[:-1]]))])
+    true_surface = metrics.SurfaceDistance(tv, tf)
+    frames = list(range(0, n, max(1, frame_stride)))
+    pixels = {t: _static_pixels(gt, t) for t in frames}
+    seen = {t: _backproject(depth, mask, gt.K, true_cams[t]) for t, (depth, mask) in pixels.items()}
+    seen_all = np.concatenate(list(seen.values()))
+    lo, hi = seen_all.min(axis=0) - 0.05, seen_all.max(axis=0) + 0.05
+    rv, rf = _meshes(stage, paths.SCENE_VISUAL)
+    if len(rf):
+        rv = se3.transform_points(align, rv)
+        rec_surface = metrics.SurfaceDistance(rv, rf)
+        rec_pts = metrics.sample_surface(rv, rf, 400_000, rng)
+        rec_pts = rec_pts[np.all((rec_pts >= lo) & (rec_pts <= hi), axis=1)]
+        keep = rng.choice(len(seen_all), size=min(len(seen_all), 200_000), replace=False)
+        scene_chamfer, _, _ = metrics.chamfer_point_surface(rec_pts, rec_surface, seen_all[keep], true_surface)
+        # per frame: what the reconstruction shows through the same pixels as the true static scene
+        rec_scene = RenderScene([RenderItem("scene", MeshData(rv, rf, color=(0.5, 0.5, 0.5)))], Lighting.unlit())
+        per_frame = []
+        for t, (_, mask) in pixels.items():
+            rec_depth, _ = rec_scene.depth_and_labels(true_cams[t], gt.K, gt.width, gt.height)
+            rec_seen = _backproject(rec_depth, mask & (rec_depth > 0), gt.K, true_cams[t])
+            per_frame.append(metrics.chamfer_points(_subsample(rec_seen, 40_000, rng), _subsample(seen[t], 40_000, rng)))
+        scene_visible = float(np.nanmean(per_frame))
+    else:
+        scene_chamfer = scene_visible = float("nan")
+
+    # ---------------------------------------------------------------- objects
+    scores = []
+    for obj in gt.objects:
+        path = paths.object_path(obj.name)
+        prim = stage.GetPrimAtPath(path)
+        if not prim:
+            scores.append(ObjectScore(obj.name, *(float("nan"),) * 5))
+            continue
+        true_poses = gt.object_poses(obj.name)
+        true_mesh = gt.object_mesh(obj.name)
+        rec_world0, rec_faces = _meshes(stage, paths.object_visual(obj.name), Usd.TimeCode(0))
+        rec_world0 = se3.transform_points(align, rec_world0)
+        rec_poses = np.einsum("ij,njk->nik", align, _rec_poses(stage, path, n))
+        true_world0 = se3.transform_points(true_poses[0], true_mesh.vertices)
+        true_obj_surface = metrics.SurfaceDistance(true_world0, true_mesh.faces)
+        rec_obj_surface = metrics.SurfaceDistance(rec_world0, rec_faces)
+        rec_samples = metrics.sample_surface(rec_world0, rec_faces, 50_000, rng)
+        true_samples = metrics.sample_surface(true_world0, true_mesh.faces, 50_000, rng)
+        chamfer, _, _ = metrics.chamfer_point_surface(rec_samples, rec_obj_surface, true_samples, true_obj_surface)
+        # object-frame correspondence: X maps true object coordinates into reconstructed ones
+        correction = _icp_correction(rec_samples[:5000], true_obj_surface, true_samples)
+        x = se3.invert(rec_poses[0]) @ se3.invert(correction) @ true_poses[0]
+        est = np.einsum("nij,jk->nik", rec_poses, x)
+        a, r = metrics.ape(est, true_poses), metrics.rpe(est, true_poses)
+        mass_attr = prim.GetAttribute("physics:mass")
+        true_mass = next((o.get("mass_kg") for o in gt.data["objects"] if o["name"] == obj.name), None)
+        scores.append(
+            ObjectScore(
+                name=obj.name,
+                chamfer_m=chamfer,
+                ape_translation_m=a.translation.rmse,
+                ape_rotation_deg=a.rotation.rmse,
+                rpe_translation_m=r.translation.rmse,
+                rpe_rotation_deg=r.rotation.rmse,
+                ape_translation_per_frame_m=[float(v) for v in a.translation_m],
+                mass_kg=float(mass_attr.Get()) if mass_attr and mass_attr.HasAuthoredValue() else None,
+                true_mass_kg=true_mass,
+            )
+        )
+
+    gate = stage.GetPrimAtPath(paths.GATE)
+    ssim = float(gate.GetAttribute("rose:gate:ssimMean").Get()) if gate else None
+    passed = bool(gate.GetAttribute("rose:gate:passed").Get()) if gate else None
+    return CaseScore(
+        camera_ape_translation_m=cam_ape.translation.rmse,
+        camera_ape_rotation_deg=cam_ape.rotation.rmse,
+        camera_rpe_translation_m=cam_rpe.translation.rmse,
+        camera_rpe_rotation_deg=cam_rpe.rotation.rmse,
+        gravity_error_deg=gravity_err,
+        scale_error=abs(scale - 1.0),
+        scene_chamfer_m=scene_chamfer,
+        scene_chamfer_visible_m=scene_visible,
+        objects=scores,
+        ssim_mean=ssim,
+        gate_passed=passed,
+    )

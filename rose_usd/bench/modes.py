@@ -1,0 +1,59 @@
+"""Perception modes: what a case gives the pipeline, derived from a generated (rgbd) case.
+
+- ``rgbd``: RGB, sensor depth with realistic errors, cam_K.txt (the generated case itself);
+- ``mono-imported``: RGB and the simulated outputs of MegaSaM, UniDepth, GeoCalib, SAM 2,
+  FoundationPose and TRELLIS in their own formats under ``perception/``; no depth, no K;
+- ``rgb``: frames only.
+All modes keep ``gt/`` and ``rose.toml`` (ground truth is read only by oracle backends and metrics).
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+import shutil
+from pathlib import Path
+
+
+class PerceptionMode(enum.Enum):
+    RGBD = "rgbd"
+    MONO_IMPORTED = "mono-imported"
+    RGB = "rgb"
+
+
+_KEEP = {
+    PerceptionMode.RGBD: ("rgb", "depth", "cam_K.txt", "rose.toml", "gt"),
+    PerceptionMode.MONO_IMPORTED: ("rgb", "rose.toml", "gt"),
+    PerceptionMode.RGB: ("rgb", "rose.toml", "gt"),
+}
+
+
+def _link_tree(src: Path, dst: Path) -> None:
+    """Hard-link a file or folder tree (copy where links are not possible)."""
+    if src.is_dir():
+        dst.mkdir(parents=True, exist_ok=True)
+        for child in src.iterdir():
+            _link_tree(child, dst / child.name)
+    else:
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copy2(src, dst)
+
+
+def make_mode_case(base: Path, mode: PerceptionMode, out: Path, seed: int) -> Path:
+    """Build the ``mode`` variant of generated case ``base`` at ``out`` (replaced if present)."""
+    tmp = out.with_name(f".{out.name}.partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name in _KEEP[mode]:
+        if (base / name).exists():
+            _link_tree(base / name, tmp / name)
+    if mode is PerceptionMode.MONO_IMPORTED:
+        from rose_usd.synth.perception import write_mono_imported
+
+        write_mono_imported(tmp, seed)
+    shutil.rmtree(out, ignore_errors=True)
+    tmp.rename(out)
+    (out / ".mode").write_text(mode.value)
+    return out

@@ -1,0 +1,133 @@
+"""``rose-usd bench run``: generate (or reuse) a suite's cases, derive the perception mode, run
+every case in its own process, and write results.json and results.csv."""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+
+from rose_usd.bench.modes import PerceptionMode, make_mode_case
+from rose_usd.bench.suites import CaseSpec, get_suite
+from rose_usd.case.gt import GroundTruth
+from rose_usd.errors import InputError
+from rose_usd.progress import say
+from rose_usd.synth.generate import generate_case
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_CASES = REPO / "benchmarks" / "cases"
+
+
+def ensure_case(spec: CaseSpec, suite_dir: Path) -> tuple[Path, float]:
+    """The generated (rgbd) case of ``spec``, regenerated when missing or made by other settings.
+    Returns its folder and the seconds spent generating (0 when reused)."""
+    base = suite_dir / spec.name / "base"
+    manifest = base / "gt" / "scene.json"
+    if manifest.is_file():
+        try:
+            gt = GroundTruth(base / "gt")
+            if spec.matches(gt.data.get("generator", {}), gt.n_frames, gt.width, gt.height):
+                return base, 0.0
+        except InputError:
+            pass
+    say(f"bench: generating {spec.name} ({spec.n_frames} frames {spec.width}x{spec.height})")
+    t0 = time.perf_counter()
+    generate_case(spec.generate_config(), base, overwrite=True)
+    return base, time.perf_counter() - t0
+
+
+def ensure_mode(base: Path, spec: CaseSpec, mode: PerceptionMode) -> Path:
+    out = base.parent / mode.value
+    stamp = out / ".mode"
+    base_stamp = (base / "gt" / "scene.json").stat().st_mtime_ns
+    if stamp.is_file() and stamp.read_text() == mode.value and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp:
+        return out
+    return make_mode_case(base, mode, out, spec.seed)
+
+
+def _flatten(result: dict) -> list[dict]:
+    """One CSV row per (case, object)."""
+    rows = []
+    score = result.get("score") or {}
+    base = {k: result[k] for k in ("case", "task", "shape", "seed", "mode", "n_frames", "error") if k in result}
+    for key in ("camera_ape_translation_m", "camera_ape_rotation_deg", "camera_rpe_translation_m", "camera_rpe_rotation_deg", "gravity_error_deg", "scale_error", "scene_chamfer_m", "scene_chamfer_visible_m", "ssim_mean", "gate_passed"):
+        base[key] = score.get(key)
+    for name, st in (result.get("stages") or {}).items():
+        base[f"time_{name}_s"] = st["wall_time_s"]
+        base[f"rss_{name}_mb"] = st["peak_rss_mb"]
+    base["peak_rss_mb"] = result.get("peak_rss_mb")
+    for obj in score.get("objects") or [{}]:
+        row = dict(base)
+        for key, value in obj.items():
+            if key != "ape_translation_per_frame_m":
+                row[f"object_{key}"] = value
+        rows.append(row)
+    return rows
+
+
+def run_suite(suite: str, mode: PerceptionMode, out_dir: Path, *, cases_dir: Path = DEFAULT_CASES, backends: dict | None = None, settings: dict | None = None, command: str = "") -> dict:
+    specs = get_suite(suite)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    suite_dir = Path(cases_dir) / suite
+    backends = dict(backends or {"all": "oracle"})
+    results = []
+    t_start = time.perf_counter()
+    for i, spec in enumerate(specs, start=1):
+        base, gen_time = ensure_case(spec, suite_dir)
+        case = ensure_mode(base, spec, mode)
+        run_out = out_dir / "runs" / spec.name
+        result_file = out_dir / "runs" / f"{spec.name}.json"
+        say(f"bench [{i}/{len(specs)}] {spec.name} ({mode.value})")
+        t0 = time.perf_counter()
+        proc = subprocess.run(
+            [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(run_out), "--result", str(result_file), "--backends", json.dumps(backends), "--settings", json.dumps(settings or {})],
+            env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
+        )
+        result = json.loads(result_file.read_text()) if result_file.is_file() else {"error": f"worker exited with {proc.returncode} and wrote no result"}
+        result.update(case=spec.name, task=spec.task.value, shape=spec.shape.value, seed=spec.seed, mode=mode.value, n_frames=spec.n_frames, size=[spec.width, spec.height], generate_time_s=round(gen_time, 1), case_wall_time_s=round(time.perf_counter() - t0, 1))
+        if "error" in result:
+            say(f"bench: {spec.name} failed: {result['error']}")
+        results.append(result)
+    summary = {
+        "suite": suite,
+        "mode": mode.value,
+        "backends": backends,
+        "settings": settings or {},
+        "command": command,
+        "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
+        "versions": {p: _version(p) for p in ("rose-usd", "usd-core", "mitsuba", "newton", "warp-lang", "open3d")},
+        "commit": _git_commit(),
+        "suite_wall_time_s": round(time.perf_counter() - t_start, 1),
+        "cases": results,
+    }
+    (out_dir / "results.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
+    rows = [row for r in results for row in _flatten(r)]
+    keys = list(dict.fromkeys(k for row in rows for k in row))
+    with open(out_dir / "results.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    return summary
+
+
+def _version(pkg: str) -> str:
+    try:
+        return metadata.version(pkg)
+    except metadata.PackageNotFoundError:
+        return "absent"
+
+
+def _git_commit() -> str | None:
+    try:
+        return subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None

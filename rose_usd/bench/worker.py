@@ -1,0 +1,97 @@
+"""One benchmark case in its own process: run every stage, measure wall time and peak memory per
+stage, score the result. ``python -m rose_usd.bench.worker --case C --out O --result R.json``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+
+_PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * _PAGE
+
+
+class RssMonitor:
+    """Samples this process's resident memory every 10 ms; ``peak()`` since the last ``reset()``."""
+
+    def __init__(self, interval_s: float = 0.01):
+        self._peak = 0
+        self._stop = threading.Event()
+        self._interval = interval_s
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self._peak = max(self._peak, _rss_bytes())
+            time.sleep(self._interval)
+
+    def reset(self) -> None:
+        self._peak = _rss_bytes()
+
+    def peak_mb(self) -> float:
+        return max(self._peak, _rss_bytes()) / 2**20
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+def run_case(case: Path, out: Path, backends: dict, settings: dict) -> dict:
+    from rose_usd import registry
+    from rose_usd.bench.evaluate import evaluate
+    from rose_usd.pipeline import Options, Pipeline
+
+    monitor = RssMonitor()
+    pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True))
+    stages = {}
+    for stage_def in registry.STAGES:
+        monitor.reset()
+        outcome = pipe.run_stage(stage_def)
+        stages[stage_def.name] = {"backend": outcome.backend, "wall_time_s": outcome.wall_time_s, "peak_rss_mb": round(monitor.peak_mb(), 1)}
+    t0 = time.perf_counter()
+    score = evaluate(case, out)
+    monitor.stop()
+    return {
+        "stages": stages,
+        "score": score.to_json(),
+        "evaluate_time_s": round(time.perf_counter() - t0, 2),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--case", required=True, type=Path)
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--result", required=True, type=Path)
+    parser.add_argument("--backends", default="{}", help="JSON {stage: backend}")
+    parser.add_argument("--settings", default="{}", help="JSON {stage: {field: value}}")
+    args = parser.parse_args(argv)
+    from rose_usd.errors import RoseError
+
+    try:
+        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings))
+        code = 0
+    except RoseError as exc:
+        result = {"error": exc.one_line()}
+        code = 1
+    except Exception as exc:  # a crash in one case must not lose the others: record it
+        result = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+        code = 2
+    args.result.parent.mkdir(parents=True, exist_ok=True)
+    args.result.write_text(json.dumps(result, indent=1, default=float) + "\n")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

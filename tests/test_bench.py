@@ -1,0 +1,75 @@
+"""The small benchmark suite runs end to end with oracle backends and meets the oracle targets on
+every task (anything worse is a bug in the benchmark itself)."""
+
+import json
+
+import pytest
+
+from rose_usd.bench.modes import PerceptionMode
+from rose_usd.bench.report import build_report
+from rose_usd.bench.runner import run_suite
+from rose_usd.bench.suites import SUITES, TASK_ORDER
+
+
+@pytest.fixture(scope="module")
+def small_results(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bench")
+    summary = run_suite("small", PerceptionMode.RGBD, root / "results", cases_dir=root / "cases", command="pytest")
+    return root / "results", summary
+
+
+def test_every_task_runs(small_results):
+    """The small suite covers the paper's five tasks and no case fails."""
+    _, summary = small_results
+    assert [c["task"] for c in summary["cases"]] == [t.value for t in TASK_ORDER]
+    assert [c.get("error") for c in summary["cases"]] == [None] * len(TASK_ORDER)
+
+
+def test_oracle_targets_on_every_task(small_results):
+    """Scene Chamfer < 2 mm, object Chamfer < 1 mm, object APE < 1 mm, SSIM > 0.98, gate passed."""
+    _, summary = small_results
+    for case in summary["cases"]:
+        score = case["score"]
+        assert score["scene_chamfer_m"] < 0.002, case["case"]
+        assert score["scene_chamfer_visible_m"] < 0.002, case["case"]
+        assert score["ssim_mean"] > 0.98, case["case"]
+        assert score["gate_passed"], case["case"]
+        assert score["camera_ape_translation_m"] < 1e-4 and score["gravity_error_deg"] < 1e-3
+        for obj in score["objects"]:
+            assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001 and obj["rpe_rotation_deg"] < 0.01, (case["case"], obj["name"])
+
+
+def test_results_files_and_report(small_results):
+    """results.json/.csv hold per-stage time and memory; the report has Table 2, Table 3 and plots."""
+    out, _ = small_results
+    data = json.loads((out / "results.json").read_text())
+    assert data["suite"] == "small" and data["mode"] == "rgbd" and data["command"] == "pytest"
+    stages = data["cases"][0]["stages"]
+    assert set(stages) == {"capture", "segment", "scene", "object", "trajectory", "gate"}
+    assert all(s["peak_rss_mb"] > 50 for s in stages.values())
+    header = (out / "results.csv").read_text().splitlines()[0]
+    assert "object_ape_translation_m" in header and "time_gate_s" in header
+    report = build_report(out).read_text()
+    assert "Table 2" in report and "Table 3" in report and "Paper" in report
+    assert (out / "plots" / "per_task.png").stat().st_size > 0 and (out / "plots" / "ape_over_time.png").stat().st_size > 0
+
+
+def test_default_suite_is_the_papers_size():
+    """The default suite: 5 tasks x 2 seeds at 640x480, 150-300 frames each."""
+    default = SUITES["default"]
+    assert len(default) == 10 and {c.task for c in default} == set(TASK_ORDER)
+    assert all((c.width, c.height) == (640, 480) and 150 <= c.n_frames <= 300 for c in default)
+
+
+@pytest.mark.slow
+def test_default_suite_meets_oracle_targets(tmp_path):
+    """Benchmark job: the default suite with oracle backends meets the oracle targets on every task."""
+    from rose_usd.bench.runner import DEFAULT_CASES
+
+    summary = run_suite("default", PerceptionMode.RGBD, tmp_path / "results", cases_dir=DEFAULT_CASES, command="pytest -m slow")
+    for case in summary["cases"]:
+        assert "error" not in case, case
+        score = case["score"]
+        assert score["scene_chamfer_m"] < 0.002 and score["ssim_mean"] > 0.98, case["case"]
+        for obj in score["objects"]:
+            assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001, (case["case"], obj["name"])
