@@ -102,7 +102,7 @@ def run_suite(suite: str, mode: PerceptionMode, out_dir: Path, *, cases_dir: Pat
         "backends": backends,
         "settings": settings or {},
         "command": command,
-        "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "versions": {p: _version(p) for p in ("rose-usd", "usd-core", "mitsuba", "newton", "warp-lang", "open3d")},
         "commit": _git_commit(),

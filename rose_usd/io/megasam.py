@@ -9,13 +9,13 @@ per-video alpha, beta. The tracking step's ``<scene>_droid.npz`` has the same ke
 from __future__ import annotations
 
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rose_usd.errors import InputError
+from rose_usd.io.npz import load_npz
 
 KEYS = ("images", "depths", "intrinsic", "cam_c2w")
 DEPTH_CLIP = (1e-3, 1e2)
@@ -37,13 +37,7 @@ def read_megasam(path: str | os.PathLike) -> MegaSamOutput:
     """Read and check a MegaSaM npz; InputError naming the problem otherwise."""
     path = Path(path)
     hint = "give MegaSaM's <scene>_sgd_cvd_hr.npz (keys images, depths, intrinsic, cam_c2w)"
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise InputError(f"cannot read this npz ({exc})", path=path, hint=hint) from None
-    missing = [k for k in KEYS if k not in data.files]
-    if missing:
-        raise InputError(f"MegaSaM npz lacks key(s) {missing} (has {sorted(data.files)})", path=path, hint=hint)
+    data = load_npz(path, KEYS, tool="MegaSaM", hint=hint)
     out = MegaSamOutput(*(data[k] for k in KEYS))
     n = len(out.cam_c2w)
     if out.images.ndim != 4 or out.images.shape[-1] != 3 or out.images.dtype != np.uint8:

@@ -4,13 +4,13 @@
 from __future__ import annotations
 
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rose_usd.errors import InputError
+from rose_usd.io.npz import load_npz
 
 
 @dataclass
@@ -24,13 +24,7 @@ class UniDepthFrame:
 def read_unidepth(path: str | os.PathLike) -> UniDepthFrame:
     path = Path(path)
     hint = "give UniDepth's per-frame npz (depth [H,W] meters, fov degrees)"
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise InputError(f"cannot read this npz ({exc})", path=path, hint=hint) from None
-    missing = [k for k in ("depth", "fov") if k not in data.files]
-    if missing:
-        raise InputError(f"UniDepth npz lacks key(s) {missing} (has {sorted(data.files)})", path=path, hint=hint)
+    data = load_npz(path, ("depth", "fov"), tool="UniDepth", hint=hint)
     depth = np.asarray(data["depth"], dtype=np.float32)
     if depth.ndim != 2:
         raise InputError(f"depth has shape {depth.shape}, expected [H, W]", path=path, hint=hint)
