@@ -70,6 +70,6 @@ def test_default_suite_meets_oracle_targets(tmp_path):
     for case in summary["cases"]:
         assert "error" not in case, case
         score = case["score"]
-        assert score["scene_chamfer_m"] < 0.002 and score["ssim_mean"] > 0.98, case["case"]
+        assert score["scene_chamfer_m"] < 0.002 and score["scene_chamfer_visible_m"] < 0.002 and score["ssim_mean"] > 0.98, case["case"]
         for obj in score["objects"]:
             assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001, (case["case"], obj["name"])

@@ -2,11 +2,29 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 from pathlib import Path
 
 from rose_usd.progress import say
+
+
+@contextlib.contextmanager
+def _native_stderr_silenced():
+    """Send file descriptor 2 to /dev/null (C++ prints bypass sys.stderr), then restore it."""
+    import sys
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
 
 
 @functools.cache
@@ -24,7 +42,18 @@ def newton():
     cache = Path(os.environ.get("WARP_CACHE_PATH") or Path.home() / ".cache" / "warp") / wp.config.version
     if not cache.is_dir() or not any(cache.iterdir()):
         say(f"newton: first use compiles Warp kernels into {cache} (about a minute on a CPU, once)")
-    wp.init()
+    if verbose:
+        wp.init()
+    else:
+        with _native_stderr_silenced():  # Warp's driver probe prints a warning from C++ on CPU-only machines
+            wp.init()
     import newton as newton_module
 
+    if not verbose:
+        try:  # Newton runs CoACD for convexDecomposition colliders; its info log floods stdout
+            import coacd
+
+            coacd.set_log_level("error")
+        except (ImportError, AttributeError):
+            pass
     return newton_module
