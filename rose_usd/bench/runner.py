@@ -74,6 +74,7 @@ def _flatten(result: dict) -> list[dict]:
 
 def run_suite(suite: str, mode: PerceptionMode, out_dir: Path, *, cases_dir: Path = DEFAULT_CASES, backends: dict | None = None, settings: dict | None = None, command: str = "") -> dict:
     specs = get_suite(suite)
+    commit = _git_commit()  # at the start: the code that runs
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     suite_dir = Path(cases_dir) / suite
@@ -105,7 +106,7 @@ def run_suite(suite: str, mode: PerceptionMode, out_dir: Path, *, cases_dir: Pat
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "versions": {p: _version(p) for p in ("rose-usd", "usd-core", "mitsuba", "newton", "warp-lang", "open3d")},
-        "commit": _git_commit(),
+        "commit": commit,
         "suite_wall_time_s": round(time.perf_counter() - t_start, 1),
         "cases": results,
     }
@@ -127,7 +128,10 @@ def _version(pkg: str) -> str:
 
 
 def _git_commit() -> str | None:
+    """The checkout's commit, with ``-dirty`` when tracked files have uncommitted changes."""
     try:
-        return subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, check=True).stdout.strip()
+        return commit + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return None
