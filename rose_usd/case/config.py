@@ -22,7 +22,7 @@ from rose_usd.usd.paths import check_name
 
 CASE_CONFIG_FILE = "rose.toml"
 _TOP_KEYS = {"fps", "objects", "backends"}
-_OBJECT_KEYS = {"name", "category", "prompt", "mass_kg", "density_kg_m3", "friction", "restitution", "hollow"}
+_OBJECT_KEYS = {"name", "category", "prompt", "mass_kg", "density_kg_m3", "friction", "restitution", "hollow", "size_m"}
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,8 @@ class ObjectSpec:
     category: str = "generic"
     prompt: Prompt | None = None
     overrides: dict = field(default_factory=dict)
-    """Physics values the user fixed (mass_kg, density_kg_m3, friction, restitution, hollow)."""
+    """Values the user fixed: physics (mass_kg, density_kg_m3, friction, restitution, hollow) and
+    size_m, the object's largest dimension [m] (a metric scale prior)."""
 
 
 @dataclass(frozen=True)

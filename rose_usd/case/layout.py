@@ -29,8 +29,8 @@ def _frame_number(path: Path) -> int | None:
     return int(nums[-1]) if nums else None
 
 
-def _sorted_frames(folder: Path, suffixes: tuple[str, ...], what: str) -> list[Path]:
-    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes and not p.name.startswith(".")]
+def _sorted_frames(folder: Path, suffixes: tuple[str, ...], what: str, infix: str = "") -> list[Path]:
+    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes and not p.name.startswith(".") and infix in p.name]
     if not files:
         raise InputError(f"no {what} files ({'/'.join(suffixes)}) in the folder", path=folder, hint=f"put the {what} frames there, one file per frame")
     numbers = [_frame_number(p) for p in files]
@@ -62,6 +62,7 @@ class Case:
             raise InputError("case not found", path=self.root, hint="give a case folder or a video file")
         self.video: Path | None = None
         self.frame_paths: list[Path] = []
+        self.flat = False
         if self.root.is_file():
             if self.root.suffix.lower() not in VIDEO_SUFFIXES:
                 raise InputError("not a video file or a case folder", path=self.root, hint=f"give a folder or one of {VIDEO_SUFFIXES}")
@@ -77,8 +78,16 @@ class Case:
                 self.frame_paths = _sorted_frames(rgb_dir, images.IMAGE_SUFFIXES, "RGB")
             elif videos:
                 self.video = videos[0]
+            elif any(self.root.glob("*.color.*")):
+                # 7-Scenes / TUM-style flat folder: frame-NNNNNN.color.jpg beside frame-NNNNNN.depth.png
+                self.flat = True
+                self.frame_paths = _sorted_frames(self.root, images.IMAGE_SUFFIXES, "RGB", infix=".color.")
             else:
-                raise InputError("case has neither rgb/ nor video.mp4", path=self.root, hint="put frames in rgb/ (PNG/JPEG, sorted by name) or the video as video.mp4")
+                raise InputError(
+                    "case has neither rgb/ nor video.mp4 (nor *.color.jpg frames)",
+                    path=self.root,
+                    hint="put frames in rgb/ (PNG/JPEG, sorted by name) or the video as video.mp4",
+                )
         if self.video is not None:
             self._probe_video()
         else:
@@ -92,7 +101,7 @@ class Case:
                         hint="all frames of a case must have one size",
                     )
         self.depth_paths = self._find_depth()
-        self.K_path = self.root / "cam_K.txt" if self.root.is_dir() and (self.root / "cam_K.txt").is_file() else None
+        self.K_path = next((self.root / n for n in ("cam_K.txt", "camera-intrinsics.txt") if self.root.is_dir() and (self.root / n).is_file()), None)
         if self.K_path is not None:
             self.K()  # validate now: a bad K fails before anything is written
 
@@ -168,10 +177,16 @@ class Case:
 
     # ------------------------------------------------------------------ depth
     def _find_depth(self) -> list[Path] | None:
-        depth_dir = self.folder / "depth" if self.root.is_dir() else None
-        if depth_dir is None or not depth_dir.is_dir():
-            return None
-        paths = _sorted_frames(depth_dir, images.DEPTH_SUFFIXES, "depth")
+        if self.flat:
+            depth_dir = self.folder
+            if not any(depth_dir.glob("*.depth.*")):
+                return None
+            paths = _sorted_frames(depth_dir, images.DEPTH_SUFFIXES, "depth", infix=".depth.")
+        else:
+            depth_dir = self.folder / "depth" if self.root.is_dir() else None
+            if depth_dir is None or not depth_dir.is_dir():
+                return None
+            paths = _sorted_frames(depth_dir, images.DEPTH_SUFFIXES, "depth")
         if self.video is None:
             if len(paths) != len(self.frame_paths):
                 raise InputError(
@@ -227,9 +242,12 @@ class Case:
         """Every input file a stage may read (for provenance hashes), ground truth excluded."""
         files = list(self.frame_paths) if self.video is None else [self.video]
         files += list(self.depth_paths or [])
-        for extra in ("cam_K.txt", "rose.toml"):
+        for extra in ("cam_K.txt", "camera-intrinsics.txt", "rose.toml"):
             if (self.folder / extra).is_file():
                 files.append(self.folder / extra)
+        for sub in ("perception", "imu"):
+            if (self.folder / sub).is_dir():
+                files += sorted(p for p in (self.folder / sub).rglob("*") if p.is_file() and p.name != "simulated.json")
         return files
 
 

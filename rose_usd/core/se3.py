@@ -100,6 +100,14 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
     return make_pose(np.stack([x, y, z], axis=1), eye)
 
 
+def orthonormalize(rotation: np.ndarray) -> np.ndarray:
+    """The nearest proper rotation(s) (..., 3, 3) to slightly non-orthonormal matrices (SVD)."""
+    u, _, vt = np.linalg.svd(np.asarray(rotation, dtype=float))
+    d = np.sign(np.linalg.det(u @ vt))
+    u[..., :, 2] *= d[..., None]
+    return u @ vt
+
+
 def check_rotation(rotation: np.ndarray, *, tol: float = 1e-4, what: str = "pose", path=None) -> None:
     """Raise InputError unless ``rotation`` (..., 3, 3) is a proper rotation within ``tol``."""
     rotation = np.asarray(rotation, dtype=float)
