@@ -81,14 +81,18 @@ class Pipeline:
         if backend is None and "all" in self.options.backends and self.options.backends["all"] in stage_def.backends:
             backend = self.options.backends["all"]
         if backend is not None:
-            if backend not in stage_def.backends:
+            if backend not in stage_def.backends and not (backend == "auto" and stage_def.auto_backend):
                 raise ConfigError(
                     f"stage {stage_def.name!r} has no backend {backend!r}",
-                    hint=f"backends of {stage_def.name}: {', '.join(stage_def.backends)}",
+                    hint=f"backends of {stage_def.name}: {', '.join(stage_def.backends)}" + (", auto" if stage_def.auto_backend else ""),
                 )
             values["backend"] = backend
         values.update(self.options.settings.get(stage_def.name, {}))
-        return build_config(stage_def, values, source=source)
+        config = build_config(stage_def, values, source=source)
+        if config.backend.value == "auto":
+            # the layer records the backend that ran, never "auto"
+            config = build_config(stage_def, {**values, "backend": stage_def.resolve_auto(self.case)}, source=source)
+        return config
 
     # ------------------------------------------------------------------ staleness
     def input_hashes(self, stage_def: StageDef, config) -> dict[str, str]:

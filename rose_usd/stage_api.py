@@ -38,11 +38,20 @@ class StageDef:
     """One line for the CLI help and the docs."""
     side_dirs: tuple[str, ...] = ()
     """Folders of ``<out>`` this stage writes besides its layer (e.g. ``masks``)."""
+    auto_backend: str | None = None
+    """``module:function`` taking the Case and naming the backend ``auto`` stands for, if the
+    stage offers ``auto``."""
 
     def backend_function(self, backend: str) -> Callable[["StageContext"], None]:
-        target = self.backends[backend]
-        module, func = target.split(":")
-        return getattr(importlib.import_module(module), func)
+        return _resolve(self.backends[backend])
+
+    def resolve_auto(self, case: Case) -> str:
+        return _resolve(self.auto_backend)(case)
+
+
+def _resolve(target: str):
+    module, func = target.split(":")
+    return getattr(importlib.import_module(module), func)
 
 
 @dataclass

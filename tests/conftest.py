@@ -15,6 +15,13 @@ SAMPLE = REPO / "samples" / "push-box"
 REFERENCE = REPO / "stages" / "push-box-oracle.json"
 
 
+def oracle_options():
+    """Every stage's oracle backend: the sample's ground-truth reconstruction."""
+    from rose_usd.pipeline import Options
+
+    return Options(backends={"all": "oracle"})
+
+
 def pytest_addoption(parser):
     parser.addoption("--update-reference", action="store_true", help="rewrite stages/*.json from this run (deliberate golden update)")
 
@@ -31,7 +38,7 @@ def oracle_out(tmp_path_factory, sample_case) -> Path:
     from rose_usd.pipeline import Pipeline
 
     out = tmp_path_factory.mktemp("oracle") / "out"
-    Pipeline(sample_case, out).run()
+    Pipeline(sample_case, out, oracle_options()).run()
     return out
 
 

@@ -20,7 +20,8 @@ def test_stage_definition_is_complete(stage):
     config = stage.config()
     backend_enum = type(config.backend)
     assert issubclass(backend_enum, enum.Enum)
-    assert {m.value for m in backend_enum} == set(stage.backends)
+    expected = set(stage.backends) | ({"auto"} if stage.auto_backend else set())
+    assert {m.value for m in backend_enum} == expected
     for name in stage.backends:
         assert callable(stage.backend_function(name))
     for f in dataclasses.fields(stage.config):

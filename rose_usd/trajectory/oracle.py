@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from rose_usd.oracle import world_from_gt
 from rose_usd.stage_api import StageContext
 from rose_usd.trajectory.author import author_trajectory
 
 
 def run(ctx: StageContext) -> None:
     gt = ctx.case.gt
-    tracks = {spec.name: gt.object_poses(spec.name) for spec in ctx.case.config.objects}
+    to_world = world_from_gt(ctx)
+    tracks = {spec.name: np.einsum("ij,njk->nik", to_world, gt.object_poses(spec.name)) for spec in ctx.case.config.objects}
     for name, poses in tracks.items():
         author_trajectory(ctx, name, poses, np.ones(len(poses)), "oracle")
