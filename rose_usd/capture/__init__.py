@@ -8,6 +8,11 @@ STAGE = StageDef(
     layer="world",
     needs=(),
     config=CaptureConfig,
-    backends={"oracle": "rose_usd.capture.oracle:run"},
+    backends={
+        "rgbd": "rose_usd.capture.rgbd:run",
+        "megasam": "rose_usd.capture.megasam:run",
+        "oracle": "rose_usd.capture.oracle:run",
+    },
+    auto_backend="rose_usd.capture.auto:choose",
     summary="cameras, intrinsics, metric scale and gravity -> layers/world.usda",
 )

@@ -5,10 +5,39 @@ from dataclasses import dataclass
 
 
 class CaptureBackend(enum.Enum):
+    AUTO = "auto"  # rgbd when the case has depth, else megasam when its npz is there, else oracle when gt/ is
+    RGBD = "rgbd"  # depth sensor video: keyframe RGB-D tracking + pose graph
+    MEGASAM = "megasam"  # import MegaSaM's cameras and depth, metric by a robust alpha/beta fit
     ORACLE = "oracle"  # ground-truth cameras and gravity from gt/ (benchmark cases)
+
+
+class GravityMethod(enum.Enum):
+    AUTO = "auto"  # imu/gravity.txt, else perception/geocalib.json, else the support plane
+    PLANE = "plane"
+    GEOCALIB = "geocalib"
+    IMU = "imu"
+
+
+class ScaleSource(enum.Enum):
+    AUTO = "auto"  # sensor depth, else UniDepth, else an object size prior
+    SENSOR = "sensor"
+    UNIDEPTH = "unidepth"
+    SIZE_PRIOR = "size-prior"
 
 
 @dataclass(frozen=True, kw_only=True)
 class CaptureConfig:
-    backend: CaptureBackend = CaptureBackend.ORACLE
-    """Which backend recovers the cameras; default oracle (the only one so far)."""
+    backend: CaptureBackend = CaptureBackend.AUTO
+    """Which backend recovers the cameras (default auto: rgbd, megasam or oracle by what the case holds)."""
+    gravity: GravityMethod = GravityMethod.AUTO
+    """Where gravity comes from (default auto: imu, then geocalib, then the support plane)."""
+    scale_source: ScaleSource = ScaleSource.AUTO
+    """megasam: the absolute depth the alpha/beta fit uses (default auto: sensor, UniDepth, size prior)."""
+    fov_guess_deg: float = 60.0
+    """Horizontal field of view assumed when no intrinsics are given [deg] (default 60; a warning is recorded)."""
+    track_width: int = 320
+    """rgbd: images are downscaled by an integer factor to about this width for tracking [px] (default 320)."""
+    keyframe_every: int = 8
+    """rgbd: a new keyframe after at most this many frames (default 8)."""
+    depth_max_m: float = 3.0
+    """Depth beyond this is ignored for tracking and gravity [m] (default 3)."""

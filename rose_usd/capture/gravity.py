@@ -1,0 +1,228 @@
+"""Gravity and the world frame.
+
+Sources of the up direction, in the tracking frame (the first camera's):
+
+- ``plane``: the dominant horizontal support plane of the fused points. Hand-held cameras are held
+  roughly upright, so the cameras' mean image-up direction is a prior that picks the horizontal
+  planes among all planes; the up vector is then the common normal of the horizontal planes
+  found (table and floor are parallel), fitted by least squares on their inliers.
+- ``geocalib``: GeoCalib's up vector of one frame (OpenCV camera axes), rotated into the tracking frame.
+- ``imu``: per-frame gravity vectors in camera axes (``imu/gravity.txt``), averaged in the tracking frame.
+
+The world frame (architecture.md section 2): +Z up, origin on the support surface under the
+object at frame 0, +X the first camera's image-right direction made horizontal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rose_usd.core import se3
+from rose_usd.errors import InputError
+
+
+@dataclass(frozen=True)
+class Plane:
+    normal: np.ndarray
+    """Unit normal, oriented up (toward the cameras' up prior)."""
+    offset: float
+    """Plane: normal . x = offset."""
+    inliers: int
+    angle_to_prior_deg: float
+
+    def project(self, point: np.ndarray) -> np.ndarray:
+        return point - (self.normal @ point - self.offset) * self.normal
+
+
+@dataclass(frozen=True)
+class GravityEstimate:
+    up: np.ndarray
+    """Unit up vector in the tracking frame."""
+    source: str
+    support: Plane | None
+    """The support plane (plane method), or None."""
+    planes: list[Plane]
+    uncertainty_deg: float
+
+
+def camera_up_prior(world_from_camera: np.ndarray) -> np.ndarray:
+    """Mean image-up direction (-y of OpenCV cameras) in the tracking frame."""
+    up = -world_from_camera[:, :3, 1].mean(axis=0)
+    return up / np.linalg.norm(up)
+
+
+def fit_planes(points: np.ndarray, viewpoint: np.ndarray, *, max_planes: int = 6, distance_m: float = 0.01, min_points: int = 500, seed: int = 0) -> list[Plane]:
+    """Planes found by repeated RANSAC (Open3D), normals oriented toward ``viewpoint`` (the
+    cameras see every surface from its front, so a support plane's normal points up).
+
+    Each RANSAC plane is refitted: inliers are reselected around the current fit with a band of
+    three robust sigmas (a band around RANSAC's 3-point hypothesis would lean the refit toward
+    it), and weighted by the depth noise at their distance from the cameras (axial noise grows
+    with the square of depth)."""
+    import open3d as o3d
+
+    o3d.utility.random.seed(seed)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    planes = []
+    for _ in range(max_planes):
+        if len(cloud.points) < min_points:
+            break
+        model, inliers = cloud.segment_plane(distance_threshold=distance_m, ransac_n=3, num_iterations=1000)
+        if len(inliers) < min_points:
+            break
+        all_pts = np.asarray(cloud.points)
+        normal, offset = np.asarray(model[:3], dtype=float), -float(model[3])
+        norm = np.linalg.norm(normal)
+        normal, offset = normal / norm, offset / norm
+        weights_all = 1.0 / (0.001 + 0.002 * (np.linalg.norm(all_pts - viewpoint, axis=1) - 0.4) ** 2) ** 2
+        band = distance_m
+        for _ in range(4):
+            residual = all_pts @ normal - offset
+            keep = np.abs(residual) < band
+            pts, w = all_pts[keep], weights_all[keep]
+            centroid = (w[:, None] * pts).sum(axis=0) / w.sum()
+            centered = (pts - centroid) * np.sqrt(w)[:, None]
+            normal = np.linalg.svd(centered, full_matrices=False)[2][2]
+            offset = float(normal @ centroid)
+            r = pts @ normal - offset
+            band = float(np.clip(3.0 * 1.4826 * np.median(np.abs(r)), 0.003, distance_m))
+        if normal @ (viewpoint - centroid) < 0:
+            normal, offset = -normal, -offset
+        planes.append(Plane(normal, offset, int(keep.sum()), 0.0))
+        cloud = cloud.select_by_index(np.flatnonzero(keep).tolist(), invert=True)
+    return planes
+
+
+def gravity_from_planes(points: np.ndarray, world_from_camera: np.ndarray, *, anchor: np.ndarray | None = None, max_roll_deg: float = 25.0, max_pitch_deg: float = 80.0) -> GravityEstimate:
+    """Up from the horizontal planes of ``points`` (tracking frame).
+
+    A hand-held camera filming a tabletop is rolled little and pitched down by up to ~70 deg, so
+    a horizontal plane's normal is nearly perpendicular to the cameras' mean image-right axis and
+    within ``max_pitch_deg`` of their image-up. Candidates passing that test are grouped by
+    direction (table and floor are parallel; a wall facing the camera, a box side or the object's
+    face are not). The group that holds a sizable plane just below the prompted object
+    (``anchor``) wins, else the group with the most support, weighted toward image-up. Up is the
+    group's inlier-weighted normal; the support plane is its plane under the object (or its largest).
+    """
+    prior = camera_up_prior(world_from_camera)
+    right = world_from_camera[:, :3, 0].mean(axis=0)
+    right /= np.linalg.norm(right)
+    planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
+    planes = [Plane(p.normal, p.offset, p.inliers, float(np.degrees(np.arccos(np.clip(p.normal @ prior, -1, 1))))) for p in planes]
+    candidates = [p for p in planes if abs(p.normal @ right) < np.sin(np.radians(max_roll_deg)) and p.angle_to_prior_deg < max_pitch_deg]
+    if not candidates:
+        raise InputError(
+            f"no horizontal support plane among {len(planes)} planes found in the depth",
+            hint="film the surface the object rests on, or give gravity (perception/geocalib.json or imu/gravity.txt)",
+        )
+    groups: list[list[Plane]] = []
+    for p in sorted(candidates, key=lambda p: -p.inliers):
+        for group in groups:
+            if np.degrees(np.arccos(np.clip(p.normal @ group[0].normal, -1, 1))) < 5.0:
+                group.append(p)
+                break
+        else:
+            groups.append([p])
+    biggest = max(p.inliers for p in candidates)
+
+    def under_anchor(group: list[Plane]) -> Plane | None:
+        if anchor is None:
+            return None
+        below = [p for p in group if 0.0 <= p.normal @ anchor - p.offset <= 0.35 and p.inliers >= 0.2 * biggest]
+        return min(below, key=lambda p: p.normal @ anchor - p.offset) if below else None
+
+    def score(group: list[Plane]) -> float:
+        return sum(p.inliers for p in group) * max(float(np.cos(np.radians(group[0].angle_to_prior_deg))), 0.0)
+
+    with_object = [g for g in groups if under_anchor(g) is not None]
+    group = max(with_object or groups, key=score)
+    weights = np.array([p.inliers for p in group], dtype=float)
+    up = (weights[:, None] * np.array([p.normal for p in group])).sum(axis=0)
+    up /= np.linalg.norm(up)
+    main = under_anchor(group) or group[0]
+    support = Plane(up, float(up @ (main.offset * main.normal)), main.inliers, main.angle_to_prior_deg)
+    sigma = float(np.degrees(0.01 / np.sqrt(max(main.inliers, 1)) / 0.1))  # ~1 cm noise over ~10 cm of lever
+    return GravityEstimate(up, "plane", support, planes, sigma)
+
+
+def refine_with_planes(prior: GravityEstimate, points: np.ndarray, world_from_camera: np.ndarray, *, anchor: np.ndarray | None, floor_deg: float) -> GravityEstimate:
+    """Fuse an up estimate (GeoCalib, IMU) with the normal of the support planes that agree with
+    it, by inverse-variance weights. The plane's sigma is that of a least-squares normal from its
+    inliers, but never below ``floor_deg`` (depth errors are correlated over the image). Returns
+    the prior unchanged when no plane agrees within 3 sigma (or 5 deg)."""
+    planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
+    tol = max(3.0 * prior.uncertainty_deg, 5.0)
+    agree = [p for p in planes if np.degrees(np.arccos(np.clip(p.normal @ prior.up, -1, 1))) < tol]
+    if not agree:
+        return prior
+    below = [p for p in agree if anchor is not None and 0.0 <= p.normal @ anchor - p.offset <= 0.35]
+    main = min(below, key=lambda p: p.normal @ anchor - p.offset) if below else max(agree, key=lambda p: p.inliers)
+    parallel = [p for p in agree if np.degrees(np.arccos(np.clip(p.normal @ main.normal, -1, 1))) < 3.0]
+    weights = np.array([p.inliers for p in parallel], dtype=float)
+    plane_up = (weights[:, None] * np.array([p.normal for p in parallel])).sum(axis=0)
+    plane_up /= np.linalg.norm(plane_up)
+    sigma_plane = max(float(np.degrees(0.005 / (0.2 * np.sqrt(max(main.inliers, 1))))), floor_deg)
+    w_prior, w_plane = 1.0 / max(prior.uncertainty_deg, 1e-3) ** 2, 1.0 / sigma_plane**2
+    up = w_prior * prior.up + w_plane * plane_up
+    up /= np.linalg.norm(up)
+    support = Plane(up, float(up @ (main.offset * main.normal)), main.inliers, 0.0)
+    return GravityEstimate(up, f"{prior.source}+plane", support, planes, float(1.0 / np.sqrt(w_prior + w_plane)))
+
+
+def gravity_from_geocalib(path: Path, world_from_camera: np.ndarray) -> GravityEstimate:
+    from rose_usd.io.geocalib import read_geocalib
+
+    calib = read_geocalib(path)
+    if not 0 <= calib.frame < len(world_from_camera):
+        raise InputError(f"geocalib.json is for frame {calib.frame}, the video has {len(world_from_camera)}", path=path, hint="calibrate a frame of this video")
+    up = world_from_camera[calib.frame, :3, :3] @ calib.up_cam
+    sigma = np.degrees(max(calib.roll_uncertainty or 0.0, calib.pitch_uncertainty or 0.0)) or 1.0
+    return GravityEstimate(up / np.linalg.norm(up), "geocalib", None, [], float(sigma))
+
+
+def gravity_from_imu(path: Path, world_from_camera: np.ndarray) -> GravityEstimate:
+    """``imu/gravity.txt``: one gravity (down) vector per frame in OpenCV camera axes, or one line for all."""
+    try:
+        g = np.atleast_2d(np.loadtxt(path, dtype=float))
+    except ValueError as exc:
+        raise InputError(f"not numeric ({exc})", path=path, hint="write gx gy gz per frame, in OpenCV camera axes") from None
+    if g.shape[1] != 3 or len(g) not in (1, len(world_from_camera)):
+        raise InputError(f"has shape {g.shape}, expected 1 or {len(world_from_camera)} rows of 3", path=path, hint="write gx gy gz per frame, in OpenCV camera axes")
+    g = np.broadcast_to(g, (len(world_from_camera), 3))
+    norms = np.linalg.norm(g, axis=1)
+    if np.any(norms <= 0) or not np.all(np.isfinite(g)):
+        raise InputError("has zero or invalid gravity vectors", path=path, hint="write gx gy gz per frame, in OpenCV camera axes")
+    down = np.einsum("nij,nj->ni", world_from_camera[:, :3, :3], g / norms[:, None])
+    mean = down.mean(axis=0)
+    spread = float(np.degrees(np.arccos(np.clip(down @ (mean / np.linalg.norm(mean)), -1, 1))).std())
+    return GravityEstimate(-mean / np.linalg.norm(mean), "imu", None, [], spread)
+
+
+def support_plane_for(up: np.ndarray, points: np.ndarray, world_from_camera: np.ndarray, anchor: np.ndarray | None = None) -> Plane:
+    """The support plane perpendicular to ``up`` among ``points`` (when gravity came from
+    elsewhere): the one just below ``anchor``, else the largest."""
+    planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
+    horizontal = [p for p in planes if np.degrees(np.arccos(np.clip(p.normal @ up, -1, 1))) < 10.0]
+    if not horizontal:
+        raise InputError("no support plane perpendicular to gravity in the depth", hint="film the surface the object rests on")
+    below = [p for p in horizontal if anchor is not None and 0.0 <= p.normal @ anchor - p.offset <= 0.35]
+    main = min(below, key=lambda p: p.normal @ anchor - p.offset) if below else max(horizontal, key=lambda p: p.inliers)
+    return Plane(up, float(up @ (main.offset * main.normal)), main.inliers, main.angle_to_prior_deg)
+
+
+def world_from_tracking(up: np.ndarray, support: Plane, anchor: np.ndarray, first_camera: np.ndarray) -> np.ndarray:
+    """The contract's world frame from the tracking frame: +Z = ``up``, origin = ``anchor``
+    projected onto the support plane, +X = the first camera's image-right made horizontal."""
+    z = up / np.linalg.norm(up)
+    right = first_camera[:3, 0]
+    x = right - (right @ z) * z
+    if np.linalg.norm(x) < 1e-6:  # camera looking straight down with right = up? use its image-down
+        x = first_camera[:3, 1] - (first_camera[:3, 1] @ z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    origin = support.project(np.asarray(anchor, dtype=float))
+    rot = np.stack([x, y, z])  # rows: world axes in tracking coordinates
+    return se3.make_pose(rot, -rot @ origin)

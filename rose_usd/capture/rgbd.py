@@ -1,0 +1,136 @@
+"""The rgbd capture backend: a depth sensor or phone LiDAR video.
+
+Cameras by keyframe RGB-D tracking with a pose graph (capture.tracking); gravity from the
+support plane of the fused points, GeoCalib or an IMU (capture.gravity); the world origin under the
+prompted object (capture.anchor). Sensor depth is metric: alpha = 1, beta = 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rose_usd.capture.anchor import anchor_from_prompt, anchor_from_view_center
+from rose_usd.capture.gravity import (
+    gravity_from_geocalib,
+    gravity_from_imu,
+    gravity_from_planes,
+    refine_with_planes,
+    support_plane_for,
+    world_from_tracking,
+)
+from rose_usd.capture.intrinsics import resolve_K
+from rose_usd.capture.tracking import RgbdTracker, TrackingParams
+from rose_usd.capture.world import author_world
+from rose_usd.core import se3
+from rose_usd.errors import InputError
+from rose_usd.stage_api import StageContext
+
+
+def fused_points(load_depth, frames: list[int], K: np.ndarray, poses: np.ndarray, *, stride_px: int = 4, voxel_m: float = 0.01, depth_max_m: float = 3.0) -> np.ndarray:
+    """Back-projected depth of ``frames`` in the tracking frame, voxel-downsampled."""
+    import open3d as o3d
+
+    chunks = []
+    for t in frames:
+        depth = load_depth(t)
+        sub = depth[::stride_px, ::stride_px]
+        v, u = np.nonzero((sub > 0) & (sub < depth_max_m))
+        z = sub[v, u]
+        u, v = u * stride_px, v * stride_px
+        pts = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+        chunks.append(se3.transform_points(poses[t], pts))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(chunks)))
+    return np.asarray(cloud.voxel_down_sample(voxel_m).points)
+
+
+def choose_gravity(ctx: StageContext, poses: np.ndarray, points: np.ndarray, anchor: np.ndarray | None, *, plane_floor_deg: float = 0.1):
+    """Gravity by the configured method, and the support plane (the one under ``anchor``, a point
+    on the object, when given). ``auto``: the IMU; else GeoCalib fused with the support plane
+    (plane sigma at least ``plane_floor_deg``); else the support plane alone."""
+    method = ctx.config.gravity.value
+    folder = ctx.case.folder
+    imu, geocalib = folder / "imu" / "gravity.txt", folder / "perception" / "geocalib.json"
+    auto = method == "auto"
+    if auto:
+        method = "imu" if imu.is_file() else "geocalib" if geocalib.is_file() else "plane"
+    if method == "imu":
+        if not imu.is_file():
+            raise InputError("gravity = imu but there is no imu/gravity.txt", path=folder, hint="add it or choose gravity = plane")
+        est = gravity_from_imu(imu, poses)
+    elif method == "geocalib":
+        if not geocalib.is_file():
+            raise InputError("gravity = geocalib but there is no perception/geocalib.json", path=folder, hint="add it or choose gravity = plane")
+        est = gravity_from_geocalib(geocalib, poses)
+        if auto:
+            est = refine_with_planes(est, points, poses, anchor=anchor, floor_deg=plane_floor_deg)
+    else:
+        est = gravity_from_planes(points, poses, anchor=anchor)
+    support = est.support if est.support is not None else support_plane_for(est.up, points, poses, anchor)
+    return est, support
+
+
+def locate(ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K: np.ndarray, *, plane_floor_deg: float = 0.1):
+    """Gravity, the support plane and the world frame (tracking -> world), and how the origin was found."""
+    case = ctx.case
+    prompt = next((o.prompt for o in case.config.objects if o.prompt is not None), None)
+    anchor = None
+    if prompt is not None and 0 <= prompt.frame < len(poses):
+        anchor = anchor_from_prompt(prompt, depth_of(prompt.frame), K, poses[prompt.frame])
+    gravity, support = choose_gravity(ctx, poses, points, anchor, plane_floor_deg=plane_floor_deg)
+    how = "prompt"
+    if anchor is None:
+        anchor = anchor_from_view_center(support, K, case.width, case.height, poses[0])
+        how = "view-center"
+        ctx.warn("no usable object prompt: the world origin is where the first view's center meets the support plane")
+    return gravity, support, world_from_tracking(gravity.up, support, anchor, poses[0]), how
+
+
+def run(ctx: StageContext) -> None:
+    case = ctx.case
+    if not case.has_depth:
+        raise InputError("the rgbd backend needs depth/", path=case.folder, hint="add depth maps or choose --backend capture=megasam")
+    K, k_source, warning = resolve_K(case, fov_guess_deg=ctx.config.fov_guess_deg)
+    if warning:
+        ctx.warn(warning)
+    cfg = ctx.config
+    downscale = max(1, int(round(case.width / cfg.track_width)))
+    params = TrackingParams(downscale=downscale, keyframe_every=cfg.keyframe_every, depth_max_m=cfg.depth_max_m)
+    depth_cache: dict[int, np.ndarray] = {}
+
+    def depth_of(t: int) -> np.ndarray:
+        if t not in depth_cache:
+            if len(depth_cache) > 64:
+                depth_cache.pop(next(iter(depth_cache)))
+            depth_cache[t] = case.depth_m(t)
+        return depth_cache[t]
+
+    n = case.n_frames
+    result = RgbdTracker(K, case.width, case.height, params).track(n, lambda t: (case.rgb(t), depth_of(t), None))
+    poses = result.world_from_camera
+    points = fused_points(depth_of, result.keyframes, K, poses, depth_max_m=cfg.depth_max_m)
+    gravity, support, world_from_track, how = locate(ctx, poses, points, depth_of, K)
+    low = int(np.sum(result.fitness < params.min_fitness))
+    if low:
+        ctx.warn(f"{low} frame(s) overlap their keyframe poorly (fitness < {params.min_fitness}); their poses are less certain")
+    author_world(
+        ctx,
+        world_from_camera=np.einsum("ij,njk->nik", world_from_track, poses),
+        K=K,
+        world_from_input=world_from_track,
+        gravity_source=gravity.source,
+        gravity_uncertainty_deg=gravity.uncertainty_deg,
+        scale_source="sensor",
+        intrinsics_source=k_source,
+    )
+    ctx.record(
+        keyframes=len(result.keyframes),
+        photometric_keyframes=result.hybrid_keyframes,
+        normal_spread=None if result.normal_spread is None else round(result.normal_spread, 3),
+        keyframe_edges=len(result.keyframe_edges),
+        fitness_min=round(float(result.fitness.min()), 3),
+        fitness_mean=round(float(result.fitness.mean()), 3),
+        gravity=gravity.source,
+        support_plane_inliers=support.inliers,
+        planes=[{"inliers": p.inliers, "tilt_deg": round(p.angle_to_prior_deg, 2)} for p in gravity.planes],
+        origin=how,
+    )
