@@ -1,6 +1,7 @@
 """Atomic layer writes: a stage that fails midway leaves the previous layer and side files intact."""
 
 import pytest
+from conftest import oracle_options
 from pxr import UsdGeom
 
 from rose_usd import registry
@@ -58,6 +59,6 @@ def test_failing_stage_midway_keeps_previous_layer(out_copy, sample_case, monkey
 
     monkeypatch.setattr(author, "set_pose_ops", flaky)
     with pytest.raises(OSError, match="disk vanished"):
-        Pipeline(sample_case, out_copy).run_stage(registry.get("trajectory"))
+        Pipeline(sample_case, out_copy, oracle_options()).run_stage(registry.get("trajectory"))
     assert calls["n"] > 20
     assert _tree(out_copy) == before

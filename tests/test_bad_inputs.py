@@ -118,8 +118,8 @@ def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
     """Unknown stage and backend names list the valid ones."""
     code, err = run_cli(capsys, "run", "segmnt", str(sample_case), "-o", str(tmp_path / "o"))
     assert_one_line_error(code, err, "unknown stage", "segment")
-    code, err = run_cli(capsys, "reconstruct", str(sample_case), "-o", str(tmp_path / "o"), "--backend", "capture=megasam")
-    assert_one_line_error(code, err, "no backend 'megasam'", "oracle")
+    code, err = run_cli(capsys, "reconstruct", str(sample_case), "-o", str(tmp_path / "o"), "--backend", "capture=colmap")
+    assert_one_line_error(code, err, "no backend 'colmap'", "rgbd, megasam, oracle, auto")
 
 
 def test_object_never_visible_leaves_previous_output(capsys, case_copy, out_copy):

@@ -2,6 +2,7 @@
 what depends on it, `run STAGE` runs only what that stage needs; provenance is recorded."""
 
 import pytest
+from conftest import oracle_options
 
 from rose_usd.pipeline import Options, Pipeline
 from rose_usd.usd.stage import layer_file, read_provenance
@@ -14,7 +15,7 @@ def _mtimes(out):
 def test_second_run_skips_everything(out_copy, sample_case):
     """Re-running an unchanged reconstruction rewrites no layer."""
     before = _mtimes(out_copy)
-    outcomes = Pipeline(sample_case, out_copy).run()
+    outcomes = Pipeline(sample_case, out_copy, oracle_options()).run()
     assert [o.ran for o in outcomes] == [False] * 6
     assert _mtimes(out_copy) == before
 
@@ -22,7 +23,7 @@ def test_second_run_skips_everything(out_copy, sample_case):
 def test_changed_setting_reruns_only_that_stage(out_copy, sample_case):
     """A new gate setting re-runs the gate and nothing upstream."""
     before = _mtimes(out_copy)
-    options = Options(settings={"gate": {"spp": "4", "physics": "false"}})
+    options = Options(backends={"all": "oracle"}, settings={"gate": {"spp": "4", "physics": "false"}})
     outcomes = Pipeline(sample_case, out_copy, options).run()
     assert [o.name for o in outcomes if o.ran] == ["gate"]
     after = _mtimes(out_copy)
@@ -34,7 +35,7 @@ def test_changed_setting_reruns_only_that_stage(out_copy, sample_case):
 def test_run_stage_runs_its_needs_only(tmp_path, sample_case):
     """`run trajectory` into an empty folder writes world, masks, object, trajectory -- not scene or gate."""
     out = tmp_path / "out"
-    Pipeline(sample_case, out).run("trajectory")
+    Pipeline(sample_case, out, oracle_options()).run("trajectory")
     assert sorted(p.stem for p in (out / "layers").glob("*.usda")) == ["masks", "object", "trajectory", "world"]
     assert (out / "rose.usda").is_file()
 

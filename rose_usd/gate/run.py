@@ -94,7 +94,7 @@ def run(ctx: StageContext) -> None:
     if cfg.physics and objects:
         from rose_usd.sim.rest import simulate_rest
 
-        rest = simulate_rest(stage, objects, duration_s=cfg.physics_duration_s, dt_s=cfg.physics_dt_s)
+        rest = simulate_rest(stage, objects, duration_s=cfg.physics_duration_s, dt_s=cfg.physics_dt_s, iterations=cfg.physics_iterations)
     physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for r in rest)
     geometry_problems = _geometry_check(stage)
 
