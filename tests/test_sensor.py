@@ -39,12 +39,15 @@ def test_holes_at_discontinuities_dark_and_specular_surfaces():
     assert np.mean(out[60:140, 10:130] == 0) < 0.02  # plain surface: few dropouts
 
 
-def test_misregistration_shifts_the_depth_image():
-    """A (dx, dy) misregistration moves the depth edge by dx pixels."""
-    surf = two_planes()
-    clean = DepthSensor(edge_drop_probability=0.0, random_drop_probability=0.0)
-    a = sensor_depth(surf, np.random.default_rng(2), sensor=clean)
-    b = sensor_depth(surf, np.random.default_rng(2), misregistration_px=(3, 0), sensor=clean)
-    edge_a = np.argmax(a[100] > 2.0)
-    edge_b = np.argmax(b[100] > 2.0)
-    assert edge_b - edge_a == 3
+def test_depth_camera_misregistration_is_a_few_pixels():
+    """The sampled color-from-depth calibration error moves depth edges 1-5 px at 640x480, 1 m."""
+    from rose_usd.core import se3
+    from rose_usd.synth.sensor import sample_depth_extrinsic
+
+    K = np.array([[550.0, 0, 320], [0, 550.0, 240], [0, 0, 1]])
+    shifts = []
+    for seed in range(20):
+        x = sample_depth_extrinsic(np.random.default_rng(seed))
+        p = se3.transform_points(x, np.array([[0.1, -0.05, 1.0]]))[0]
+        shifts.append(np.linalg.norm(K[:2, :2] @ (p[:2] / p[2] - np.array([0.1, -0.05]))))
+    assert 1.0 < np.median(shifts) < 5.0 and max(shifts) < 6.0

@@ -4,7 +4,8 @@ that performs one of the paper's five tasks, and a hand-held camera. It is rende
 in the case layout with full ground truth (rose_usd.case.gt).
 
 The written case is the ``rgbd`` perception mode: ``depth/`` holds sensor depth with realistic
-errors (rose_usd.synth.sensor). Clean depth is ground truth, in ``gt/depth/``. Other modes are
+errors (rose_usd.synth.sensor), seen from a depth camera slightly off its calibrated pose. Clean
+depth from the color camera is ground truth, in ``gt/depth/``. Other modes are
 derived from this case by rose_usd.bench.modes.
 """
 
@@ -33,12 +34,12 @@ from rose_usd.render.lighting import Lighting, PointLight
 from rose_usd.render.scene import RenderItem, RenderScene
 from rose_usd.synth import shapes, textures
 from rose_usd.synth.motion import Task, hand_trajectory, handheld_camera, task_motion
-from rose_usd.synth.sensor import sample_misregistration, sensor_depth
+from rose_usd.synth.sensor import sample_depth_extrinsic, sensor_depth
 from rose_usd.usd.geom import MeshData
 
 INTERACTOR_LABEL = 255
 SKIN_LINEAR = tuple(srgb_to_linear(np.array([224, 172, 140]) / 255.0).tolist())
-GENERATOR_VERSION = 3
+GENERATOR_VERSION = 4
 """Bumped whenever a change to the generator changes the cases it writes."""
 
 
@@ -315,7 +316,7 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
     np.savetxt(gt_dir / "K.txt", K, fmt="%.9f")
     np.savetxt(tmp_dir / "cam_K.txt", K, fmt="%.9f")
     np.savetxt(gt_dir / "gravity.txt", np.array([[0.0, 0.0, -1.0]]), fmt="%.9f", header="unit gravity (down) direction in the world frame")
-    misregistration = sample_misregistration(rng)
+    color_from_depth = sample_depth_extrinsic(rng)
     gtfmt.write_manifest(
         gt_dir,
         {
@@ -325,7 +326,7 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
                 "shape": config.shape.value,
                 "seed": config.seed,
                 "spp": config.spp,
-                "depth_misregistration_px": list(misregistration),
+                "color_from_depth_camera": color_from_depth.tolist(),
             },
             "fps": config.fps,
             "width": W,
@@ -355,11 +356,12 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
             scene.set_pose(obj.name, obj.poses[t])
         scene.set_pose("Interactor", hand_poses[t])
         rgb = scene.render_srgb8(cam_poses[t], K, W, H, spp=config.spp, seed=t)
-        surface = scene.surface(cam_poses[t], K, W, H, with_albedo=True)
+        surface = scene.surface(cam_poses[t], K, W, H)
+        seen_by_sensor = scene.surface(cam_poses[t] @ color_from_depth, K, W, H, with_albedo=True)
         stem = f"{t:06d}"
         images.write_rgb(tmp_dir / "rgb" / f"{stem}.png", rgb)
         images.write_depth_mm(gt_dir / "depth" / f"{stem}.png", surface.depth)
-        images.write_depth_mm(tmp_dir / "depth" / f"{stem}.png", sensor_depth(surface, rng, specular_labels=specular, misregistration_px=misregistration))
+        images.write_depth_mm(tmp_dir / "depth" / f"{stem}.png", sensor_depth(seen_by_sensor, rng, specular_labels=specular))
         for obj in objects:
             mask = surface.labels == obj.label
             images.write_mask(gt_dir / "masks" / obj.name / f"{stem}.png", mask)

@@ -9,7 +9,10 @@ The model follows structured-light / time-of-flight RGB-D cameras of the Kinect 
 - holes where the sensor sees no return: at depth discontinuities (flying pixels removed), on
   dark surfaces, on specular surfaces facing the sensor, at grazing angles, beyond the working
   range, and a sprinkle of random dropouts;
-- a constant RGB-to-depth misregistration of a few pixels (depth and color not calibrated to each other).
+- RGB-to-depth misregistration: the depth camera sits where the color camera's calibration says
+  it does only up to a small rigid error (0.1-0.3 deg, 1-3 mm), so depth edges fall a few
+  pixels off the color edges while the geometry stays rigid (``sample_depth_extrinsic``; the
+  generator renders depth from the color camera moved by it).
 """
 
 from __future__ import annotations
@@ -42,12 +45,17 @@ class DepthSensor:
     random_drop_probability: float = 0.003
 
 
-def sample_misregistration(rng: np.random.Generator) -> tuple[int, int]:
-    """A constant offset (dx, dy) [px] of the depth image against the color image, 1-3 px."""
-    dx, dy = 0, 0
-    while dx == 0 and dy == 0:
-        dx, dy = (int(v) for v in rng.integers(-3, 4, size=2))
-    return dx, dy
+def sample_depth_extrinsic(rng: np.random.Generator) -> np.ndarray:
+    """color_from_depth (4, 4): the depth camera's pose in the color camera, as an uncorrected
+    calibration error of 0.1-0.3 deg and 1-3 mm (a few pixels at 640x480)."""
+    from rose_usd.core import se3
+
+    axis = rng.normal(size=3)
+    direction = rng.normal(size=3)
+    return se3.make_pose(
+        se3.rotation_about(axis, np.radians(rng.uniform(0.1, 0.3))),
+        direction / np.linalg.norm(direction) * rng.uniform(0.001, 0.003),
+    )
 
 
 def axial_sigma_m(depth_m: np.ndarray, cos_incidence: np.ndarray) -> np.ndarray:
@@ -63,10 +71,10 @@ def sensor_depth(
     rng: np.random.Generator,
     *,
     specular_labels: frozenset[int] = frozenset(),
-    misregistration_px: tuple[int, int] = (0, 0),
     sensor: DepthSensor = DepthSensor(),
 ) -> np.ndarray:
-    """Depth [m] as the sensor would report it for a clean rendered ``surface`` (0 = no reading)."""
+    """Depth [m] as the sensor would report it for a clean ``surface`` rendered from the depth
+    camera (0 = no reading)."""
     if surface.albedo is None or surface.cos_incidence is None:
         raise ValueError("sensor_depth needs surface buffers rendered with_albedo=True")
     z = surface.depth.astype(np.float64)
@@ -100,14 +108,4 @@ def sensor_depth(
     wobble /= max(float(wobble.std()), 1e-9)
     noisy = z + sigma * rng.normal(size=z.shape) + 0.25 * sigma * wobble
     out = np.where(valid & ~drop, noisy, 0.0)
-
-    dx, dy = misregistration_px
-    if dx or dy:
-        shifted = np.zeros_like(out)
-        ys = slice(max(dy, 0), h + min(dy, 0))
-        xs = slice(max(dx, 0), w + min(dx, 0))
-        ys_src = slice(max(-dy, 0), h + min(-dy, 0))
-        xs_src = slice(max(-dx, 0), w + min(-dx, 0))
-        shifted[ys, xs] = out[ys_src, xs_src]
-        out = shifted
     return np.round(out * 1000.0) / 1000.0  # whole millimeters, as the uint16 PNG stores it
