@@ -159,14 +159,39 @@ def cmd_bench_run(args) -> int:
     backends = _parse_assignments(args.backend, "--backend") or {"all": "oracle"}
     settings = _parse_assignments(args.set, "--set")
     tag = "-".join(f"{k}={v}" for k, v in sorted(backends.items())).replace("all=", "")
+    if args.until:
+        tag += f"-until-{args.until}"
     out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"{args.suite}-{mode.value}-{tag}"
     command = "rose-usd " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("rose-usd") else f"rose-usd bench run --suite {args.suite} --mode {mode.value}"
-    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command)
+    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command, until=args.until)
     report = build_report(out)
     failed = [c["case"] for c in summary["cases"] if "error" in c]
     print(f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed -> {out}/results.json, {report}")
     print(report.read_text().split("## Per case")[0])
     return 1 if failed else 0
+
+
+def cmd_bench_real(args) -> int:
+    from rose_usd.bench.real import evaluate_seven_scenes
+
+    out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"real-{args.dataset}"
+    result = evaluate_seven_scenes(Path(args.folder), out, backends=_parse_assignments(args.backend, "--backend") or None)
+    print(json.dumps({k: v for k, v in result.items() if k != "capture_results"}, indent=1, default=float))
+    return 0
+
+
+def cmd_bench_speed(args) -> int:
+    from rose_usd.bench.speed import measure
+
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size {args.size!r} is not WIDTHxHEIGHT", hint="write e.g. --size 640x480") from None
+    backends = _parse_assignments(args.backend, "--backend") or {}
+    out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / "speed"
+    result = measure(args.stage, backends, frames=args.frames, width=width, height=height, out_dir=out)
+    print(json.dumps({k: v for k, v in result.items() if k != "all_stages"}, indent=1))
+    return 1 if "error" in result else 0
 
 
 def cmd_bench_report(args) -> int:
@@ -253,7 +278,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="stage settings")
     p.add_argument("-o", "--output", help="results folder (default benchmarks/results/SUITE-MODE-BACKENDS)")
     p.add_argument("--cases", help="where generated cases are cached (default benchmarks/cases)")
+    p.add_argument("--until", metavar="STAGE", help="run only this stage and what it needs (metrics of later stages are left out)")
     p.set_defaults(func=cmd_bench_run)
+    p = bsub.add_parser("speed", help="time one stage on a long case (default 300 frames at 640x480)")
+    p.add_argument("stage", help="stage to time (its prerequisites run first, untimed)")
+    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default: each stage's default)")
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--size", default="640x480")
+    p.add_argument("-o", "--output", help="output folder (default benchmarks/results/speed)")
+    p.set_defaults(func=cmd_bench_speed)
+    p = bsub.add_parser("real", help="run capture on a real recording with known poses and compare (7-Scenes)")
+    p.add_argument("dataset", choices=["7scenes"])
+    p.add_argument("folder", help="e.g. ../shared/data/real/7scenes-redkitchen-600-799")
+    p.add_argument("-o", "--output", help="output folder (default benchmarks/results/real-DATASET)")
+    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default capture=rgbd)")
+    p.set_defaults(func=cmd_bench_real)
     p = bsub.add_parser("report", help="write report.md and plots for a results folder")
     p.add_argument("results", help="a folder with results.json")
     p.set_defaults(func=cmd_bench_report)

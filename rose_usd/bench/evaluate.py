@@ -151,7 +151,7 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
     pixels = {t: _static_pixels(gt, t) for t in frames}
     seen_all = np.concatenate([_backproject(depth, mask, gt.K, true_cams[t]) for t, (depth, mask) in pixels.items()])
     lo, hi = seen_all.min(axis=0) - 0.05, seen_all.max(axis=0) + 0.05
-    rv, rf = _meshes(stage, paths.SCENE_VISUAL)
+    rv, rf = _meshes(stage, paths.SCENE_VISUAL)  # empty when the scene stage has not run
     if len(rf):
         rv = se3.transform_points(align, rv)
         rec_surface = metrics.SurfaceDistance(rv, rf)
@@ -181,7 +181,7 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
     for obj in gt.objects:
         path = paths.object_path(obj.name)
         prim = stage.GetPrimAtPath(path)
-        if not prim:
+        if not prim:  # the object stage has not run
             scores.append(ObjectScore(obj.name, *(float("nan"),) * 5))
             continue
         true_poses = gt.object_poses(obj.name)

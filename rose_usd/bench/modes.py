@@ -55,5 +55,12 @@ def make_mode_case(base: Path, mode: PerceptionMode, out: Path, seed: int) -> Pa
         write_mono_imported(tmp, seed)
     shutil.rmtree(out, ignore_errors=True)
     tmp.rename(out)
-    (out / ".mode").write_text(mode.value)
+    (out / ".mode").write_text(mode_stamp(mode))
     return out
+
+
+def mode_stamp(mode: PerceptionMode) -> str:
+    """What a mode case was made by (its mode and the simulator's version)."""
+    from rose_usd.synth.perception import PERCEPTION_VERSION
+
+    return f"{mode.value} v{PERCEPTION_VERSION}"

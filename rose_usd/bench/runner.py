@@ -14,7 +14,7 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from rose_usd.bench.modes import PerceptionMode, make_mode_case
+from rose_usd.bench.modes import PerceptionMode, make_mode_case, mode_stamp
 from rose_usd.bench.suites import CaseSpec, get_suite
 from rose_usd.case.gt import GroundTruth
 from rose_usd.errors import InputError
@@ -47,7 +47,7 @@ def ensure_mode(base: Path, spec: CaseSpec, mode: PerceptionMode) -> Path:
     out = base.parent / mode.value
     stamp = out / ".mode"
     base_stamp = (base / "gt" / "scene.json").stat().st_mtime_ns
-    if stamp.is_file() and stamp.read_text() == mode.value and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp:
+    if stamp.is_file() and stamp.read_text() == mode_stamp(mode) and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp:
         return out
     return make_mode_case(base, mode, out, spec.seed)
 
@@ -72,7 +72,17 @@ def _flatten(result: dict) -> list[dict]:
     return rows
 
 
-def run_suite(suite: str, mode: PerceptionMode, out_dir: Path, *, cases_dir: Path = DEFAULT_CASES, backends: dict | None = None, settings: dict | None = None, command: str = "") -> dict:
+def run_suite(
+    suite: str,
+    mode: PerceptionMode,
+    out_dir: Path,
+    *,
+    cases_dir: Path = DEFAULT_CASES,
+    backends: dict | None = None,
+    settings: dict | None = None,
+    command: str = "",
+    until: str | None = None,
+) -> dict:
     specs = get_suite(suite)
     commit = _git_commit()  # at the start: the code that runs
     out_dir = Path(out_dir)
@@ -89,7 +99,8 @@ def run_suite(suite: str, mode: PerceptionMode, out_dir: Path, *, cases_dir: Pat
         say(f"bench [{i}/{len(specs)}] {spec.name} ({mode.value})")
         t0 = time.perf_counter()
         proc = subprocess.run(
-            [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(run_out), "--result", str(result_file), "--backends", json.dumps(backends), "--settings", json.dumps(settings or {})],
+            [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(run_out), "--result", str(result_file), "--backends", json.dumps(backends), "--settings", json.dumps(settings or {})]
+            + (["--until", until] if until else []),
             env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
         )
         result = json.loads(result_file.read_text()) if result_file.is_file() else {"error": f"worker exited with {proc.returncode} and wrote no result"}
@@ -102,6 +113,7 @@ def run_suite(suite: str, mode: PerceptionMode, out_dir: Path, *, cases_dir: Pat
         "mode": mode.value,
         "backends": backends,
         "settings": settings or {},
+        "until": until,
         "command": command,
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},

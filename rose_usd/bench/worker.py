@@ -46,7 +46,7 @@ class RssMonitor:
         self._stop.set()
 
 
-def run_case(case: Path, out: Path, backends: dict, settings: dict) -> dict:
+def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str | None = None) -> dict:
     from rose_usd import registry
     from rose_usd.bench.evaluate import evaluate
     from rose_usd.pipeline import Options, Pipeline
@@ -54,7 +54,7 @@ def run_case(case: Path, out: Path, backends: dict, settings: dict) -> dict:
     monitor = RssMonitor()
     pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True))
     stages = {}
-    for stage_def in registry.STAGES:
+    for stage_def in registry.closure(until) if until else registry.STAGES:
         monitor.reset()
         outcome = pipe.run_stage(stage_def)
         stages[stage_def.name] = {"backend": outcome.backend, "wall_time_s": outcome.wall_time_s, "peak_rss_mb": round(monitor.peak_mb(), 1)}
@@ -64,9 +64,22 @@ def run_case(case: Path, out: Path, backends: dict, settings: dict) -> dict:
     return {
         "stages": stages,
         "score": score.to_json(),
+        "depth_scale_error": _depth_scale_error(case, out),
         "evaluate_time_s": round(time.perf_counter() - t0, 2),
         "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     }
+
+
+def _depth_scale_error(case: Path, out: Path) -> float | None:
+    """Benchmark-only: alpha * (simulated MegaSaM scale) - 1, the error of the fitted metric depth
+    scale, when the case's MegaSaM input was simulated and capture fitted an alpha."""
+    from rose_usd.usd.stage import layer_file, read_provenance
+
+    sim = case / "perception" / "simulated.json"
+    results = (read_provenance(layer_file(out, "world")) or {}).get("results") or {}
+    if not sim.is_file() or "alpha" not in results:
+        return None
+    return float(results["alpha"]) * float(json.loads(sim.read_text())["megasam"]["scale"]) - 1.0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,11 +89,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--result", required=True, type=Path)
     parser.add_argument("--backends", default="{}", help="JSON {stage: backend}")
     parser.add_argument("--settings", default="{}", help="JSON {stage: {field: value}}")
+    parser.add_argument("--until", default=None, help="run only this stage and what it needs")
     args = parser.parse_args(argv)
     from rose_usd.errors import RoseError
 
     try:
-        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings))
+        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings), args.until)
         code = 0
     except RoseError as exc:
         result = {"error": exc.one_line()}
