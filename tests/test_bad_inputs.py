@@ -127,7 +127,7 @@ def test_object_never_visible_leaves_previous_output(capsys, case_copy, out_copy
     for mask in (case_copy / "gt" / "masks" / "Box").glob("*.png"):
         cv2.imwrite(str(mask), np.zeros((240, 320), np.uint8))
     before = {p: p.read_bytes() for p in [out_copy / "layers" / "masks.usda", *sorted((out_copy / "masks" / "Box").glob("*.png"))[:3]]}
-    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out_copy))
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out_copy), "--backend", "all=oracle")
     assert_one_line_error(code, err, "never visible", "Box")
     for path, content in before.items():
         assert path.read_bytes() == content
@@ -137,5 +137,5 @@ def test_object_never_visible_leaves_previous_output(capsys, case_copy, out_copy
 def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
     """Oracle backends on a case without gt/ say which backend to choose instead."""
     shutil.rmtree(case_copy / "gt")
-    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"), "--backend", "all=oracle")
     assert_one_line_error(code, err, "no ground truth", "--backend")

@@ -10,6 +10,7 @@ at frame 0 (ICP), so trajectories of differently-anchored object frames compare 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 from pxr import Usd, UsdGeom
@@ -37,6 +38,8 @@ class ObjectScore:
     ape_translation_per_frame_m: list[float] = field(default_factory=list)
     mass_kg: float | None = None
     true_mass_kg: float | None = None
+    mask_iou: float | None = None
+    """Mean mask IoU over the frames where the object is more than half visible (None: no segment stage)."""
 
 
 @dataclass
@@ -54,6 +57,8 @@ class CaseScore:
     objects: list[ObjectScore]
     ssim_mean: float | None
     gate_passed: bool | None
+    interactor_iou: float | None = None
+    """Mean interactor mask IoU over the frames where the true interactor covers at least 0.5 % of the image."""
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -122,6 +127,23 @@ def _icp_correction(rec_points: np.ndarray, true_surface: metrics.SurfaceDistanc
         if np.linalg.norm(step[:3, 3]) < 1e-6 and se3.rotation_angle_deg(step[:3, :3]) < 1e-4:
             break
     return correction
+
+
+def _mask_ious(true_dir: Path, rec_dir: Path, n: int, *, min_fraction: float | None = None, min_pixels: int = 0) -> float | None:
+    """Mean IoU of reconstructed vs true masks over frames where the true mask is big enough:
+    ``min_fraction`` of its 95th-percentile visible area ("more than half visible" for 0.5; the
+    true masks hold visible pixels only, so the unoccluded area is estimated this way), or at
+    least ``min_pixels``."""
+    if not rec_dir.is_dir():
+        return None
+    true = [read_mask(true_dir / f"{t:06d}.png") for t in range(n)]
+    area = np.array([m.sum() for m in true], dtype=float)
+    floor = max(min_pixels, (min_fraction or 0.0) * float(np.percentile(area, 95)))
+    ious = []
+    for t in np.flatnonzero(area > max(floor, 0)):
+        rec = read_mask(rec_dir / f"{t:06d}.png")
+        ious.append(float((rec & true[t]).sum()) / float((rec | true[t]).sum()))
+    return float(np.mean(ious)) if ious else None
 
 
 def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> CaseScore:
@@ -215,6 +237,8 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
                 true_mass_kg=true_mass,
             )
         )
+    for sc in scores:
+        sc.mask_iou = _mask_ious(gt.mask_dir(sc.name), Path(out_dir) / "masks" / sc.name, n, min_fraction=0.5)
 
     gate = stage.GetPrimAtPath(paths.GATE)
     ssim = float(gate.GetAttribute("rose:gate:ssimMean").Get()) if gate else None
@@ -231,4 +255,5 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
         objects=scores,
         ssim_mean=ssim,
         gate_passed=passed,
+        interactor_iou=_mask_ious(gt.mask_dir("interactor"), Path(out_dir) / "masks" / "Interactor", n, min_pixels=int(0.005 * gt.width * gt.height)),
     )

@@ -8,7 +8,11 @@ STAGE = StageDef(
     layer="masks",
     needs=("capture",),
     config=SegmentConfig,
-    backends={"oracle": "rose_usd.segment.oracle:run"},
+    backends={
+        "classical": "rose_usd.segment.classical:run",
+        "sam2": "rose_usd.segment.sam2:run",
+        "oracle": "rose_usd.segment.oracle:run",
+    },
     summary="object and interactor masks per frame -> layers/masks.usda + masks/",
     side_dirs=("masks",),
 )

@@ -1,0 +1,59 @@
+"""Metric depth per frame as the capture stage defined it, for the stages after it.
+
+The world layer says where metric depth comes from: ``scaleSource = sensor`` (the case's depth/,
+already metric) or a fit (``unidepth``, ``size-prior``, ...) of MegaSaM's depth, metric =
+``scaleAlpha * depth + scaleBeta``. Readers get depth at the video's resolution, 0 where invalid.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+from pxr import Usd
+
+from rose_usd.case.layout import Case
+from rose_usd.errors import StageError
+from rose_usd.usd import paths
+
+
+def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Callable[[int], np.ndarray]:
+    """A function t -> metric depth (H, W) float32 [m] of frame t (0 = no depth), with a small cache."""
+    world = stage.GetPrimAtPath(paths.WORLD)
+    attr = world.GetAttribute("rose:world:scaleSource") if world else None
+    if not attr or not attr.HasAuthoredValue():
+        raise StageError("the world layer has no scale source", path=stage.GetRootLayer().identifier, hint="run the capture stage")
+    source = attr.Get()
+    if source in ("sensor", "oracle"):
+        if not case.has_depth:
+            raise StageError(f"capture used {source} depth but the case has no depth/", path=case.folder, hint="re-run capture")
+        read = case.depth_m
+    else:
+        from rose_usd.capture.megasam import FAR_CLIP, find_npz
+        from rose_usd.io.megasam import read_megasam
+
+        alpha = float(world.GetAttribute("rose:world:scaleAlpha").Get())
+        beta = float(world.GetAttribute("rose:world:scaleBeta").Get())
+        depths = read_megasam(find_npz(case.folder)).depths
+
+        def read(t: int) -> np.ndarray:
+            rel = depths[t].astype(np.float32)
+            d = np.where((rel > 0) & (rel < FAR_CLIP), alpha * rel + beta, 0.0).astype(np.float32)
+            return cv2.resize(d, (case.width, case.height), interpolation=cv2.INTER_NEAREST)
+
+    store: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def depth_of(t: int) -> np.ndarray:
+        if t in store:
+            store.move_to_end(t)
+            return store[t]
+        d = np.asarray(read(t), dtype=np.float32)
+        d = np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32)
+        store[t] = d
+        if len(store) > cache:
+            store.popitem(last=False)
+        return d
+
+    return depth_of

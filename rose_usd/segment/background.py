@@ -1,0 +1,93 @@
+"""The static world's depth as each frame would see it, from the other frames.
+
+Moving things (the hand, the object while it moves) stand in front of the static scene. For a
+frame t, the depth of reference frames spread over the whole video is warped into t (z-buffered
+splats at reduced resolution); per pixel, a far percentile over the references is the static
+surface: a pixel that the hand or the object covers in some references is seen bare in the
+others. A pixel is foreground when it is nearer than that by more than ``tau``; it is compared
+against the nearest background within a small window, so the edges of static things (the table's
+rim over the floor) are not mistaken for foreground after upsampling.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+
+class StaticBackground:
+    def __init__(
+        self,
+        depth_of: Callable[[int], np.ndarray],
+        world_from_cv: np.ndarray,
+        K: np.ndarray,
+        width: int,
+        height: int,
+        *,
+        n_refs: int = 16,
+        stride: int = 4,
+        percentile: float = 90.0,
+        depth_max_m: float = 4.0,
+    ):
+        self.poses = np.asarray(world_from_cv, dtype=float)
+        self.K = np.asarray(K, dtype=float).reshape(-1, 3, 3)
+        self.width, self.height, self.stride, self.percentile = width, height, stride, percentile
+        self.h, self.w = height // stride, width // stride
+        n = len(self.poses)
+        self.refs = sorted(set(np.linspace(0, n - 1, min(n, n_refs)).round().astype(int).tolist()))
+        self._ref_points = []
+        for r in self.refs:
+            d = depth_of(r)[: self.h * stride : stride, : self.w * stride : stride]
+            v, u = np.nonzero((d > 0) & (d < depth_max_m))
+            z = d[v, u].astype(np.float64)
+            k = self._K(r)
+            pts = np.stack([(u * stride - k[0, 2]) / k[0, 0] * z, (v * stride - k[1, 2]) / k[1, 1] * z, z], axis=1)
+            self._ref_points.append(pts @ self.poses[r, :3, :3].T + self.poses[r, :3, 3])
+
+    def _K(self, t: int) -> np.ndarray:
+        return self.K[t] if len(self.K) > 1 else self.K[0]
+
+    def depth(self, t: int) -> np.ndarray:
+        """Static depth seen from frame t at full resolution (H, W) [m], 0 where no reference sees it."""
+        pose, k = self.poses[t], self._K(t)
+        rot, center = pose[:3, :3], pose[:3, 3]
+        stack = np.full((len(self.refs), self.h * self.w), np.nan, dtype=np.float32)
+        s = self.stride
+        for i, (r, pts) in enumerate(zip(self.refs, self._ref_points)):
+            if r == t:
+                continue
+            cam = (pts - center) @ rot
+            z = cam[:, 2]
+            ok = z > 0.05
+            cam, z = cam[ok], z[ok]
+            u = ((k[0, 0] * cam[:, 0] / z + k[0, 2]) / s).round().astype(np.int64)
+            v = ((k[1, 1] * cam[:, 1] / z + k[1, 2]) / s).round().astype(np.int64)
+            inside = (u >= 0) & (u < self.w) & (v >= 0) & (v < self.h)
+            idx, z = v[inside] * self.w + u[inside], z[inside].astype(np.float32)
+            order = np.argsort(-z, kind="stable")  # far first: the nearest splat is written last
+            stack[i, idx[order]] = z[order]
+        # the far percentile over the references that see each pixel (NaN sorts last)
+        stack.sort(axis=0)
+        count = np.sum(~np.isnan(stack), axis=0)
+        pick = np.clip(np.floor(self.percentile / 100.0 * (count - 1) + 0.5).astype(np.int64), 0, None)
+        bg = np.take_along_axis(stack, pick[None], axis=0)[0]
+        bg[count == 0] = np.nan
+        bg = np.nan_to_num(bg, nan=0.0).reshape(self.h, self.w).astype(np.float32)
+        return cv2.resize(bg, (self.width, self.height), interpolation=cv2.INTER_NEAREST)
+
+    def foreground(self, t: int, depth: np.ndarray, *, tau_m: float = 0.015, window_px: int = 9) -> tuple[np.ndarray, np.ndarray]:
+        """(foreground, static): pixels nearer than the static surface by more than ``tau_m``
+        (plus 1 % of the depth), and pixels that agree with it. Pixels without a reference are neither."""
+        bg = self.depth(t)
+        far = np.where(bg > 0, bg, np.float32(1e6))
+        kernel = np.ones((window_px, window_px), np.uint8)
+        nearest_bg = cv2.erode(far, kernel)  # the nearest static surface in the window
+        farthest_bg = cv2.dilate(np.where(bg > 0, bg, 0).astype(np.float32), kernel)
+        valid = depth > 0
+        tol = tau_m + 0.01 * depth
+        known = nearest_bg < 1e5
+        fg = valid & known & (depth < nearest_bg - tol)
+        static = valid & known & (depth > nearest_bg - tol) & (depth < farthest_bg + tol)
+        return fg, static

@@ -1,0 +1,428 @@
+"""Classical segmentation: object masks from a prompt (or from what the hand touches) propagated
+through the video in 3D, and the interactor as the other moving region. No learned model.
+
+The capture stage gives metric depth, cameras and a gravity-aligned world whose z = 0 is the
+support plane, so every pixel has a world point and a height above the support.
+
+1. **Start.** On the prompt frame, the object is the depth-connected region of pixels standing on
+   the support (height > ``min_height_m``) inside the prompt box (or containing the prompt
+   point). Without a prompt it is the region standing on the support at the first frame that the
+   interactor comes nearest to over the video ("what the hand moves").
+2. **Propagate** (forward from the prompt frame, then backward). In each frame, a pixel belongs to
+   the object when its world point lies within ``max(diameter, 3 cm)`` of the object's previous
+   points (shifted by its last velocity), its color is more likely under the object's color model
+   than under the model of its surroundings and the hand, and it is depth-connected to a core of
+   pixels within ``core_m`` of the previous points. Color models are updated as the object turns.
+   When the object is hidden (the hand covers it), its last points are kept and the search
+   widens until it reappears.
+3. **Interactor.** Pixels nearer than the static world (segment.background) by more than
+   ``foreground_m``, minus the objects, in regions of at least ``min_region_px`` pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.ndimage import gaussian_filter
+from scipy.spatial import cKDTree
+
+from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.errors import InputError
+from rose_usd.progress import progress
+from rose_usd.segment.background import StaticBackground
+from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_tracks
+from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths
+from rose_usd.usd.camera import read_camera
+
+BINS = 16
+
+
+# ----------------------------------------------------------------------------- pixel geometry
+def world_points(depth: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
+    """World point of every pixel (H, W, 3); NaN where depth is 0."""
+    h, w = depth.shape
+    u = np.arange(w, dtype=np.float32)[None, :]
+    v = np.arange(h, dtype=np.float32)[:, None]
+    z = np.where(depth > 0, depth, np.nan).astype(np.float32)
+    cam = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    return cam @ world_from_cv[:3, :3].T.astype(np.float32) + world_from_cv[:3, 3].astype(np.float32)
+
+
+def depth_edges(depth: np.ndarray, *, rel: float = 0.02, abs_m: float = 0.008) -> np.ndarray:
+    """Pixels at a depth discontinuity (a jump to a neighbor beyond ``abs_m + rel * depth``)."""
+    d = depth.astype(np.float32)
+    tol = abs_m + rel * d
+    edge = np.zeros(d.shape, bool)
+    dx = np.abs(np.diff(d, axis=1)) > tol[:, :-1]
+    dy = np.abs(np.diff(d, axis=0)) > tol[:-1, :]
+    edge[:, :-1] |= dx
+    edge[:, 1:] |= dx
+    edge[:-1, :] |= dy
+    edge[1:, :] |= dy
+    return edge | (d <= 0)
+
+
+def components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """4-connected components: count, labels (H, W) and the area of each label."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=4)
+    return n, labels, stats[:, cv2.CC_STAT_AREA]
+
+
+def fill_holes(mask: np.ndarray, max_hole_px: int) -> np.ndarray:
+    inv = ~mask
+    n, labels, areas = components(inv)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    small = np.zeros(n, bool)
+    small[1:] = areas[1:] <= max_hole_px
+    small[border] = False
+    return mask | small[labels]
+
+
+# ----------------------------------------------------------------------------- color models
+def color_index(rgb: np.ndarray) -> np.ndarray:
+    q = (rgb // (256 // BINS)).astype(np.int32)
+    return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
+
+
+def histogram(idx: np.ndarray) -> np.ndarray:
+    hist = np.bincount(idx.ravel(), minlength=BINS**3).astype(np.float64).reshape(BINS, BINS, BINS)
+    hist = gaussian_filter(hist, sigma=1.0, mode="constant").reshape(-1)  # shading shifts colors by a bin or two
+    return (hist + 1e-3) / (hist.sum() + 1e-3 * hist.size)
+
+
+@dataclass
+class ObjectTrack:
+    name: str
+    points: np.ndarray
+    """World points of the object's last visible pixels (subsampled), (M, 3)."""
+    color: np.ndarray
+    """Color histogram of the object."""
+    diameter: float
+    area: float
+    """Visible pixels at the start."""
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    hidden: int = 0
+    first_color: np.ndarray | None = None
+    """The color model of the start: half of the model always, so a face lost once is not forgotten."""
+
+    def __post_init__(self):
+        if self.first_color is None:
+            self.first_color = self.color.copy()
+
+
+def _subsample(points: np.ndarray, k: int = 4000, seed: int = 0) -> np.ndarray:
+    if len(points) <= k:
+        return points
+    return points[np.random.default_rng(seed).choice(len(points), k, replace=False)]
+
+
+def _diameter(points: np.ndarray) -> float:
+    p = _subsample(points, 1500)
+    lo, hi = np.percentile(p, 2, axis=0), np.percentile(p, 98, axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+# ----------------------------------------------------------------------------- the segmenter
+@dataclass(frozen=True)
+class Params:
+    min_height_m: float = 0.004
+    core_m: float = 0.015
+    foreground_m: float = 0.015
+    min_region_px: int = 150
+    """At 640x480; scaled with the image area."""
+
+
+class Segmenter:
+    def __init__(self, rgb_of, depth_of, cameras, params: Params, background: StaticBackground):
+        self.rgb_of, self.depth_of, self.cam, self.params, self.bg = rgb_of, depth_of, cameras, params, background
+        self.width, self.height = cameras.width, cameras.height
+        self.scale_px = self.width * self.height / (640 * 480)
+        self._frame_cache: dict[int, tuple] = {}
+
+    def frame(self, t: int):
+        """(rgb, depth, world points, edges, color index) of frame t (the last few are cached)."""
+        if t not in self._frame_cache:
+            if len(self._frame_cache) > 4:
+                self._frame_cache.pop(next(iter(self._frame_cache)))
+            rgb, depth = self.rgb_of(t), self.depth_of(t)
+            pts = world_points(depth, self.cam.K[t], self.cam.world_from_cv[t])
+            self._frame_cache[t] = (rgb, depth, pts, depth_edges(depth), color_index(rgb))
+        return self._frame_cache[t]
+
+    # ----------------------------------------------------------------- start
+    def start_from_prompt(self, name: str, prompt, where) -> ObjectTrack:
+        t = prompt.frame
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        height = pts[..., 2]
+        standing = (depth > 0) & (height > self.params.min_height_m) & ~edges
+        inside = np.zeros_like(standing)
+        if prompt.box is not None:
+            x0, y0, x1, y1 = (int(round(c)) for c in prompt.box)
+            inside[max(y0, 0) : y1 + 1, max(x0, 0) : x1 + 1] = True
+        else:
+            x, y = (int(round(c)) for c in prompt.point)
+            r = max(4, int(0.03 * self.width))
+            inside[max(y - r, 0) : y + r + 1, max(x - r, 0) : x + r + 1] = True
+        n, labels, areas = components(standing & inside)
+        areas[0] = 0
+        if n <= 1 or areas.max() < max(0.1 * inside.sum(), self.params.min_region_px * self.scale_px / 4):
+            raise InputError(f"nothing stands on the support inside the prompt of {name!r} on frame {t}", path=where, hint="draw the box around the object on a frame where it is visible")
+        if prompt.box is not None:
+            label = 1 + int(np.argmax(areas[1:]))
+        else:
+            x, y = (int(round(c)) for c in prompt.point)
+            ys, xs = np.nonzero(labels > 0)
+            nearest = int(np.argmin((xs - x) ** 2 + (ys - y) ** 2))
+            label = int(labels[ys[nearest], xs[nearest]])
+        mask = labels == label
+        return self._new_track(name, t, mask)
+
+    def _new_track(self, name: str, t: int, mask: np.ndarray) -> ObjectTrack:
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        obj_pts = pts[mask & (depth > 0)]
+        return ObjectTrack(name, _subsample(obj_pts), histogram(cidx[mask]), max(_diameter(obj_pts), 0.02), float(mask.sum()))
+
+    def discover(self, names: list[str], interactor_of, n_frames: int, where) -> list[ObjectTrack]:
+        """Objects with no prompt: regions standing on the support at frame 0, ranked by how near
+        the interactor comes to them over the video."""
+        rgb, depth, pts, edges, cidx = self.frame(0)
+        height = pts[..., 2]
+        standing = (depth > 0) & (height > self.params.min_height_m) & (height < 0.6) & ~edges
+        n, labels, areas = components(standing)
+        border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+        regions = []
+        for label in range(1, n):
+            if label in border or areas[label] < self.params.min_region_px * self.scale_px:
+                continue
+            p = pts[labels == label]
+            if _diameter(p) > 0.4:
+                continue
+            regions.append((label, cKDTree(_subsample(p, 2000))))
+        if not regions:
+            raise InputError("no object stands on the support in the first frame", path=where, hint="give a prompt box in rose.toml ([[objects]] prompt = { frame = F, box = [x0, y0, x1, y1] })")
+        nearest = np.full(len(regions), np.inf)
+        for t in range(0, n_frames, max(1, n_frames // 40)):
+            hand = interactor_of(t)
+            if hand.sum() < self.params.min_region_px * self.scale_px:
+                continue
+            hp = _subsample(self.frame(t)[2][hand & (self.frame(t)[1] > 0)], 3000)
+            for i, (_, tree) in enumerate(regions):
+                d, _ = tree.query(hp, k=1)
+                nearest[i] = min(nearest[i], float(d.min()))
+        order = np.argsort(nearest)
+        if len(regions) < len(names) or not np.isfinite(nearest[order[len(names) - 1]]):
+            raise InputError(
+                f"found {int(np.isfinite(nearest).sum())} region(s) the interactor approaches, rose.toml names {len(names)} object(s)",
+                path=where,
+                hint="give each object a prompt box in rose.toml",
+            )
+        return [self._new_track(name, 0, labels == regions[order[i]][0]) for i, name in enumerate(names)]
+
+    # ----------------------------------------------------------------- propagate
+    def step(self, t: int, tracks: list[ObjectTrack], hand_hist: np.ndarray | None) -> list[np.ndarray]:
+        """Masks of every track in frame t (updating the tracks)."""
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        p = self.params
+        valid = (depth > 0) & (pts[..., 2] > -0.01)
+        best = np.full(depth.shape, np.inf, np.float32)
+        owner = np.full(depth.shape, -1, np.int32)
+        cores = []
+        for k, track in enumerate(tracks):
+            reach = max(track.diameter, 0.03) * (1.0 + 0.5 * min(track.hidden, 10))
+            pred = track.points + track.velocity
+            core = np.zeros(depth.shape, bool)
+            cores.append(core)
+            box = self._image_box(t, pred, reach)
+            if box is None:
+                continue
+            y0, y1, x0, x1 = box
+            sub = pts[y0:y1, x0:x1]
+            lo, hi = pred.min(axis=0) - reach, pred.max(axis=0) + reach
+            near = valid[y0:y1, x0:x1] & np.all((sub >= lo) & (sub <= hi), axis=-1)
+            ys, xs = np.nonzero(near)
+            if not len(ys):
+                continue
+            c = cidx[y0:y1, x0:x1][ys, xs]
+            ring = histogram(c)
+            denominator = ring if hand_hist is None else 0.5 * (ring + hand_hist)
+            colored = np.flatnonzero(track.color[c] > denominator[c])  # object colors, before the costlier 3D test
+            ys, xs = ys[colored] + y0, xs[colored] + x0
+            d, _ = cKDTree(pred).query(pts[ys, xs], k=1, distance_upper_bound=reach)
+            ok = np.isfinite(d)
+            better = ok & (d < best[ys, xs])
+            best[ys[better], xs[better]] = d[better]
+            owner[ys[better], xs[better]] = k
+            sel = ok & (d < p.core_m + 0.5 * np.linalg.norm(track.velocity)) & (pts[ys, xs, 2] > p.min_height_m)
+            core[ys[sel], xs[sel]] = True
+        masks = []
+        max_hole = int(200 * self.scale_px)
+        for k, track in enumerate(tracks):
+            grow = (owner == k) & ~edges
+            n, labels, _ = components(grow)
+            keep = np.unique(labels[cores[k] & grow])
+            keep = keep[keep > 0]
+            mask = np.isin(labels, keep) if len(keep) else np.zeros_like(grow)
+            mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+            mask = self._color_border(mask, cidx, track, hand_hist, owner, k)
+            mask = fill_holes(mask, max_hole)
+            masks.append(mask)
+            self._update(track, t, mask)
+        return masks
+
+    def _color_border(self, mask, cidx, track, hand_hist, owner, k, *, ring_px: int = 5) -> np.ndarray:
+        """Grow the mask by object-colored pixels within ``ring_px``: at silhouettes, depth is
+        missing or (registered only approximately to color) belongs to what is behind."""
+        if not mask.any():
+            return mask
+        kernel = np.ones((3, 3), np.uint8)
+        outer = cv2.dilate(mask.astype(np.uint8), np.ones((2 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask
+        wider = cv2.dilate(mask.astype(np.uint8), np.ones((6 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask
+        around = histogram(cidx[wider & ~outer]) if (wider & ~outer).any() else None
+        if around is None:
+            return mask
+        other = around if hand_hist is None else np.maximum(around, hand_hist)
+        colored = outer & (track.color[cidx] > 2.0 * other[cidx]) & ((owner == k) | (owner < 0))
+        grown = mask.copy()
+        for _ in range(ring_px):  # grow only through colored pixels connected to the mask
+            grown |= cv2.dilate(grown.astype(np.uint8), kernel).astype(bool) & colored
+        return grown
+
+    def _image_box(self, t: int, points: np.ndarray, reach: float):
+        """Pixel rows/cols (y0, y1, x0, x1) that points within ``reach`` of ``points`` can
+        project to in frame t; None when none is in front of the camera."""
+        pose, k = self.cam.world_from_cv[t], self.cam.K[t]
+        cam = (points - pose[:3, 3]) @ pose[:3, :3]
+        cam = cam[cam[:, 2] > 0.05]
+        if not len(cam):
+            return None
+        u = k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2]
+        v = k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]
+        margin = k[0, 0] * reach / max(float(cam[:, 2].min()) - reach, 0.05)
+        x0, x1 = int(max(u.min() - margin, 0)), int(min(u.max() + margin + 1, self.width))
+        y0, y1 = int(max(v.min() - margin, 0)), int(min(v.max() + margin + 1, self.height))
+        return None if x0 >= x1 or y0 >= y1 else (y0, y1, x0, x1)
+
+    def _update(self, track: ObjectTrack, t: int, mask: np.ndarray) -> None:
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        area = float(mask.sum())
+        if area < 0.25 * track.area:
+            track.hidden += 1
+            track.velocity *= 0.5
+            return
+        new = _subsample(pts[mask & (depth > 0)], 4000, seed=t)
+        if len(new) < 20:
+            track.hidden += 1
+            return
+        track.velocity = 0.5 * track.velocity + 0.5 * (new.mean(axis=0) - track.points.mean(axis=0)) if track.hidden == 0 else np.zeros(3)
+        track.points = new
+        track.hidden = 0
+        track.color = 0.5 * track.first_color + 0.5 * (0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask]))
+
+
+def _interactor(seg: Segmenter, t: int, objects: list[np.ndarray], hand_hist: np.ndarray | None = None) -> np.ndarray:
+    """The other moving region: nearer than the static world, not an object. With a color model
+    of the hand, it grows through hand-colored pixels connected to it whose depth is missing or
+    disagrees with the static world (too near for the sensor, or misregistered at the rim)."""
+    rgb, depth, pts, edges, cidx = seg.frame(t)
+    fg, static = seg.bg.foreground(t, depth, tau_m=seg.params.foreground_m)
+    taken = np.zeros_like(fg)
+    for m in objects:
+        taken |= m
+    taken = cv2.dilate(taken.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    fg = cv2.morphologyEx((fg & ~taken).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+    n, labels, areas = components(fg)
+    big = np.zeros(n, bool)
+    big[1:] = areas[1:] >= seg.params.min_region_px * seg.scale_px
+    hand = big[labels]
+    if hand_hist is not None and hand.any() and static.any():
+        bg_hist = histogram(cidx[static][:: max(1, int(static.sum()) // 20000)])
+        maybe = (hand_hist[cidx] > 2.0 * bg_hist[cidx]) & ~static & ~taken
+        n, labels, _ = components(hand | maybe)
+        keep = np.zeros(n, bool)
+        keep[np.unique(labels[hand])] = True
+        keep[0] = False
+        hand = keep[labels]
+    return hand
+
+
+def run(ctx: StageContext) -> None:
+    case = ctx.case
+    n = ctx.time_info.n_frames
+    cfg = ctx.config
+    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    depth_of = metric_depth_reader(ctx.stage, case, cache=24)
+    where = case.folder / "rose.toml"
+    background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
+    params = Params(min_height_m=cfg.min_height_m, core_m=cfg.core_m, foreground_m=cfg.foreground_m)
+    seg = Segmenter(case.rgb, depth_of, cameras, params, background)
+    specs = list(case.config.objects)
+    prompted = [s for s in specs if s.prompt is not None]
+    for s in prompted:
+        if not 0 <= s.prompt.frame < n:
+            raise InputError(f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has {n}", path=where, hint="prompt a frame of this video")
+        _check_prompt_inside(s, case.width, case.height, where)
+    if prompted and len(prompted) != len(specs):
+        raise InputError("some objects have a prompt and some do not", path=where, hint="prompt every object, or none")
+    if prompted:
+        starts = [(s.prompt.frame, seg.start_from_prompt(s.name, s.prompt, where)) for s in specs]
+        how = "prompt"
+    else:
+        found = seg.discover([s.name for s in specs], lambda t: _interactor(seg, t, []), n, where)
+        starts = [(0, tr) for tr in found]
+        how = "interactor-contact"
+    t0 = min(f for f, _ in starts)
+    masks = {s.name: [None] * n for s in specs}
+    hands: list[np.ndarray | None] = [None] * n
+    init = [(f, ObjectTrack(tr.name, tr.points.copy(), tr.color.copy(), tr.diameter, tr.area)) for f, tr in starts]
+    hand_hist = None
+    order = [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
+    tracks = []
+    for direction, t in progress(order, "segment", total=n):
+        if not tracks or (direction < 0 and t == t0 - 1):  # (re)start from the prompts
+            tracks = [ObjectTrack(tr.name, tr.points.copy(), tr.color.copy(), tr.diameter, tr.area) for _, tr in init]
+        active = [k for k, (f, _) in enumerate(init) if direction < 0 or f <= t]
+        out = seg.step(t, [tracks[k] for k in active], hand_hist)
+        objs = [np.zeros((case.height, case.width), bool) for _ in specs]
+        for k, m in zip(active, out):
+            objs[k] = m
+        hand = _interactor(seg, t, objs, hand_hist)
+        # the hand's colors, from its pixels away from the objects (a missed bit of an object
+        # must not teach the hand model the object's colors)
+        near_obj = cv2.dilate(np.any(objs, axis=0).astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool) if objs else np.zeros_like(hand)
+        far_hand = hand & ~near_obj
+        if far_hand.sum() > params.min_region_px * seg.scale_px:
+            hh = histogram(seg.frame(t)[4][far_hand])
+            hand_hist = hh if hand_hist is None else 0.9 * hand_hist + 0.1 * hh
+        for spec, m in zip(specs, objs):
+            masks[spec.name][t] = m
+        hands[t] = hand
+    tracks_out = []
+    for spec in specs:
+        area = np.array([m.sum() for m in masks[spec.name]], dtype=float)
+        typical = float(np.median(area[area > 0])) if np.any(area > 0) else 1.0
+        tracks_out.append(MaskTrack(spec.name, iter(masks[spec.name]), np.clip(area / typical, 0.0, 1.0)))
+    tracks_out.append(MaskTrack(INTERACTOR, iter(hands)))
+    counts = author_tracks(ctx, tracks_out)
+    for spec in specs:
+        if not np.any(counts[spec.name] > 0):
+            raise InputError(f"object {spec.name!r} was never found", path=where, hint="check its prompt box")
+    ctx.record(
+        start=how,
+        visible_frames={k: int(np.count_nonzero(v)) for k, v in counts.items()},
+        mean_visible_px={k: round(float(v.mean()), 1) for k, v in counts.items()},
+    )
+
+
+def _check_prompt_inside(spec, width: int, height: int, where) -> None:
+    p = spec.prompt
+    if p.box is not None:
+        x0, y0, x1, y1 = p.box
+        if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+            raise InputError(f"prompt box of {spec.name!r} {list(p.box)} is not inside the {width}x{height} image", path=where, hint="give x0 < x1 <= width, y0 < y1 <= height in pixels")
+    elif p.point is not None:
+        x, y = p.point
+        if not (0 <= x < width and 0 <= y < height):
+            raise InputError(f"prompt point of {spec.name!r} {list(p.point)} is outside the {width}x{height} image", path=where, hint="give the point in pixels of the prompt frame")
