@@ -8,7 +8,7 @@ STAGE = StageDef(
     layer="scene",
     needs=("capture", "segment"),
     config=SceneConfig,
-    backends={"oracle": "rose_usd.scene.oracle:run"},
+    backends={"tsdf": "rose_usd.scene.tsdf:run", "oracle": "rose_usd.scene.oracle:run"},
     summary="static collidable colored scene mesh and lights -> layers/scene.usda",
     side_dirs=("textures",),
 )

@@ -5,10 +5,29 @@ from dataclasses import dataclass
 
 
 class SceneBackend(enum.Enum):
+    TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, manifold3d decimation, 3-NN colors, xatlas texture
     ORACLE = "oracle"  # ground-truth scene parts, materials and lights from gt/ (benchmark cases)
 
 
 @dataclass(frozen=True, kw_only=True)
 class SceneConfig:
-    backend: SceneBackend = SceneBackend.ORACLE
-    """Which backend reconstructs the scene; default oracle."""
+    backend: SceneBackend = SceneBackend.TSDF
+    """Which backend reconstructs the scene (default tsdf)."""
+    voxel_m: float = 0.008
+    """tsdf: TSDF voxel size [m] (default 0.008)."""
+    frame_stride: int = 2
+    """tsdf: fuse every n-th frame (default 2)."""
+    mask_margin_px: int = 6
+    """tsdf: object and interactor masks are dilated by this many pixels before fusion (default 6)."""
+    depth_max_m: float = 5.0
+    """tsdf: depth beyond this is not fused [m] (default 5: all a Kinect-class sensor gives)."""
+    alpha_m: float = 0.03
+    """tsdf: alpha wrapping's alpha, the largest gap it bridges [m] (default 0.03)."""
+    offset_m: float = 0.002
+    """tsdf: alpha wrapping's offset from the fused surface [m] (default 0.002)."""
+    thickness_m: float = 0.02
+    """tsdf: the collider is solidified this far below the fused surface [m] (default 0.02)."""
+    max_triangles: int = 60000
+    """tsdf: triangle budget of the scene mesh (default 60000)."""
+    texture_size: int = 1024
+    """tsdf: baked texture width and height [px] (default 1024)."""
