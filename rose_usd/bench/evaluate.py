@@ -17,6 +17,7 @@ from pxr import Usd, UsdGeom
 
 from rose_usd.case.gt import GroundTruth
 from rose_usd.core import metrics, se3
+from rose_usd.core.pinhole import backproject
 from rose_usd.io.images import read_depth_m, read_mask
 from rose_usd.render.lighting import Lighting
 from rose_usd.render.scene import RenderItem, RenderScene
@@ -90,8 +91,7 @@ def _meshes(stage: Usd.Stage, root, time: Usd.TimeCode = Usd.TimeCode.Default())
 def _backproject(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
     v, u = np.nonzero(mask)
     z = depth[v, u]
-    pts = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
-    return se3.transform_points(world_from_cv, pts)
+    return se3.transform_points(world_from_cv, backproject(u, v, z, K))
 
 
 def _static_pixels(gt: GroundTruth, t: int, stride_px: int = 2) -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,7 @@ import numpy as np
 from rose_usd.capture.gravity import Plane
 from rose_usd.case.config import Prompt
 from rose_usd.core import se3
+from rose_usd.core.pinhole import backproject
 
 
 def prompt_pixel(prompt: Prompt) -> tuple[float, float]:
@@ -38,7 +39,7 @@ def anchor_from_prompt(prompt: Prompt, depth_m: np.ndarray, K: np.ndarray, world
     if valid.size < 3:
         return None
     z = float(np.median(valid))
-    point = np.array([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z])
+    point = backproject(u, v, z, K)
     return se3.transform_points(world_from_camera, point[None])[0]
 
 

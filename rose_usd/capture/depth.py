@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections import OrderedDict
 from collections.abc import Callable
 
-import cv2
 import numpy as np
 from pxr import Usd
 
@@ -31,7 +30,7 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
             raise StageError(f"capture used {source} depth but the case has no depth/", path=case.folder, hint="re-run capture")
         read = case.depth_m
     else:
-        from rose_usd.capture.megasam import FAR_CLIP, find_npz
+        from rose_usd.capture.megasam import find_npz, metric_from_megasam
         from rose_usd.io.megasam import read_megasam
 
         alpha = float(world.GetAttribute("rose:world:scaleAlpha").Get())
@@ -39,10 +38,14 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
         depths = read_megasam(find_npz(case.folder)).depths
 
         def read(t: int) -> np.ndarray:
-            rel = depths[t].astype(np.float32)
-            d = np.where((rel > 0) & (rel < FAR_CLIP), alpha * rel + beta, 0.0).astype(np.float32)
-            return cv2.resize(d, (case.width, case.height), interpolation=cv2.INTER_NEAREST)
+            return metric_from_megasam(depths[t], alpha, beta, case.width, case.height)
 
+    return cached_frames(read, cache)
+
+
+def cached_frames(read: Callable[[int], np.ndarray], size: int) -> Callable[[int], np.ndarray]:
+    """``read`` (t -> depth [m]) with invalid values (NaN, inf, <= 0) set to 0 and the last
+    ``size`` frames kept."""
     store: OrderedDict[int, np.ndarray] = OrderedDict()
 
     def depth_of(t: int) -> np.ndarray:
@@ -52,7 +55,7 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
         d = np.asarray(read(t), dtype=np.float32)
         d = np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32)
         store[t] = d
-        if len(store) > cache:
+        if len(store) > size:
             store.popitem(last=False)
         return d
 

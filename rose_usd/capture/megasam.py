@@ -15,8 +15,7 @@ import cv2
 import numpy as np
 
 from rose_usd.capture.intrinsics import resolve_K
-from rose_usd.capture.rgbd import fused_points, locate
-from rose_usd.capture.world import author_world
+from rose_usd.capture.rgbd import author_tracked_world, fused_points, locate
 from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.io.megasam import MegaSamOutput, read_megasam
@@ -32,6 +31,14 @@ def find_npz(folder: Path) -> Path:
         if found:
             return found[0]
     raise InputError("no MegaSaM output (perception/*_sgd_cvd_hr.npz)", path=folder / "perception", hint="run MegaSaM and copy its npz there, or choose --backend capture=rgbd")
+
+
+def metric_from_megasam(relative: np.ndarray, alpha: float, beta: float, width: int, height: int) -> np.ndarray:
+    """One MegaSaM depth map made metric (alpha * depth + beta) at the video's size [m], 0 where
+    MegaSaM has no depth (non-positive or at its far clip)."""
+    rel = relative.astype(np.float32)
+    d = np.where((rel > 0) & (rel < FAR_CLIP), alpha * rel + beta, 0.0).astype(np.float32)
+    return cv2.resize(d, (width, height), interpolation=cv2.INTER_NEAREST)
 
 
 def fit_alpha_beta(relative: np.ndarray, metric: np.ndarray, *, iterations: int = 20) -> tuple[float, float, float, int]:
@@ -140,27 +147,24 @@ def run(ctx: StageContext) -> None:
     poses[:, :3, 3] *= alpha
 
     def metric_depth(t: int) -> np.ndarray:
-        rel = out.depths[t].astype(np.float32)
-        d = np.where((rel > 0) & (rel < FAR_CLIP), alpha * rel + beta, 0.0).astype(np.float32)
-        return cv2.resize(d, (case.width, case.height), interpolation=cv2.INTER_NEAREST)
+        return metric_from_megasam(out.depths[t], alpha, beta, case.width, case.height)
 
     frames = sorted(set(np.linspace(0, n - 1, min(n, 30)).round().astype(int).tolist()))
     points = fused_points(metric_depth, frames, K, poses, depth_max_m=ctx.config.depth_max_m)
     # planes of fused MegaSaM depth tilt by 1-2.5 deg on the benchmark (focal error, per-frame
     # depth error, scale drift), worse than GeoCalib's ~0.5: they barely move a GeoCalib estimate
     gravity, support, world_from_track, how = locate(ctx, poses, points, metric_depth, K, plane_floor_deg=2.0)
-    author_world(
+    author_tracked_world(
         ctx,
-        world_from_camera=np.einsum("ij,njk->nik", world_from_track, poses),
-        K=K,
-        world_from_input=world_from_track,
-        gravity_source=gravity.source,
-        gravity_uncertainty_deg=gravity.uncertainty_deg,
+        poses,
+        K,
+        world_from_track,
+        gravity,
+        k_source,
         scale_source=scale_source,
         scale_alpha=alpha,
         scale_beta=beta,
         scale_residual=0.0 if not np.isfinite(residual) else residual,
-        intrinsics_source=k_source,
     )
     ctx.record(megasam=str(path.name), alpha=alpha, beta_m=beta, scale_residual_m=residual, scale_source=scale_source, gravity=gravity.source, origin=how)
 

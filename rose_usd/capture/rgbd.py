@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from rose_usd.capture.anchor import anchor_from_prompt, anchor_from_view_center
+from rose_usd.capture.depth import cached_frames
 from rose_usd.capture.gravity import (
     gravity_from_geocalib,
     gravity_from_imu,
@@ -22,6 +23,7 @@ from rose_usd.capture.intrinsics import resolve_K
 from rose_usd.capture.tracking import RgbdTracker, TrackingParams
 from rose_usd.capture.world import author_world
 from rose_usd.core import se3
+from rose_usd.core.pinhole import backproject
 from rose_usd.errors import InputError
 from rose_usd.stage_api import StageContext
 
@@ -37,8 +39,7 @@ def fused_points(load_depth, frames: list[int], K: np.ndarray, poses: np.ndarray
         v, u = np.nonzero((sub > 0) & (sub < depth_max_m))
         z = sub[v, u]
         u, v = u * stride_px, v * stride_px
-        pts = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
-        chunks.append(se3.transform_points(poses[t], pts))
+        chunks.append(se3.transform_points(poses[t], backproject(u, v, z, K)))
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(chunks)))
     return np.asarray(cloud.voxel_down_sample(voxel_m).points)
 
@@ -85,6 +86,21 @@ def locate(ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K
     return gravity, support, world_from_tracking(gravity.up, support, anchor, poses[0]), how
 
 
+def author_tracked_world(ctx: StageContext, poses: np.ndarray, K: np.ndarray, world_from_track: np.ndarray, gravity, k_source: str, **scale) -> None:
+    """Write the world layer from cameras tracked in their own frame (``poses``) and the world
+    ``locate`` found; ``scale`` holds author_world's scale_* arguments."""
+    author_world(
+        ctx,
+        world_from_camera=np.einsum("ij,njk->nik", world_from_track, poses),
+        K=K,
+        world_from_input=world_from_track,
+        gravity_source=gravity.source,
+        gravity_uncertainty_deg=gravity.uncertainty_deg,
+        intrinsics_source=k_source,
+        **scale,
+    )
+
+
 def run(ctx: StageContext) -> None:
     case = ctx.case
     if not case.has_depth:
@@ -95,14 +111,7 @@ def run(ctx: StageContext) -> None:
     cfg = ctx.config
     downscale = max(1, int(round(case.width / cfg.track_width)))
     params = TrackingParams(downscale=downscale, keyframe_every=cfg.keyframe_every, depth_max_m=cfg.depth_max_m)
-    depth_cache: dict[int, np.ndarray] = {}
-
-    def depth_of(t: int) -> np.ndarray:
-        if t not in depth_cache:
-            if len(depth_cache) > 64:
-                depth_cache.pop(next(iter(depth_cache)))
-            depth_cache[t] = case.depth_m(t)
-        return depth_cache[t]
+    depth_of = cached_frames(case.depth_m, 64)
 
     n = case.n_frames
     result = RgbdTracker(K, case.width, case.height, params).track(n, lambda t: (case.rgb(t), depth_of(t), None))
@@ -112,16 +121,7 @@ def run(ctx: StageContext) -> None:
     low = int(np.sum(result.fitness < params.min_fitness))
     if low:
         ctx.warn(f"{low} frame(s) overlap their keyframe poorly (fitness < {params.min_fitness}); their poses are less certain")
-    author_world(
-        ctx,
-        world_from_camera=np.einsum("ij,njk->nik", world_from_track, poses),
-        K=K,
-        world_from_input=world_from_track,
-        gravity_source=gravity.source,
-        gravity_uncertainty_deg=gravity.uncertainty_deg,
-        scale_source="sensor",
-        intrinsics_source=k_source,
-    )
+    author_tracked_world(ctx, poses, K, world_from_track, gravity, k_source, scale_source="sensor")
     ctx.record(
         keyframes=len(result.keyframes),
         photometric_keyframes=result.hybrid_keyframes,

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from rose_usd.core import se3
+from rose_usd.core.pinhole import backproject
 from rose_usd.progress import progress
 
 
@@ -111,7 +112,7 @@ class RgbdTracker:
             return 0.0
         z = depth[v, u]
         u, v = u * 2, v * 2
-        points = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+        points = backproject(u, v, z, K)
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
         cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.05, max_nn=30))
         normals = np.asarray(cloud.normals)

@@ -74,7 +74,8 @@ def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_
     )
     kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
     used = 0
-    for t in progress(range(0, n, frame_stride), "scene fuse", total=len(range(0, n, frame_stride))):
+    frames = range(0, n, frame_stride)
+    for t in progress(frames, "scene fuse", total=len(frames)):
         depth = depth_of(t).copy()
         moving = np.zeros(depth.shape, bool)
         for f in masks[t]:
@@ -198,14 +199,14 @@ def run(ctx: StageContext) -> None:
     points, colors, used = fuse_static(ctx, voxel_m=cfg.voxel_m, frame_stride=cfg.frame_stride, margin_px=cfg.mask_margin_px, depth_max_m=cfg.depth_max_m)
     # solidify: a copy of the surface thickness_m lower makes supports (table tops, floors) solid
     # slabs instead of a thin shell that a resting object could be pushed through
-    below = points - np.array([0.0, 0.0, cfg.thickness_m])
+    slab = np.concatenate([points, points - np.array([0.0, 0.0, cfg.thickness_m])])
     alpha = cfg.alpha_m
-    vertices, faces = alpha_wrap(np.concatenate([points, below]), alpha, cfg.offset_m)
+    vertices, faces = alpha_wrap(slab, alpha, cfg.offset_m)
     first_triangles = len(faces)
     while len(faces) > cfg.max_triangles and alpha < 0.5:
         # coarser wrap rather than decimation: the wrap's guarantees (no self-intersection) hold
         alpha *= 1.5
-        vertices, faces = alpha_wrap(np.concatenate([points, below]), alpha, cfg.offset_m)
+        vertices, faces = alpha_wrap(slab, alpha, cfg.offset_m)
     problems = collider_problems(vertices, faces)
     if problems:
         raise MeshError(f"the wrapped scene mesh is {', '.join(problems)}", hint="try a larger scene.alpha_m")

@@ -16,6 +16,9 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from rose_usd.core import se3
+from rose_usd.core.pinhole import backproject
+
 
 class StaticBackground:
     def __init__(
@@ -42,9 +45,7 @@ class StaticBackground:
             d = depth_of(r)[: self.h * stride : stride, : self.w * stride : stride]
             v, u = np.nonzero((d > 0) & (d < depth_max_m))
             z = d[v, u].astype(np.float64)
-            k = self._K(r)
-            pts = np.stack([(u * stride - k[0, 2]) / k[0, 0] * z, (v * stride - k[1, 2]) / k[1, 1] * z, z], axis=1)
-            self._ref_points.append(pts @ self.poses[r, :3, :3].T + self.poses[r, :3, 3])
+            self._ref_points.append(se3.transform_points(self.poses[r], backproject(u * stride, v * stride, z, self._K(r))))
 
     def _K(self, t: int) -> np.ndarray:
         return self.K[t] if len(self.K) > 1 else self.K[0]

@@ -21,7 +21,7 @@ support plane, so every pixel has a world point and a height above the support.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -29,9 +29,11 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 
 from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.core.pinhole import backproject
 from rose_usd.errors import InputError
 from rose_usd.progress import progress
 from rose_usd.segment.background import StaticBackground
+from rose_usd.segment.config import SegmentConfig
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_tracks
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
@@ -47,7 +49,7 @@ def world_points(depth: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) ->
     u = np.arange(w, dtype=np.float32)[None, :]
     v = np.arange(h, dtype=np.float32)[:, None]
     z = np.where(depth > 0, depth, np.nan).astype(np.float32)
-    cam = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    cam = backproject(u, v, z, K)
     return cam @ world_from_cv[:3, :3].T.astype(np.float32) + world_from_cv[:3, 3].astype(np.float32)
 
 
@@ -112,6 +114,10 @@ class ObjectTrack:
         if self.first_color is None:
             self.first_color = self.color.copy()
 
+    def copy(self) -> "ObjectTrack":
+        """An independent copy (propagation updates tracks in place)."""
+        return replace(self, points=self.points.copy(), color=self.color.copy(), velocity=self.velocity.copy(), first_color=self.first_color.copy())
+
 
 def _subsample(points: np.ndarray, k: int = 4000, seed: int = 0) -> np.ndarray:
     if len(points) <= k:
@@ -126,18 +132,13 @@ def _diameter(points: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- the segmenter
-@dataclass(frozen=True)
-class Params:
-    min_height_m: float = 0.004
-    core_m: float = 0.015
-    foreground_m: float = 0.015
-    min_region_px: int = 150
-    """At 640x480; scaled with the image area."""
+MIN_REGION_PX = 150
+"""The smallest region taken for an object or the interactor, at 640x480 (scaled with the image area)."""
 
 
 class Segmenter:
-    def __init__(self, rgb_of, depth_of, cameras, params: Params, background: StaticBackground):
-        self.rgb_of, self.depth_of, self.cam, self.params, self.bg = rgb_of, depth_of, cameras, params, background
+    def __init__(self, rgb_of, depth_of, cameras, config: SegmentConfig, background: StaticBackground):
+        self.rgb_of, self.depth_of, self.cam, self.config, self.bg = rgb_of, depth_of, cameras, config, background
         self.width, self.height = cameras.width, cameras.height
         self.scale_px = self.width * self.height / (640 * 480)
         self._frame_cache: dict[int, tuple] = {}
@@ -157,7 +158,7 @@ class Segmenter:
         t = prompt.frame
         rgb, depth, pts, edges, cidx = self.frame(t)
         height = pts[..., 2]
-        standing = (depth > 0) & (height > self.params.min_height_m) & ~edges
+        standing = (depth > 0) & (height > self.config.min_height_m) & ~edges
         inside = np.zeros_like(standing)
         if prompt.box is not None:
             x0, y0, x1, y1 = (int(round(c)) for c in prompt.box)
@@ -168,7 +169,7 @@ class Segmenter:
             inside[max(y - r, 0) : y + r + 1, max(x - r, 0) : x + r + 1] = True
         n, labels, areas = components(standing & inside)
         areas[0] = 0
-        if n <= 1 or areas.max() < max(0.1 * inside.sum(), self.params.min_region_px * self.scale_px / 4):
+        if n <= 1 or areas.max() < max(0.1 * inside.sum(), MIN_REGION_PX * self.scale_px / 4):
             raise InputError(f"nothing stands on the support inside the prompt of {name!r} on frame {t}", path=where, hint="draw the box around the object on a frame where it is visible")
         if prompt.box is not None:
             label = 1 + int(np.argmax(areas[1:]))
@@ -190,12 +191,12 @@ class Segmenter:
         the interactor comes to them over the video."""
         rgb, depth, pts, edges, cidx = self.frame(0)
         height = pts[..., 2]
-        standing = (depth > 0) & (height > self.params.min_height_m) & (height < 0.6) & ~edges
+        standing = (depth > 0) & (height > self.config.min_height_m) & (height < 0.6) & ~edges
         n, labels, areas = components(standing)
         border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
         regions = []
         for label in range(1, n):
-            if label in border or areas[label] < self.params.min_region_px * self.scale_px:
+            if label in border or areas[label] < MIN_REGION_PX * self.scale_px:
                 continue
             p = pts[labels == label]
             if _diameter(p) > 0.4:
@@ -206,7 +207,7 @@ class Segmenter:
         nearest = np.full(len(regions), np.inf)
         for t in range(0, n_frames, max(1, n_frames // 40)):
             hand = interactor_of(t)
-            if hand.sum() < self.params.min_region_px * self.scale_px:
+            if hand.sum() < MIN_REGION_PX * self.scale_px:
                 continue
             hp = _subsample(self.frame(t)[2][hand & (self.frame(t)[1] > 0)], 3000)
             for i, (_, tree) in enumerate(regions):
@@ -225,7 +226,7 @@ class Segmenter:
     def step(self, t: int, tracks: list[ObjectTrack], hand_hist: np.ndarray | None) -> list[np.ndarray]:
         """Masks of every track in frame t (updating the tracks)."""
         rgb, depth, pts, edges, cidx = self.frame(t)
-        p = self.params
+        p = self.config
         valid = (depth > 0) & (pts[..., 2] > -0.01)
         best = np.full(depth.shape, np.inf, np.float32)
         owner = np.full(depth.shape, -1, np.int32)
@@ -279,10 +280,10 @@ class Segmenter:
             return mask
         kernel = np.ones((3, 3), np.uint8)
         outer = cv2.dilate(mask.astype(np.uint8), np.ones((2 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask
-        wider = cv2.dilate(mask.astype(np.uint8), np.ones((6 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask
-        around = histogram(cidx[wider & ~outer]) if (wider & ~outer).any() else None
-        if around is None:
+        around_px = cv2.dilate(mask.astype(np.uint8), np.ones((6 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask & ~outer
+        if not around_px.any():
             return mask
+        around = histogram(cidx[around_px])
         other = around if hand_hist is None else np.maximum(around, hand_hist)
         colored = outer & (track.color[cidx] > 2.0 * other[cidx]) & ((owner == k) | (owner < 0))
         grown = mask.copy()
@@ -327,7 +328,7 @@ def _interactor(seg: Segmenter, t: int, objects: list[np.ndarray], hand_hist: np
     of the hand, it grows through hand-colored pixels connected to it whose depth is missing or
     disagrees with the static world (too near for the sensor, or misregistered at the rim)."""
     rgb, depth, pts, edges, cidx = seg.frame(t)
-    fg, static = seg.bg.foreground(t, depth, tau_m=seg.params.foreground_m)
+    fg, static = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
     taken = np.zeros_like(fg)
     for m in objects:
         taken |= m
@@ -335,7 +336,7 @@ def _interactor(seg: Segmenter, t: int, objects: list[np.ndarray], hand_hist: np
     fg = cv2.morphologyEx((fg & ~taken).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
     n, labels, areas = components(fg)
     big = np.zeros(n, bool)
-    big[1:] = areas[1:] >= seg.params.min_region_px * seg.scale_px
+    big[1:] = areas[1:] >= MIN_REGION_PX * seg.scale_px
     hand = big[labels]
     if hand_hist is not None and hand.any() and static.any():
         bg_hist = histogram(cidx[static][:: max(1, int(static.sum()) // 20000)])
@@ -356,8 +357,7 @@ def run(ctx: StageContext) -> None:
     depth_of = metric_depth_reader(ctx.stage, case, cache=24)
     where = case.folder / "rose.toml"
     background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
-    params = Params(min_height_m=cfg.min_height_m, core_m=cfg.core_m, foreground_m=cfg.foreground_m)
-    seg = Segmenter(case.rgb, depth_of, cameras, params, background)
+    seg = Segmenter(case.rgb, depth_of, cameras, cfg, background)
     specs = list(case.config.objects)
     prompted = [s for s in specs if s.prompt is not None]
     for s in prompted:
@@ -376,14 +376,13 @@ def run(ctx: StageContext) -> None:
     t0 = min(f for f, _ in starts)
     masks = {s.name: [None] * n for s in specs}
     hands: list[np.ndarray | None] = [None] * n
-    init = [(f, ObjectTrack(tr.name, tr.points.copy(), tr.color.copy(), tr.diameter, tr.area)) for f, tr in starts]
     hand_hist = None
     order = [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
     tracks = []
     for direction, t in progress(order, "segment", total=n):
         if not tracks or (direction < 0 and t == t0 - 1):  # (re)start from the prompts
-            tracks = [ObjectTrack(tr.name, tr.points.copy(), tr.color.copy(), tr.diameter, tr.area) for _, tr in init]
-        active = [k for k, (f, _) in enumerate(init) if direction < 0 or f <= t]
+            tracks = [tr.copy() for _, tr in starts]
+        active = [k for k, (f, _) in enumerate(starts) if direction < 0 or f <= t]
         out = seg.step(t, [tracks[k] for k in active], hand_hist)
         objs = [np.zeros((case.height, case.width), bool) for _ in specs]
         for k, m in zip(active, out):
@@ -393,7 +392,7 @@ def run(ctx: StageContext) -> None:
         # must not teach the hand model the object's colors)
         near_obj = cv2.dilate(np.any(objs, axis=0).astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool) if objs else np.zeros_like(hand)
         far_hand = hand & ~near_obj
-        if far_hand.sum() > params.min_region_px * seg.scale_px:
+        if far_hand.sum() > MIN_REGION_PX * seg.scale_px:
             hh = histogram(seg.frame(t)[4][far_hand])
             hand_hist = hh if hand_hist is None else 0.9 * hand_hist + 0.1 * hh
         for spec, m in zip(specs, objs):

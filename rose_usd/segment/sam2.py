@@ -13,7 +13,7 @@ from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.errors import ConfigError, InputError
 from rose_usd.io.sam2 import read_masks, read_object_mask
 from rose_usd.segment.background import StaticBackground
-from rose_usd.segment.classical import Params, Segmenter, _interactor
+from rose_usd.segment.classical import Segmenter, _interactor
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_tracks
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
@@ -71,7 +71,7 @@ def run(ctx: StageContext) -> None:
     else:
         cameras = read_camera(ctx.stage, paths.CAMERA, n)
         depth_of = metric_depth_reader(ctx.stage, case, cache=24)
-        seg = Segmenter(case.rgb, depth_of, cameras, Params(foreground_m=ctx.config.foreground_m), StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height))
+        seg = Segmenter(case.rgb, depth_of, cameras, ctx.config, StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height))
         hands = [_interactor(seg, t, [obj_masks[name][t] for name in names]) for t in range(n)]
         interactor_source = "static-world residual"
     tracks = [MaskTrack(name, iter(obj_masks[name])) for name in names] + [MaskTrack(INTERACTOR, iter(hands))]
