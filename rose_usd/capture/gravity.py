@@ -96,16 +96,36 @@ def fit_planes(points: np.ndarray, viewpoint: np.ndarray, *, max_planes: int = 6
     return planes
 
 
-def gravity_from_planes(points: np.ndarray, world_from_camera: np.ndarray, *, anchor: np.ndarray | None = None, max_roll_deg: float = 25.0, max_pitch_deg: float = 80.0) -> GravityEstimate:
+def plane_under(planes: list[Plane], anchor: np.ndarray | None, biggest: int, min_height_m: float) -> Plane | None:
+    """The plane just below ``anchor`` (between ``min_height_m`` and 35 cm under it) among planes
+    of at least 5 % of the biggest plane's support, or None. (A floor seen for the whole video
+    can hold 5x the points of the table the object stands on: the table must still win.)"""
+    if anchor is None:
+        return None
+    below = [p for p in planes if min_height_m <= p.normal @ anchor - p.offset <= 0.35 and p.inliers >= 0.05 * biggest]
+    return min(below, key=lambda p: p.normal @ anchor - p.offset) if below else None
+
+
+def gravity_from_planes(
+    points: np.ndarray,
+    world_from_camera: np.ndarray,
+    *,
+    anchor: np.ndarray | None = None,
+    anchor_min_height_m: float = 0.005,
+    max_roll_deg: float = 25.0,
+    max_pitch_deg: float = 80.0,
+) -> GravityEstimate:
     """Up from the horizontal planes of ``points`` (tracking frame).
 
     A hand-held camera filming a tabletop is rolled little and pitched down by up to ~70 deg, so
     a horizontal plane's normal is nearly perpendicular to the cameras' mean image-right axis and
     within ``max_pitch_deg`` of their image-up. Candidates passing that test are grouped by
     direction (table and floor are parallel; a wall facing the camera, a box side or the object's
-    face are not). The group that holds a sizable plane just below the prompted object
-    (``anchor``) wins, else the group with the most support, weighted toward image-up. Up is the
-    group's inlier-weighted normal; the support plane is its plane under the object (or its largest).
+    face are not). The group that holds a sizable plane just below ``anchor`` (a point on the
+    prompted object, at least ``anchor_min_height_m`` above its support; or where the first view
+    looks, which may lie on the support itself) wins, else the group with the most support,
+    weighted toward image-up. Up is the group's inlier-weighted normal; the support plane is its
+    plane under the anchor (or its largest).
     """
     prior = camera_up_prior(world_from_camera)
     right = world_from_camera[:, :3, 0].mean(axis=0)
@@ -129,10 +149,7 @@ def gravity_from_planes(points: np.ndarray, world_from_camera: np.ndarray, *, an
     biggest = max(p.inliers for p in candidates)
 
     def under_anchor(group: list[Plane]) -> Plane | None:
-        if anchor is None:
-            return None
-        below = [p for p in group if 0.0 <= p.normal @ anchor - p.offset <= 0.35 and p.inliers >= 0.2 * biggest]
-        return min(below, key=lambda p: p.normal @ anchor - p.offset) if below else None
+        return plane_under(group, anchor, biggest, anchor_min_height_m)
 
     def score(group: list[Plane]) -> float:
         return sum(p.inliers for p in group) * max(float(np.cos(np.radians(group[0].angle_to_prior_deg))), 0.0)
@@ -148,7 +165,9 @@ def gravity_from_planes(points: np.ndarray, world_from_camera: np.ndarray, *, an
     return GravityEstimate(up, "plane", support, planes, sigma)
 
 
-def refine_with_planes(prior: GravityEstimate, points: np.ndarray, world_from_camera: np.ndarray, *, anchor: np.ndarray | None, floor_deg: float) -> GravityEstimate:
+def refine_with_planes(
+    prior: GravityEstimate, points: np.ndarray, world_from_camera: np.ndarray, *, anchor: np.ndarray | None, floor_deg: float, anchor_min_height_m: float = 0.005
+) -> GravityEstimate:
     """Fuse an up estimate (GeoCalib, IMU) with the normal of the support planes that agree with
     it, by inverse-variance weights. The plane's sigma is that of a least-squares normal from its
     inliers, but never below ``floor_deg`` (depth errors are correlated over the image). Returns
@@ -158,8 +177,7 @@ def refine_with_planes(prior: GravityEstimate, points: np.ndarray, world_from_ca
     agree = [p for p in planes if np.degrees(np.arccos(np.clip(p.normal @ prior.up, -1, 1))) < tol]
     if not agree:
         return prior
-    below = [p for p in agree if anchor is not None and 0.0 <= p.normal @ anchor - p.offset <= 0.35]
-    main = min(below, key=lambda p: p.normal @ anchor - p.offset) if below else max(agree, key=lambda p: p.inliers)
+    main = plane_under(agree, anchor, max(p.inliers for p in planes), anchor_min_height_m) or max(agree, key=lambda p: p.inliers)
     parallel = [p for p in agree if np.degrees(np.arccos(np.clip(p.normal @ main.normal, -1, 1))) < 3.0]
     weights = np.array([p.inliers for p in parallel], dtype=float)
     plane_up = (weights[:, None] * np.array([p.normal for p in parallel])).sum(axis=0)
@@ -201,15 +219,14 @@ def gravity_from_imu(path: Path, world_from_camera: np.ndarray) -> GravityEstima
     return GravityEstimate(-mean / np.linalg.norm(mean), "imu", None, [], spread)
 
 
-def support_plane_for(up: np.ndarray, points: np.ndarray, world_from_camera: np.ndarray, anchor: np.ndarray | None = None) -> Plane:
+def support_plane_for(up: np.ndarray, points: np.ndarray, world_from_camera: np.ndarray, anchor: np.ndarray | None = None, anchor_min_height_m: float = 0.005) -> Plane:
     """The support plane perpendicular to ``up`` among ``points`` (when gravity came from
     elsewhere): the one just below ``anchor``, else the largest."""
     planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
     horizontal = [p for p in planes if np.degrees(np.arccos(np.clip(p.normal @ up, -1, 1))) < 10.0]
     if not horizontal:
         raise InputError("no support plane perpendicular to gravity in the depth", hint="film the surface the object rests on")
-    below = [p for p in horizontal if anchor is not None and 0.0 <= p.normal @ anchor - p.offset <= 0.35]
-    main = min(below, key=lambda p: p.normal @ anchor - p.offset) if below else max(horizontal, key=lambda p: p.inliers)
+    main = plane_under(horizontal, anchor, max(p.inliers for p in planes), anchor_min_height_m) or max(horizontal, key=lambda p: p.inliers)
     return Plane(up, float(up @ (main.offset * main.normal)), main.inliers, main.angle_to_prior_deg)
 
 

@@ -22,6 +22,7 @@ from rose_usd.capture.gravity import (
 from rose_usd.capture.intrinsics import resolve_K
 from rose_usd.capture.tracking import RgbdTracker, TrackingParams
 from rose_usd.capture.world import author_world
+from rose_usd.case.config import Prompt
 from rose_usd.core import se3
 from rose_usd.core.pinhole import backproject
 from rose_usd.errors import InputError
@@ -44,7 +45,7 @@ def fused_points(load_depth, frames: list[int], K: np.ndarray, poses: np.ndarray
     return np.asarray(cloud.voxel_down_sample(voxel_m).points)
 
 
-def choose_gravity(ctx: StageContext, poses: np.ndarray, points: np.ndarray, anchor: np.ndarray | None, *, plane_floor_deg: float = 0.1):
+def choose_gravity(ctx: StageContext, poses: np.ndarray, points: np.ndarray, anchor: np.ndarray | None, *, plane_floor_deg: float = 0.1, anchor_min_height_m: float = 0.005):
     """Gravity by the configured method, and the support plane (the one under ``anchor``, a point
     on the object, when given). ``auto``: the IMU; else GeoCalib fused with the support plane
     (plane sigma at least ``plane_floor_deg``); else the support plane alone."""
@@ -63,10 +64,10 @@ def choose_gravity(ctx: StageContext, poses: np.ndarray, points: np.ndarray, anc
             raise InputError("gravity = geocalib but there is no perception/geocalib.json", path=folder, hint="add it or choose gravity = plane")
         est = gravity_from_geocalib(geocalib, poses)
         if auto:
-            est = refine_with_planes(est, points, poses, anchor=anchor, floor_deg=plane_floor_deg)
+            est = refine_with_planes(est, points, poses, anchor=anchor, floor_deg=plane_floor_deg, anchor_min_height_m=anchor_min_height_m)
     else:
-        est = gravity_from_planes(points, poses, anchor=anchor)
-    support = est.support if est.support is not None else support_plane_for(est.up, points, poses, anchor)
+        est = gravity_from_planes(points, poses, anchor=anchor, anchor_min_height_m=anchor_min_height_m)
+    support = est.support if est.support is not None else support_plane_for(est.up, points, poses, anchor, anchor_min_height_m)
     return est, support
 
 
@@ -77,7 +78,14 @@ def locate(ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K
     anchor = None
     if prompt is not None and 0 <= prompt.frame < len(poses):
         anchor = anchor_from_prompt(prompt, depth_of(prompt.frame), K, poses[prompt.frame])
-    gravity, support = choose_gravity(ctx, poses, points, anchor, plane_floor_deg=plane_floor_deg)
+    if anchor is not None:
+        gravity, support = choose_gravity(ctx, poses, points, anchor, plane_floor_deg=plane_floor_deg)
+    else:
+        # no object to stand on the support: the support is the plane the first view centers on
+        # (a casual video frames the table, while a floor may fill more of the fused points)
+        center = Prompt(frame=0, point=(case.width / 2.0, case.height / 2.0))
+        look = anchor_from_prompt(center, depth_of(0), K, poses[0])
+        gravity, support = choose_gravity(ctx, poses, points, look, plane_floor_deg=plane_floor_deg, anchor_min_height_m=-0.03)
     how = "prompt"
     if anchor is None:
         anchor = anchor_from_view_center(support, K, case.width, case.height, poses[0])
