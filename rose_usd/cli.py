@@ -38,7 +38,10 @@ def _parse_assignments(values: list[str] | None, what: str) -> dict:
 def _options(args):
     from rose_usd.pipeline import Options
 
-    return Options(backends=_parse_assignments(args.backend, "--backend"), settings=_parse_assignments(args.set, "--set"), force=args.force)
+    settings = _parse_assignments(args.set, "--set")
+    if getattr(args, "prompt", None):
+        settings.setdefault("segment", {})["prompts"] = ";".join(args.prompt)
+    return Options(backends=_parse_assignments(args.backend, "--backend"), settings=settings, force=args.force)
 
 
 def _finish(out_dir: Path, validate: bool) -> int:
@@ -159,11 +162,13 @@ def cmd_bench_run(args) -> int:
     backends = _parse_assignments(args.backend, "--backend") or {"all": "oracle"}
     settings = _parse_assignments(args.set, "--set")
     tag = "-".join(f"{k}={v}" for k, v in sorted(backends.items())).replace("all=", "")
+    if args.no_prompts:
+        tag += "-unprompted"
     if args.until:
         tag += f"-until-{args.until}"
     out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"{args.suite}-{mode.value}-{tag}"
     command = "rose-usd " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("rose-usd") else f"rose-usd bench run --suite {args.suite} --mode {mode.value}"
-    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command, until=args.until)
+    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command, until=args.until, prompts=not args.no_prompts)
     report = build_report(out)
     failed = [c["case"] for c in summary["cases"] if "error" in c]
     print(f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed -> {out}/results.json, {report}")
@@ -175,7 +180,13 @@ def cmd_bench_real(args) -> int:
     from rose_usd.bench.real import evaluate_seven_scenes
 
     out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"real-{args.dataset}"
-    result = evaluate_seven_scenes(Path(args.folder), out, backends=_parse_assignments(args.backend, "--backend") or None)
+    if args.dataset == "sam2-cups":
+        from rose_usd.bench.real import evaluate_sam2_cups
+
+        result = evaluate_sam2_cups(Path(args.folder), out)
+        print(json.dumps(result, indent=1))
+        return 0
+    result = evaluate_seven_scenes(Path(args.folder), out, backends=_parse_assignments(args.backend, "--backend") or None, scene=not args.capture_only)
     print(json.dumps({k: v for k, v in result.items() if k != "capture_results"}, indent=1, default=float))
     return 0
 
@@ -194,6 +205,15 @@ def cmd_bench_speed(args) -> int:
     return 1 if "error" in result else 0
 
 
+def cmd_bench_rescore(args) -> int:
+    from rose_usd.bench.report import build_report
+    from rose_usd.bench.runner import DEFAULT_CASES, rescore
+
+    rescore(Path(args.results), cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES)
+    print(build_report(Path(args.results)))
+    return 0
+
+
 def cmd_bench_report(args) -> int:
     from rose_usd.bench.report import build_report
 
@@ -206,6 +226,7 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="output folder (rose.usda, layers/, masks/, report/)")
     p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backend of a stage (repeatable); STAGE 'all' sets every stage that has it")
     p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="override a stage setting (repeatable); see `rose-usd stages`")
+    p.add_argument("--prompt", action="append", metavar="[NAME=]FRAME:X0,Y0,X1,Y1", help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml (repeatable; NAME may be left out for one object)")
     p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
 
 
@@ -279,6 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="results folder (default benchmarks/results/SUITE-MODE-BACKENDS)")
     p.add_argument("--cases", help="where generated cases are cached (default benchmarks/cases)")
     p.add_argument("--until", metavar="STAGE", help="run only this stage and what it needs (metrics of later stages are left out)")
+    p.add_argument("--no-prompts", action="store_true", help="drop the object prompts from the cases' rose.toml (objects are named, never pointed at)")
     p.set_defaults(func=cmd_bench_run)
     p = bsub.add_parser("speed", help="time one stage on a long case (default 300 frames at 640x480)")
     p.add_argument("stage", help="stage to time (its prerequisites run first, untimed)")
@@ -287,12 +309,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", default="640x480")
     p.add_argument("-o", "--output", help="output folder (default benchmarks/results/speed)")
     p.set_defaults(func=cmd_bench_speed)
-    p = bsub.add_parser("real", help="run capture on a real recording with known poses and compare (7-Scenes)")
-    p.add_argument("dataset", choices=["7scenes"])
-    p.add_argument("folder", help="e.g. ../shared/data/real/7scenes-redkitchen-600-799")
+    p = bsub.add_parser("real", help="run rose on a real recording: 7scenes (capture and scene mesh vs recorded poses), sam2-cups (masks of one cup, contact sheet)")
+    p.add_argument("dataset", choices=["7scenes", "sam2-cups"])
+    p.add_argument("folder", help="e.g. ../shared/data/real/7scenes-redkitchen-600-799 or ../shared/data/real/sam2-cups")
     p.add_argument("-o", "--output", help="output folder (default benchmarks/results/real-DATASET)")
-    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default capture=rgbd)")
+    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default capture=rgbd, segment=classical, scene=tsdf)")
+    p.add_argument("--capture-only", action="store_true", help="stop after capture (no scene mesh comparison)")
     p.set_defaults(func=cmd_bench_real)
+    p = bsub.add_parser("rescore", help="score a results folder's runs again with the current metrics (no stage re-runs), then rebuild its report")
+    p.add_argument("results", help="a folder with results.json and runs/")
+    p.add_argument("--cases", help="where generated cases are cached (default benchmarks/cases)")
+    p.set_defaults(func=cmd_bench_rescore)
+
     p = bsub.add_parser("report", help="write report.md and plots for a results folder")
     p.add_argument("results", help="a folder with results.json")
     p.set_defaults(func=cmd_bench_report)

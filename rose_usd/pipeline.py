@@ -101,7 +101,7 @@ class Pipeline:
             gt_dir = self.case.folder / "gt"
             if gt_dir.is_dir():
                 inputs["gt"] = _files_hash([p for p in gt_dir.rglob("*") if p.is_file()], self.case.folder)
-        for need in stage_def.needs:
+        for need in stage_def.needs_of(config.backend.value):
             layer = usd_stage.layer_file(self.out_dir, registry.get(need).layer)
             inputs[f"layer:{registry.get(need).layer}"] = _cached_file_hash(layer) if layer.is_file() else "missing"
         return inputs
@@ -122,7 +122,7 @@ class Pipeline:
     # ------------------------------------------------------------------ running
     def run_stage(self, stage_def: StageDef) -> StageOutcome:
         config = self.config(stage_def)
-        for need in stage_def.needs:
+        for need in stage_def.needs_of(config.backend.value):
             if not usd_stage.layer_file(self.out_dir, registry.get(need).layer).is_file():
                 raise StageError(f"stage {stage_def.name!r} needs layer {registry.get(need).layer!r}, which is missing", path=self.out_dir, hint=f"run `rose-usd run {need}` first")
         provenance = {
@@ -144,7 +144,7 @@ class Pipeline:
 
     def run(self, target: str | None = None) -> list[StageOutcome]:
         """Run ``target`` (or every stage) and whatever it needs that is missing or stale."""
-        stages = registry.closure(target) if target else list(registry.STAGES)
+        stages = registry.closure(target, lambda s: self.config(s).backend.value) if target else list(registry.STAGES)
         for stage_def in stages:  # every config is checked before any stage runs
             self.config(stage_def)
         outcomes = []

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from rose_usd import capture, gate, scene, segment, trajectory
 from rose_usd import object as object_stage
 from rose_usd.stage_api import StageDef
@@ -26,10 +28,11 @@ def get(name: str) -> StageDef:
     return BY_NAME[name]
 
 
-def closure(name: str) -> list[StageDef]:
-    """``name`` and every stage it needs, transitively, in run order."""
+def closure(name: str, backend_of: Callable[[StageDef], str] | None = None) -> list[StageDef]:
+    """``name`` and every stage it needs, transitively, in run order (by the backends
+    ``backend_of`` picks, when given: a backend may need less than its stage usually does)."""
     wanted = {get(name).name}
     for stage in reversed(STAGES):
         if stage.name in wanted:
-            wanted.update(stage.needs)
+            wanted.update(stage.needs_of(backend_of(stage)) if backend_of else stage.needs)
     return [s for s in STAGES if s.name in wanted]

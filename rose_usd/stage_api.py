@@ -9,7 +9,7 @@ import hashlib
 import importlib
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,9 +38,15 @@ class StageDef:
     """One line for the CLI help and the docs."""
     side_dirs: tuple[str, ...] = ()
     """Folders of ``<out>`` this stage writes besides its layer (e.g. ``masks``)."""
+    needs_by_backend: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    """Backends that need other stages than ``needs`` (e.g. a segment backend that works on RGB alone)."""
     auto_backend: str | None = None
     """``module:function`` taking the Case and naming the backend ``auto`` stands for, if the
     stage offers ``auto``."""
+
+    def needs_of(self, backend: str) -> tuple[str, ...]:
+        """The stages this stage needs when ``backend`` runs it."""
+        return self.needs_by_backend.get(backend, self.needs)
 
     def backend_function(self, backend: str) -> Callable[["StageContext"], None]:
         return _resolve(self.backends[backend])

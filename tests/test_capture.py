@@ -170,10 +170,13 @@ def test_imu_gravity_in_camera_axes(tmp_path):
 @pytest.mark.slow
 @pytest.mark.skipif(not SEVEN_SCENES.is_dir(), reason="../shared/data/real/7scenes-redkitchen-600-799 is not present")
 def test_seven_scenes_real_sequence(tmp_path):
-    """Benchmark job: on the real Kinect sequence, camera APE <= 2 cm after rigid alignment and
-    gravity within 2 deg of the recorded values."""
+    """Benchmark job: on the real Kinect sequence, camera APE <= 2 cm after rigid alignment,
+    gravity within 2 deg of the recorded values, and the scene collider valid and within 1.5 cm
+    (mean visible-surface Chamfer) of a fusion with the recorded poses."""
     from rose_usd.bench.real import evaluate_seven_scenes
 
     result = evaluate_seven_scenes(SEVEN_SCENES, tmp_path / "out")
     assert result["camera_ape_translation_rmse_m"] <= 0.02
     assert result["gravity_error_deg"] <= 2.0
+    assert result["scene_collider_problems"] == [] and not result["scene_self_intersections"]
+    assert result["scene_chamfer_visible_mean_m"] <= 0.015

@@ -41,8 +41,9 @@ def _link_tree(src: Path, dst: Path) -> None:
             shutil.copy2(src, dst)
 
 
-def make_mode_case(base: Path, mode: PerceptionMode, out: Path, seed: int) -> Path:
-    """Build the ``mode`` variant of generated case ``base`` at ``out`` (replaced if present)."""
+def make_mode_case(base: Path, mode: PerceptionMode, out: Path, seed: int, *, prompts: bool = True) -> Path:
+    """Build the ``mode`` variant of generated case ``base`` at ``out`` (replaced if present);
+    without ``prompts``, its rose.toml names the objects but points at none of them."""
     tmp = out.with_name(f".{out.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -53,14 +54,19 @@ def make_mode_case(base: Path, mode: PerceptionMode, out: Path, seed: int) -> Pa
         from rose_usd.synth.perception import write_mono_imported
 
         write_mono_imported(tmp, seed)
+    if not prompts:
+        toml = tmp / "rose.toml"
+        lines = [line for line in toml.read_text().splitlines() if not line.startswith("prompt = ")]
+        toml.unlink()  # a hard link to the generated case's file: replace, never edit
+        toml.write_text("\n".join(lines) + "\n")
     shutil.rmtree(out, ignore_errors=True)
     tmp.rename(out)
-    (out / ".mode").write_text(mode_stamp(mode))
+    (out / ".mode").write_text(mode_stamp(mode, prompts))
     return out
 
 
-def mode_stamp(mode: PerceptionMode) -> str:
-    """What a mode case was made by (its mode and the simulator's version)."""
+def mode_stamp(mode: PerceptionMode, prompts: bool = True) -> str:
+    """What a mode case was made by (its mode, prompts or not, and the simulator's version)."""
     from rose_usd.synth.perception import PERCEPTION_VERSION
 
-    return f"{mode.value} v{PERCEPTION_VERSION}"
+    return f"{mode.value}{'' if prompts else ' unprompted'} v{PERCEPTION_VERSION}"

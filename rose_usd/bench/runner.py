@@ -43,13 +43,13 @@ def ensure_case(spec: CaseSpec, suite_dir: Path) -> tuple[Path, float]:
     return base, time.perf_counter() - t0
 
 
-def ensure_mode(base: Path, spec: CaseSpec, mode: PerceptionMode) -> Path:
-    out = base.parent / mode.value
+def ensure_mode(base: Path, spec: CaseSpec, mode: PerceptionMode, prompts: bool = True) -> Path:
+    out = base.parent / (mode.value + ("" if prompts else "-unprompted"))
     stamp = out / ".mode"
     base_stamp = (base / "gt" / "scene.json").stat().st_mtime_ns
-    if stamp.is_file() and stamp.read_text() == mode_stamp(mode) and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp:
+    if stamp.is_file() and stamp.read_text() == mode_stamp(mode, prompts) and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp:
         return out
-    return make_mode_case(base, mode, out, spec.seed)
+    return make_mode_case(base, mode, out, spec.seed, prompts=prompts)
 
 
 def _flatten(result: dict) -> list[dict]:
@@ -57,7 +57,7 @@ def _flatten(result: dict) -> list[dict]:
     rows = []
     score = result.get("score") or {}
     base = {k: result[k] for k in ("case", "task", "shape", "seed", "mode", "n_frames", "error") if k in result}
-    for key in ("camera_ape_translation_m", "camera_ape_rotation_deg", "camera_rpe_translation_m", "camera_rpe_rotation_deg", "gravity_error_deg", "scale_error", "scene_chamfer_m", "scene_chamfer_visible_m", "ssim_mean", "gate_passed"):
+    for key in ("camera_ape_translation_m", "camera_ape_rotation_deg", "camera_rpe_translation_m", "camera_rpe_rotation_deg", "gravity_error_deg", "scale_error", "scene_chamfer_m", "scene_chamfer_visible_m", "scene_ghost_cm2", "ssim_mean", "gate_passed"):
         base[key] = score.get(key)
     for name, st in (result.get("stages") or {}).items():
         base[f"time_{name}_s"] = st["wall_time_s"]
@@ -82,6 +82,7 @@ def run_suite(
     settings: dict | None = None,
     command: str = "",
     until: str | None = None,
+    prompts: bool = True,
 ) -> dict:
     specs = get_suite(suite)
     commit = _git_commit()  # at the start: the code that runs
@@ -93,7 +94,7 @@ def run_suite(
     t_start = time.perf_counter()
     for i, spec in enumerate(specs, start=1):
         base, gen_time = ensure_case(spec, suite_dir)
-        case = ensure_mode(base, spec, mode)
+        case = ensure_mode(base, spec, mode, prompts)
         run_out = out_dir / "runs" / spec.name
         result_file = out_dir / "runs" / f"{spec.name}.json"
         say(f"bench [{i}/{len(specs)}] {spec.name} ({mode.value})")
@@ -114,6 +115,7 @@ def run_suite(
         "backends": backends,
         "settings": settings or {},
         "until": until,
+        "prompts": prompts,
         "command": command,
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
@@ -122,6 +124,34 @@ def run_suite(
         "suite_wall_time_s": round(time.perf_counter() - t_start, 1),
         "cases": results,
     }
+    _write(summary, out_dir)
+    return summary
+
+
+def rescore(out_dir: Path, *, cases_dir: Path = DEFAULT_CASES) -> dict:
+    """Score a results folder's runs again with the current metrics (no stage re-runs): for a
+    metric added after the runs were made. The summary records the commit that rescored."""
+    out_dir = Path(out_dir)
+    summary = json.loads((out_dir / "results.json").read_text())
+    mode = PerceptionMode(summary["mode"])
+    specs = {s.name: s for s in get_suite(summary["suite"])}
+    from rose_usd.bench.evaluate import evaluate
+
+    for result in summary["cases"]:
+        if "error" in result:
+            continue
+        spec = specs[result["case"]]
+        base, _ = ensure_case(spec, Path(cases_dir) / summary["suite"])
+        say(f"bench rescore {spec.name}")
+        result["score"] = evaluate(ensure_mode(base, spec, mode, summary.get("prompts", True)), out_dir / "runs" / spec.name).to_json()
+    summary["rescored_by"] = _git_commit()
+    _write(summary, out_dir)
+    return summary
+
+
+def _write(summary: dict, out_dir: Path) -> None:
+    """results.json and results.csv (one row per object) of a suite run."""
+    results = summary["cases"]
     (out_dir / "results.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
     rows = [row for r in results for row in _flatten(r)]
     keys = list(dict.fromkeys(k for row in rows for k in row))
@@ -129,7 +159,6 @@ def run_suite(
         writer = csv.DictWriter(f, fieldnames=keys)
         writer.writeheader()
         writer.writerows(rows)
-    return summary
 
 
 def _version(pkg: str) -> str:

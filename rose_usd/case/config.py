@@ -5,6 +5,7 @@
     name = "Mug"                      # prim name under /World/Objects
     category = "mug"                  # picks the physics prior
     prompt = { frame = 0, box = [212, 140, 300, 232] }   # pixels, x0 y0 x1 y1
+    # (no [[objects]]: one object named "Object"; objects = [] instead: a static scene)
     [backends]
     capture = "oracle"
     [capture]                         # per-stage config overrides (fields of that stage's config)
@@ -106,7 +107,9 @@ def load_case_config(case_root: Path, stage_names: tuple[str, ...]) -> CaseConfi
     overrides = {name: dict(data[name]) for name in stage_names if name in data}
     return CaseConfig(
         fps=float(fps) if fps is not None else None,
-        objects=tuple(objects) if objects else CaseConfig().objects,
+        # no [[objects]] at all: one object named "Object"; an explicit ``objects = []``: a static
+        # scene (segment finds only the interactor, scene fuses everything else)
+        objects=tuple(objects) if "objects" in data else CaseConfig().objects,
         backends=dict(backends),
         stage_overrides=overrides,
     )

@@ -136,6 +136,16 @@ class SurfaceDistance:
         return self.scene.compute_distance(pts).numpy().astype(np.float64)
 
 
+class SignedDistance(SurfaceDistance):
+    """Signed distance from points to a closed triangle mesh (negative inside)."""
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        if len(points) == 0:
+            return np.zeros(0)
+        pts = self._o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
+        return self.scene.compute_signed_distance(pts).numpy().astype(np.float64)
+
+
 def chamfer_point_surface(points_a: np.ndarray, surface_a: SurfaceDistance, points_b: np.ndarray, surface_b: SurfaceDistance) -> tuple[float, float, float]:
     """Symmetric Chamfer between surfaces A and B, from points sampled on each and distances to the
     other surface: (symmetric mean, mean A->B, mean B->A) [m]."""

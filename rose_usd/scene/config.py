@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 
 class SceneBackend(enum.Enum):
-    TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, manifold3d decimation, 3-NN colors, xatlas texture
+    TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, 3-NN colors, xatlas texture
     ORACLE = "oracle"  # ground-truth scene parts, materials and lights from gt/ (benchmark cases)
 
 
@@ -19,6 +19,8 @@ class SceneConfig:
     """tsdf: fuse every n-th frame (default 2)."""
     mask_margin_px: int = 6
     """tsdf: object and interactor masks are dilated by this many pixels before fusion (default 6)."""
+    carve_m: float = 0.01
+    """tsdf: fused surface above the support this near to points of the object masks is removed [m] (default 0.01)."""
     depth_max_m: float = 5.0
     """tsdf: depth beyond this is not fused [m] (default 5: all a Kinect-class sensor gives)."""
     alpha_m: float = 0.03

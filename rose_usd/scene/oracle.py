@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from rose_usd.core import se3
+from rose_usd.core.watertight import manifold_of
 from rose_usd.errors import MeshError
 from rose_usd.oracle import world_from_gt
 from rose_usd.render.lighting import Lighting, PointLight
@@ -26,12 +27,7 @@ def run(ctx: StageContext) -> None:
         parts.append(ScenePart(p.name, mesh))
     union = None
     for part in parts:
-        m = manifold3d.Manifold(
-            manifold3d.Mesh(
-                vert_properties=np.ascontiguousarray(part.mesh.vertices, dtype=np.float32),
-                tri_verts=np.ascontiguousarray(part.mesh.faces, dtype=np.uint32),
-            )
-        )
+        m = manifold_of(part.mesh.vertices, part.mesh.faces)
         if m.status() != manifold3d.Error.NoError:
             raise MeshError(f"ground-truth part {part.name!r} is not a manifold ({m.status().name})", path=gt.root / "meshes", hint="regenerate the case")
         union = m if union is None else union + m

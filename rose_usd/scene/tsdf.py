@@ -28,7 +28,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.core import se3
 from rose_usd.core.color import linear_to_srgb8, srgb8_to_linear
+from rose_usd.core.pinhole import backproject
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io.images import read_mask
@@ -36,6 +38,7 @@ from rose_usd.progress import progress
 from rose_usd.render.lighting import Lighting
 from rose_usd.scene.author import ScenePart, author_scene
 from rose_usd.segment.background import StaticBackground
+from rose_usd.segment.tracks import INTERACTOR
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
 from rose_usd.usd.camera import read_camera
@@ -51,30 +54,99 @@ def _mask_files(ctx: StageContext, n: int) -> list[list[Path]]:
     return [[track / f"{t:06d}.png" for track in tracks] for t in range(n)]
 
 
-def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_px: int, depth_max_m: float):
-    """TSDF-fuse the static pixels. Returns the fused surface's points (V, 3) and linear colors (V, 3)."""
-    import open3d as o3d
+class Fusion:
+    """A TSDF volume (Open3D's tensor voxel-block grid on the CPU; its legacy ScalableTSDFVolume
+    returned no points on CPU in Open3D 0.20) of metric depth frames with colors."""
 
+    def __init__(self, voxel_m: float, depth_max_m: float):
+        import open3d as o3d
+        import open3d.core as o3c
+
+        self._o3d, self._o3c = o3d, o3c
+        self.depth_max_m = depth_max_m
+        self.grid = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"),
+            attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+            attr_channels=((1), (1), (3)),
+            voxel_size=voxel_m,
+            block_resolution=16,
+            block_count=50_000,
+            device=o3c.Device("CPU:0"),
+        )
+        self.frames = 0
+
+    def add(self, depth_m: np.ndarray, rgb8: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> bool:
+        """Integrate one frame (depth 0 = skip the pixel); False when it has no usable depth."""
+        o3d, o3c = self._o3d, self._o3c
+        depth = np.where(depth_m <= self.depth_max_m, depth_m, 0.0)
+        if not np.any(depth > 0):
+            return False
+        intr = o3c.Tensor(np.asarray(K, dtype=np.float64))
+        extr = o3c.Tensor(np.linalg.inv(world_from_cv))
+        depth_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, dtype=np.float32)))
+        color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb8, dtype=np.float32) / 255.0))
+        blocks = self.grid.compute_unique_block_coordinates(depth_img, intr, extr, 1.0, self.depth_max_m)
+        self.grid.integrate(blocks, depth_img, color_img, intr, intr, extr, 1.0, self.depth_max_m)
+        self.frames += 1
+        return True
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The fused surface as points (V, 3) and colors in [0, 1] (V, 3)."""
+        if not self.frames:
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        cloud = self.grid.extract_point_cloud()
+        return cloud.point.positions.numpy().astype(float), cloud.point.colors.numpy().astype(float)
+
+    def mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        """The fused surface as a triangle mesh (marching cubes): vertices (V, 3), faces (F, 3)."""
+        mesh = self.grid.extract_triangle_mesh()
+        return mesh.vertex.positions.numpy().astype(float), mesh.triangle.indices.numpy().astype(np.int64)
+
+
+def seen_through(points: np.ndarray, depth_of, cameras, frames, *, tol_m: float = 0.02, rel: float = 0.03) -> np.ndarray:
+    """Points (N, 3) that more of ``frames`` see through (the depth at their pixel lies beyond
+    them by more than ``tol_m`` + ``rel`` x depth) than see (depth within that of them)."""
+    through = np.zeros(len(points), np.int32)
+    seen = np.zeros(len(points), np.int32)
+    for t in frames:
+        depth = depth_of(t)
+        h, w = depth.shape
+        cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), points)
+        z = cam[:, 2]
+        ok = z > 0.05
+        K = cameras.K[t]
+        u = np.full(len(points), -1)
+        v = np.full(len(points), -1)
+        u[ok] = np.round(K[0, 0] * cam[ok, 0] / z[ok] + K[0, 2]).astype(int)
+        v[ok] = np.round(K[1, 1] * cam[ok, 1] / z[ok] + K[1, 2]).astype(int)
+        ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        d = np.zeros(len(points))
+        d[ok] = depth[v[ok], u[ok]]
+        ok &= d > 0
+        tol = tol_m + rel * z
+        through += ok & (d > z + tol)
+        seen += ok & (np.abs(d - z) <= tol)
+    return through > seen
+
+
+CARVE_ABOVE_M = 0.015
+"""Carving never touches the support: only fused points this high above it [m]."""
+
+
+def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_px: int, depth_max_m: float, carve_m: float):
+    """TSDF-fuse the static pixels. Returns the fused surface's points (V, 3), their linear colors
+    (V, 3), the number of frames fused and the number of points carved away."""
     case = ctx.case
     n = ctx.time_info.n_frames
     cameras = read_camera(ctx.stage, paths.CAMERA, n)
     depth_of = metric_depth_reader(ctx.stage, case, cache=24)
     background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
     masks = _mask_files(ctx, n)
-    import open3d.core as o3c
-
-    grid = o3d.t.geometry.VoxelBlockGrid(
-        attr_names=("tsdf", "weight", "color"),
-        attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
-        attr_channels=((1), (1), (3)),
-        voxel_size=voxel_m,
-        block_resolution=16,
-        block_count=50_000,
-        device=o3c.Device("CPU:0"),
-    )
+    volume = Fusion(voxel_m, depth_max_m)
     kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
     used = 0
     frames = range(0, n, frame_stride)
+    object_points = []
     for t in progress(frames, "scene fuse", total=len(frames)):
         depth = depth_of(t).copy()
         moving = np.zeros(depth.shape, bool)
@@ -83,28 +155,38 @@ def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_
             if m.shape != depth.shape:
                 raise InputError(f"mask is {m.shape[1]}x{m.shape[0]}, frames are {case.width}x{case.height}", path=f, hint="re-run the segment stage")
             moving |= m
+            if f.parent.name != INTERACTOR:
+                v, u = np.nonzero(m[::4, ::4] & (depth[::4, ::4] > 0))
+                cam = backproject(4 * u, 4 * v, depth[4 * v, 4 * u], cameras.K[t])
+                object_points.append(se3.transform_points(cameras.world_from_cv[t], cam))
         moving = cv2.dilate(moving.astype(np.uint8), kernel).astype(bool)
         fg, _ = background.foreground(t, depth)
-        depth[moving | fg | (depth > depth_max_m)] = 0.0
-        if not np.any(depth > 0):
-            continue
-        intr = o3c.Tensor(np.asarray(cameras.K[t], dtype=np.float64))
-        extr = o3c.Tensor(np.linalg.inv(cameras.world_from_cv[t]))
-        depth_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, dtype=np.float32)))
-        color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(case.rgb(t), dtype=np.float32) / 255.0))
-        blocks = grid.compute_unique_block_coordinates(depth_img, intr, extr, 1.0, depth_max_m)
-        grid.integrate(blocks, depth_img, color_img, intr, intr, extr, 1.0, depth_max_m)
-        used += 1
-    cloud = grid.extract_point_cloud() if used else None
-    points = cloud.point.positions.numpy().astype(float) if cloud is not None else np.zeros((0, 3))
+        depth[moving | fg] = 0.0
+        used += volume.add(depth, case.rgb(t), cameras.K[t], cameras.world_from_cv[t])
+    points, colors01 = volume.points()
+    # carve: fused surface above the support and within carve_m of where an object was seen is
+    # a piece of an object its masks missed (the top of a can that never moves), not scene
+    carved = 0
+    objs = np.concatenate(object_points) if object_points else np.zeros((0, 3))
+    objs = objs[objs[:, 2] > CARVE_ABOVE_M]
+    if len(objs) and len(points):
+        near = cKDTree(objs).query(points, distance_upper_bound=carve_m)[0] < carve_m
+        near &= points[:, 2] > CARVE_ABOVE_M
+        carved = int(near.sum())
+        points, colors01 = points[~near], colors01[~near]
+    # free space: a fused point that more frames see through (their depth lies well behind it)
+    # than see it was there only for a while (a moving part its masks missed in a few frames)
+    transient = seen_through(points, depth_of, cameras, range(0, n, max(1, n // 60)))
+    carved += int(transient.sum())
+    points, colors01 = points[~transient], colors01[~transient]
     if len(points) < 100:
         raise InputError(
             f"the fused static volume is empty ({len(points)} points from {used} frames)",
             path=case.folder,
             hint="check the depth and the masks: every pixel may have been masked as moving",
         )
-    colors = srgb8_to_linear(np.clip(cloud.point.colors.numpy() * 255.0 + 0.5, 0, 255).astype(np.uint8))
-    return points, colors, used
+    colors = srgb8_to_linear(np.clip(colors01 * 255.0 + 0.5, 0, 255).astype(np.uint8))
+    return points, colors, used, carved
 
 
 def alpha_wrap(points: np.ndarray, alpha_m: float, offset_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +278,9 @@ def _dilate_ids(ids: np.ndarray, steps: int) -> np.ndarray:
 
 def run(ctx: StageContext) -> None:
     cfg = ctx.config
-    points, colors, used = fuse_static(ctx, voxel_m=cfg.voxel_m, frame_stride=cfg.frame_stride, margin_px=cfg.mask_margin_px, depth_max_m=cfg.depth_max_m)
+    points, colors, used, carved = fuse_static(
+        ctx, voxel_m=cfg.voxel_m, frame_stride=cfg.frame_stride, margin_px=cfg.mask_margin_px, depth_max_m=cfg.depth_max_m, carve_m=cfg.carve_m
+    )
     # solidify: a copy of the surface thickness_m lower makes supports (table tops, floors) solid
     # slabs instead of a thin shell that a resting object could be pushed through
     slab = np.concatenate([points, points - np.array([0.0, 0.0, cfg.thickness_m])])
@@ -222,6 +306,7 @@ def run(ctx: StageContext) -> None:
     ctx.record(
         fused_frames=used,
         fused_points=int(len(points)),
+        carved_points=carved,
         wrap_triangles=first_triangles,
         alpha_m=round(alpha, 4),
         triangles=int(len(faces)),

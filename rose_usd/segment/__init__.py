@@ -11,8 +11,10 @@ STAGE = StageDef(
     backends={
         "classical": "rose_usd.segment.classical:run",
         "sam2": "rose_usd.segment.sam2:run",
+        "flow": "rose_usd.segment.flow:run",
         "oracle": "rose_usd.segment.oracle:run",
     },
     summary="object and interactor masks per frame -> layers/masks.usda + masks/",
     side_dirs=("masks",),
+    needs_by_backend={"flow": ()},  # 2D: RGB and prompts only, for videos without depth
 )

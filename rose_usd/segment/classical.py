@@ -7,7 +7,10 @@ support plane, so every pixel has a world point and a height above the support.
 1. **Start.** On the prompt frame, the object is the depth-connected region of pixels standing on
    the support (height > ``min_height_m``) inside the prompt box (or containing the prompt
    point). Without a prompt it is the region standing on the support at the first frame that the
-   interactor comes nearest to over the video ("what the hand moves").
+   interactor comes nearest to over the video ("what the hand moves"); with several objects
+   named, that region is first split into the part that later leaves its place (seen past in a
+   later frame) and the part that stays, for objects stacked on each other. Names of rose.toml
+   go to regions in that order (unprompted, nothing else tells which object is which).
 2. **Propagate** (forward from the prompt frame, then backward). In each frame, a pixel belongs to
    the object when its world point lies within ``max(diameter, 3 cm)`` of the object's previous
    points (shifted by its last velocity), its color is more likely under the object's color model
@@ -29,12 +32,13 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 
 from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.core import se3
 from rose_usd.core.pinhole import backproject
 from rose_usd.errors import InputError
 from rose_usd.progress import progress
 from rose_usd.segment.background import StaticBackground
 from rose_usd.segment.config import SegmentConfig
-from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_tracks
+from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
 from rose_usd.usd.camera import read_camera
@@ -213,7 +217,20 @@ class Segmenter:
             for i, (_, tree) in enumerate(regions):
                 d, _ = tree.query(hp, k=1)
                 nearest[i] = min(nearest[i], float(d.min()))
-        order = np.argsort(nearest)
+        order = list(np.argsort(nearest))
+        if len(names) > 1:
+            # objects standing on each other (a stack) form one region: split the most
+            # approached region into what later leaves its place and what stays
+            i = order[0]
+            parts = self._split_by_motion(labels == regions[i][0], n_frames)
+            if parts is not None:
+                moved, stayed = parts
+                labels = labels.copy()
+                new_label = labels.max() + 1
+                labels[stayed] = new_label
+                regions.append((new_label, cKDTree(_subsample(pts[stayed], 2000))))
+                nearest = np.append(nearest, nearest[i])
+                order = [i, len(regions) - 1] + order[1:]
         if len(regions) < len(names) or not np.isfinite(nearest[order[len(names) - 1]]):
             raise InputError(
                 f"found {int(np.isfinite(nearest).sum())} region(s) the interactor approaches, rose.toml names {len(names)} object(s)",
@@ -221,6 +238,39 @@ class Segmenter:
                 hint="give each object a prompt box in rose.toml",
             )
         return [self._new_track(name, 0, labels == regions[order[i]][0]) for i, name in enumerate(names)]
+
+    def _split_by_motion(self, region: np.ndarray, n_frames: int, *, leave_m: float = 0.02) -> tuple[np.ndarray, np.ndarray] | None:
+        """Split a frame-0 region into the pixels whose point later leaves its place (a later
+        frame sees past it, by more than ``leave_m``) and the rest; None unless both parts are
+        sizable regions."""
+        _, _, pts, _, _ = self.frame(0)
+        v, u = np.nonzero(region)
+        world = pts[v, u]
+        left = np.zeros(len(v), bool)
+        for t in range(n_frames // 2, n_frames, max(1, n_frames // 20)):
+            depth = self.frame(t)[1]
+            cam = se3.transform_points(se3.invert(self.cam.world_from_cv[t]), world)
+            K = self.cam.K[t]
+            z = cam[:, 2]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                uu = np.round(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(int)
+                vv = np.round(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(int)
+            ok = (z > 0) & (uu >= 0) & (uu < self.width) & (vv >= 0) & (vv < self.height)
+            seen = np.zeros(len(v))
+            seen[ok] = depth[vv[ok], uu[ok]]
+            left |= ok & (seen > z + leave_m)
+        moved = np.zeros_like(region)
+        moved[v[left], u[left]] = True
+        moved = cv2.morphologyEx(moved.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)).astype(bool)
+        stayed = region & ~cv2.dilate(moved.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        least = MIN_REGION_PX * self.scale_px
+        if moved.sum() < least or stayed.sum() < least:
+            return None
+        n, labels, areas = components(moved)
+        moved = labels == 1 + int(np.argmax(areas[1:]))
+        n, labels, areas = components(stayed)
+        stayed = labels == 1 + int(np.argmax(areas[1:]))
+        return moved, stayed
 
     # ----------------------------------------------------------------- propagate
     def step(self, t: int, tracks: list[ObjectTrack], hand_hist: np.ndarray | None) -> list[np.ndarray]:
@@ -358,22 +408,18 @@ def run(ctx: StageContext) -> None:
     where = case.folder / "rose.toml"
     background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
     seg = Segmenter(case.rgb, depth_of, cameras, cfg, background)
-    specs = list(case.config.objects)
-    prompted = [s for s in specs if s.prompt is not None]
-    for s in prompted:
-        if not 0 <= s.prompt.frame < n:
-            raise InputError(f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has {n}", path=where, hint="prompt a frame of this video")
-        _check_prompt_inside(s, case.width, case.height, where)
-    if prompted and len(prompted) != len(specs):
-        raise InputError("some objects have a prompt and some do not", path=where, hint="prompt every object, or none")
-    if prompted:
+    specs = parse_prompts(cfg.prompts, list(case.config.objects))
+    prompted = check_prompts(specs, case.width, case.height, n, where)
+    if not specs:  # a static scene (rose.toml: objects = []): only the interactor
+        starts, how = [], "static-scene"
+    elif prompted:
         starts = [(s.prompt.frame, seg.start_from_prompt(s.name, s.prompt, where)) for s in specs]
         how = "prompt"
     else:
         found = seg.discover([s.name for s in specs], lambda t: _interactor(seg, t, []), n, where)
         starts = [(0, tr) for tr in found]
         how = "interactor-contact"
-    t0 = min(f for f, _ in starts)
+    t0 = min((f for f, _ in starts), default=0)
     masks = {s.name: [None] * n for s in specs}
     hands: list[np.ndarray | None] = [None] * n
     hand_hist = None
@@ -404,15 +450,47 @@ def run(ctx: StageContext) -> None:
         typical = float(np.median(area[area > 0])) if np.any(area > 0) else 1.0
         tracks_out.append(MaskTrack(spec.name, iter(masks[spec.name]), np.clip(area / typical, 0.0, 1.0)))
     tracks_out.append(MaskTrack(INTERACTOR, iter(hands)))
-    counts = author_tracks(ctx, tracks_out)
-    for spec in specs:
-        if not np.any(counts[spec.name] > 0):
-            raise InputError(f"object {spec.name!r} was never found", path=where, hint="check its prompt box")
-    ctx.record(
-        start=how,
-        visible_frames={k: int(np.count_nonzero(v)) for k, v in counts.items()},
-        mean_visible_px={k: round(float(v.mean()), 1) for k, v in counts.items()},
-    )
+    author_and_check(ctx, tracks_out, lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"), start=how)
+
+
+def parse_prompts(text: str, specs) -> list:
+    """The objects with the prompts of ``segment.prompts`` (see SegmentConfig) applied."""
+    from dataclasses import replace as with_
+
+    from rose_usd.case.config import Prompt
+    from rose_usd.errors import ConfigError
+
+    out = {s.name: s for s in specs}
+    for item in filter(None, (i.strip() for i in text.split(";"))):
+        name, _, rest = item.rpartition("=")
+        name = name.strip() or (specs[0].name if len(specs) == 1 else "")
+        frame, sep, coords = rest.partition(":")
+        try:
+            values = tuple(float(v) for v in coords.split(","))
+            frame_i = int(frame)
+        except ValueError:
+            values, frame_i = (), -1
+        if name not in out or not sep or len(values) not in (2, 4) or frame_i < 0:
+            raise ConfigError(
+                f"segment.prompts item {item!r} is not Name=frame:x0,y0,x1,y1 or Name=frame:x,y for an object of rose.toml",
+                hint=f"objects: {', '.join(out)}; e.g. {next(iter(out))}=0:120,80,200,170",
+            )
+        box, point = (values, None) if len(values) == 4 else (None, values)
+        out[name] = with_(out[name], prompt=Prompt(frame=frame_i, box=box, point=point))
+    return list(out.values())
+
+
+def check_prompts(specs, width: int, height: int, n: int, where) -> list:
+    """The objects that have a prompt, after checking each lies in the video and that either every
+    object or none has one."""
+    prompted = [s for s in specs if s.prompt is not None]
+    for s in prompted:
+        if not 0 <= s.prompt.frame < n:
+            raise InputError(f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has {n}", path=where, hint="prompt a frame of this video")
+        _check_prompt_inside(s, width, height, where)
+    if prompted and len(prompted) != len(specs):
+        raise InputError("some objects have a prompt and some do not", path=where, hint="prompt every object, or none")
+    return prompted
 
 
 def _check_prompt_inside(spec, width: int, height: int, where) -> None:

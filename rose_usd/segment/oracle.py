@@ -4,11 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from rose_usd.errors import InputError
 from rose_usd.io.images import read_mask
-from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_tracks
+from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
 
@@ -39,8 +37,4 @@ def run(ctx: StageContext) -> None:
         tracks.append(MaskTrack(spec.name, _read_all(gt.mask_dir(spec.name), n, case.width, case.height)))
     if gt.interactor is not None:
         tracks.append(MaskTrack(INTERACTOR, _read_all(gt.mask_dir("interactor"), n, case.width, case.height)))
-    counts = author_tracks(ctx, tracks)
-    for spec in case.config.objects:
-        if not np.any(counts[spec.name] > 0):
-            raise InputError(f"object {spec.name!r} is never visible in the ground-truth masks", path=gt.mask_dir(spec.name), hint="check the case")
-    ctx.record(visible_frames={k: int(np.count_nonzero(v)) for k, v in counts.items()})
+    author_and_check(ctx, tracks, lambda name: InputError(f"object {name!r} is never visible in the ground-truth masks", path=gt.mask_dir(name), hint="check the case"))

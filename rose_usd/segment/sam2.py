@@ -14,7 +14,7 @@ from rose_usd.errors import ConfigError, InputError
 from rose_usd.io.sam2 import read_masks, read_object_mask
 from rose_usd.segment.background import StaticBackground
 from rose_usd.segment.classical import Segmenter, _interactor
-from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_tracks
+from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
 from rose_usd.usd.camera import read_camera
@@ -75,8 +75,10 @@ def run(ctx: StageContext) -> None:
         hands = [_interactor(seg, t, [obj_masks[name][t] for name in names]) for t in range(n)]
         interactor_source = "static-world residual"
     tracks = [MaskTrack(name, iter(obj_masks[name])) for name in names] + [MaskTrack(INTERACTOR, iter(hands))]
-    counts = author_tracks(ctx, tracks)
-    for name in names:
-        if not np.any(counts[name] > 0):
-            raise InputError(f"object {name!r} (SAM 2 id {ids[name]}) is in no mask", path=folder, hint="check segment.sam2_ids against the ids SAM 2 used")
-    ctx.record(object_ids=ids, interactor=interactor_source, visible_frames={k: int(np.count_nonzero(v)) for k, v in counts.items()})
+    author_and_check(
+        ctx,
+        tracks,
+        lambda name: InputError(f"object {name!r} (SAM 2 id {ids[name]}) is in no mask", path=folder, hint="check segment.sam2_ids against the ids SAM 2 used"),
+        object_ids=ids,
+        interactor=interactor_source,
+    )

@@ -1,5 +1,5 @@
 """Authoring mask tracks: PNGs under <out>/masks and their prims under /World/Masks.
-Every segment backend ends here, so all of them write the same layer."""
+Every segment backend ends here (author_and_check), so all of them write the same layer."""
 
 from __future__ import annotations
 
@@ -35,6 +35,8 @@ def author_tracks(ctx: StageContext, tracks: list[MaskTrack]) -> dict[str, np.nd
     stage = ctx.stage
     folder = ctx.side_dir("masks")
     final_root = ctx.out_dir / "masks"
+    world = stage.GetPrimAtPath(paths.WORLD)
+    no_world = not (world and world.IsDefined())  # no world layer (the flow backend on RGB alone)
     UsdGeom.Scope.Define(stage, paths.MASKS)
     UsdGeom.Scope.Define(stage, paths.OBJECT_MASKS)
     counts = {}
@@ -64,4 +66,22 @@ def author_tracks(ctx: StageContext, tracks: list[MaskTrack]) -> dict[str, np.nd
         if t != n - 1:
             raise ValueError(f"mask track {track.name!r} has {t + 1} frames, expected {n}")
         counts[track.name] = visible
+    if no_world:  # Define made /World a def here; this layer may only hold an over of it
+        stage.GetEditTarget().GetLayer().GetPrimAtPath(paths.WORLD).specifier = Sdf.SpecifierOver
+    return counts
+
+
+def author_and_check(ctx: StageContext, tracks: list[MaskTrack], missing, **record) -> dict[str, np.ndarray]:
+    """author_tracks, then raise ``missing(name)`` (an InputError) for an object no frame shows
+    (the layer is then not written), and record visible frames and mean visible pixels with
+    ``record``. Every segment backend ends here."""
+    counts = author_tracks(ctx, tracks)
+    for track in tracks:
+        if track.name != INTERACTOR and not np.any(counts[track.name] > 0):
+            raise missing(track.name)
+    ctx.record(
+        **record,
+        visible_frames={k: int(np.count_nonzero(v)) for k, v in counts.items()},
+        mean_visible_px={k: round(float(v.mean()), 1) for k, v in counts.items()},
+    )
     return counts

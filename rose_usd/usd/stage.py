@@ -98,6 +98,13 @@ def open_stage(path: str | os.PathLike, *, muted: tuple[str, ...] = ()) -> Usd.S
     path = Path(path)
     if not path.is_file():
         raise StageError("stage file not found", path=path, hint="run `rose-usd reconstruct CASE -o OUT` first")
+    # a layer this process already loaded is not re-read by Stage.Open: reload the ones of this
+    # output folder that a stage has rewritten since (the root lists new layers as stages run)
+    here = {path.parent.resolve(), (path.parent / "layers").resolve()}
+    for layer in Sdf.Layer.GetLoadedLayers():
+        real = layer.realPath
+        if real and Path(real).parent in here and not layer.dirty:
+            layer.Reload()
     stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     if stage is None:
         raise StageError("cannot open the stage", path=path, hint="check that it is a valid USD file")

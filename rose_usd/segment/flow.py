@@ -1,0 +1,336 @@
+"""The ``flow`` segment backend: object masks in 2D, for videos without depth (RGB only).
+
+No learned model and no capture stage: it needs a prompt box (or point) per object, and works at
+a working resolution whose long side is at most ``flow_max_side_px``.
+
+1. **Start.** GrabCut inside the prompt box gives the object; its color model is learned against
+   the ring of pixels around the box. Regions elsewhere in the prompt frame that the object's
+   color model also claims (other red cups in a shell game) become *look-alikes*: they are
+   tracked with the objects, so that when they touch, every pixel goes to the track it came from.
+2. **Propagate** (forward from the prompt frame, then backward). Dense optical flow (OpenCV's DIS)
+   moves each track's mask from the previous frame; pixels the color model claims are given to
+   the nearest moved shape within reach of it; GrabCut in the track's neighborhood refines the
+   boundary, with the other tracks' pixels as sure background. Each track keeps its whole shape
+   from its last clear view and moves it rigidly by the median flow of what is seen of it, so a
+   track hidden by the hand or passing behind another keeps its shape and is not absorbed by its
+   neighbor; where shapes overlap, the one standing lower in the image is in front. Confidence
+   is the visible fraction of the shape.
+3. **Interactor** (rough: a 2D motion cue, no depth). What differs from the static background:
+   the per-pixel temporal median of the video when the camera stands still (chroma weighted over
+   lightness, so shadows count less), else the pixels whose flow departs from the camera's (a
+   RANSAC homography of the flow); minus the tracks and whatever the objects' color models claim.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from rose_usd.errors import InputError
+from rose_usd.progress import progress
+from rose_usd.segment.classical import check_prompts, color_index, components, fill_holes, histogram, parse_prompts
+from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
+from rose_usd.stage_api import StageContext
+
+_REACH = 0.35
+"""A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""
+
+
+@dataclass
+class Track2D:
+    name: str
+    mask: np.ndarray
+    """The whole shape (working resolution) from the last clear view, moved with the object."""
+    fg: np.ndarray
+    """Color model (histogram over color_index bins)."""
+    typical_px: float
+    """The track's area when fully visible."""
+    is_object: bool = True
+    last_visible: np.ndarray | None = None
+    """What was seen of it in the last frame (empty when hidden)."""
+
+    def __post_init__(self):
+        if self.last_visible is None:
+            self.last_visible = self.mask.copy()
+
+
+def _work_size(width: int, height: int, max_side: int) -> tuple[int, int, float]:
+    s = min(1.0, max_side / max(width, height))
+    return int(round(width * s)), int(round(height * s)), s
+
+
+class FlowTracker:
+    """Masks of prompted objects (and their look-alikes) through a video, in 2D."""
+
+    def __init__(self, frame_of, size: tuple[int, int]):
+        self.frame_of = frame_of
+        """t -> RGB frame (H, W, 3) uint8 at the working resolution."""
+        self.w, self.h = size
+        self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+
+    # ----------------------------------------------------------------- start
+    def start(self, name: str, t: int, box: tuple[int, int, int, int] | None, point: tuple[int, int] | None) -> tuple[Track2D, np.ndarray]:
+        """GrabCut of the prompt; returns the track and the background color model of its surroundings."""
+        rgb = self.frame_of(t)
+        if box is None:  # a point: a box around it, a tenth of the image wide
+            r = max(self.w, self.h) // 20
+            box = (point[0] - r, point[1] - r, point[0] + r, point[1] + r)
+        x0, y0, x1, y1 = (int(np.clip(v, 0, lim)) for v, lim in zip(box, (self.w, self.h, self.w, self.h)))
+        gc = np.zeros((self.h, self.w), np.uint8)
+        bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
+        cv2.grabCut(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), gc, (x0, y0, x1 - x0, y1 - y0), bgd, fgd, 5, cv2.GC_INIT_WITH_RECT)
+        mask = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+        n, labels, areas = components(mask)
+        if n < 2:
+            raise InputError(f"GrabCut found nothing inside the prompt of {name!r} on frame {t}", hint="draw the box tightly around the object")
+        mask = labels == 1 + int(np.argmax(areas[1:]))
+        bw, bh = x1 - x0, y1 - y0
+        ring = np.zeros_like(mask)
+        ring[max(0, y0 - bh) : y1 + bh, max(0, x0 - bw) : x1 + bw] = True
+        ring &= ~cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        idx = color_index(rgb)
+        return Track2D(name, mask, histogram(idx[mask]), float(mask.sum())), histogram(idx[ring])
+
+    def look_alikes(self, t: int, tracks: list[Track2D], bg: np.ndarray) -> list[Track2D]:
+        """Regions of frame t outside the tracks that their color models claim, as large as them."""
+        idx = color_index(self.frame_of(t))
+        taken = np.any([tr.mask for tr in tracks], axis=0)
+        claimed = np.zeros_like(taken)
+        for tr in tracks:
+            claimed |= tr.fg[idx] > 2.0 * bg[idx]
+        claimed = cv2.morphologyEx((claimed & ~taken).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+        n, labels, areas = components(claimed)
+        smallest = min(tr.typical_px for tr in tracks)
+        out = []
+        for label in range(1, n):
+            if areas[label] >= 0.3 * smallest:
+                m = labels == label
+                out.append(Track2D(f"look-alike {len(out) + 1}", m, histogram(idx[m]), float(areas[label]), is_object=False))
+        return out
+
+    # ----------------------------------------------------------------- propagate
+    def flow(self, a: int, b: int) -> np.ndarray:
+        """Dense flow (H, W, 2) from frame a to frame b [px]."""
+        ga = cv2.cvtColor(self.frame_of(a), cv2.COLOR_RGB2GRAY)
+        gb = cv2.cvtColor(self.frame_of(b), cv2.COLOR_RGB2GRAY)
+        return self.dis.calc(ga, gb, None)
+
+    def _moved(self, tr: Track2D, flow: np.ndarray) -> np.ndarray:
+        """The track's whole shape moved rigidly by the median flow of what was seen of it (a hand
+        over part of an object does not drag its shape along)."""
+        seen = tr.last_visible if tr.last_visible is not None and tr.last_visible.sum() >= 20 else tr.mask
+        if not seen.any():
+            return tr.mask
+        dx, dy = np.median(flow[seen], axis=0)
+        shift = np.float32([[1, 0, dx], [0, 1, dy]])
+        return cv2.warpAffine(tr.mask.astype(np.uint8), shift, (self.w, self.h), flags=cv2.INTER_NEAREST).astype(bool)
+
+    def step(self, prev: int, t: int, tracks: list[Track2D], bg: np.ndarray) -> tuple[list[float], np.ndarray]:
+        """Move every track from frame ``prev`` to frame ``t``; returns each track's visible
+        fraction and the flow."""
+        flow = self.flow(prev, t)
+        rgb = self.frame_of(t)
+        idx = color_index(rgb)
+        moved = [self._moved(tr, flow) for tr in tracks]
+        # ownership: every claimed pixel goes to the nearest moved shape within its reach
+        dist = np.full((len(tracks), self.h, self.w), np.inf, np.float32)
+        for k, (tr, m) in enumerate(zip(tracks, moved)):
+            if m.any():
+                d = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3)
+                reach = _REACH * np.sqrt(tr.typical_px) + 3.0
+                dist[k] = np.where(d <= reach, d, np.inf)
+        owner = np.argmin(dist, axis=0)
+        reachable = np.isfinite(np.min(dist, axis=0))
+        # where moved shapes overlap, one object passes in front of another: on a tabletop seen
+        # from above and in front, the one whose bottom is lower in the image is nearer
+        inside = dist == 0
+        contested = inside.sum(axis=0) > 1
+        if contested.any():
+            bottom = np.array([np.nonzero(m.any(axis=1))[0].max() if m.any() else -1 for m in moved])
+            front = np.argmax(np.where(inside, bottom[:, None, None], -2), axis=0)
+            owner[contested] = front[contested]
+        touching = [bool(np.any(contested & inside[k])) for k in range(len(tracks))]
+        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+        visible = []
+        for k, tr in enumerate(tracks):
+            mine = reachable & (owner == k)
+            claimed = mine & (tr.fg[idx] > bg[idx])
+            m = self._refine(bgr, claimed, mine, moved[k], [moved[j] for j in range(len(tracks)) if j != k])
+            frac = float(m.sum()) / tr.typical_px
+            visible.append(min(frac, 1.0))
+            if 0.85 < frac < 1.3 and not touching[k]:
+                # a clear, whole view: it becomes the shape, and teaches the look as it turns
+                tr.mask = m
+                tr.fg = 0.95 * tr.fg + 0.05 * histogram(idx[m])
+                tr.typical_px = 0.95 * tr.typical_px + 0.05 * float(m.sum())
+            else:  # partly hidden or touching another: its last whole shape, moved
+                tr.mask = moved[k]
+            tr.last_visible = m if frac >= 0.05 else np.zeros_like(m)
+        return visible, flow
+
+    def _refine(self, bgr: np.ndarray, claimed: np.ndarray, mine: np.ndarray, moved: np.ndarray, others: list[np.ndarray]) -> np.ndarray:
+        """GrabCut around a track: claimed pixels are probable object, its moved mask's core sure
+        object where claimed, other tracks sure background."""
+        if claimed.sum() < 20:
+            return np.zeros_like(claimed)
+        ys, xs = np.nonzero(claimed | moved)
+        pad = 12
+        y0, y1 = max(0, ys.min() - pad), min(self.h, ys.max() + pad + 1)
+        x0, x1 = max(0, xs.min() - pad), min(self.w, xs.max() + pad + 1)
+        gc = np.full((y1 - y0, x1 - x0), cv2.GC_PR_BGD, np.uint8)
+        c = claimed[y0:y1, x0:x1]
+        gc[c] = cv2.GC_PR_FGD
+        core = cv2.erode((claimed & moved).astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)[y0:y1, x0:x1]
+        gc[core] = cv2.GC_FGD
+        for o in others:
+            gc[o[y0:y1, x0:x1] & ~c] = cv2.GC_BGD
+        gc[~mine[y0:y1, x0:x1] & ~c] = cv2.GC_BGD
+        if not np.any(gc == cv2.GC_FGD) and not np.any(gc == cv2.GC_PR_FGD):
+            return np.zeros_like(claimed)
+        if np.any((gc == cv2.GC_BGD) | (gc == cv2.GC_PR_BGD)):
+            bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
+            try:
+                cv2.grabCut(np.ascontiguousarray(bgr[y0:y1, x0:x1]), gc, None, bgd, fgd, 2, cv2.GC_INIT_WITH_MASK)
+            except cv2.error:  # too few samples of one side for its color model: keep the claim
+                pass
+        out = np.zeros_like(claimed)
+        out[y0:y1, x0:x1] = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+        out &= mine
+        # keep the parts that overlap where the track was carried
+        n, labels, _ = components(out)
+        keep = np.zeros(n, bool)
+        keep[np.unique(labels[out & cv2.dilate(moved.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)])] = True
+        keep[0] = False
+        return fill_holes(keep[labels], max_hole_px=int(0.05 * out.sum()) + 1)
+
+
+# ----------------------------------------------------------------------------- interactor
+class MotionForeground:
+    """What is not the static background: a temporal median when the camera stands still, else
+    flow that departs from the camera's homography."""
+
+    def __init__(self, tracker: FlowTracker, n: int, *, samples: int = 40):
+        self.tracker = tracker
+        picks = np.linspace(0, n - 1, min(n, samples)).round().astype(int)
+        shifts = []
+        for a, b in zip(picks[:-1], picks[1:]):
+            f = tracker.flow(int(a), int(b))
+            shifts.append(float(np.median(np.linalg.norm(f, axis=2))))
+        self.static_camera = bool(np.median(shifts) < 1.0) if shifts else True
+        self.median = None
+        if self.static_camera:
+            stack = np.stack([cv2.cvtColor(tracker.frame_of(int(t)), cv2.COLOR_RGB2LAB) for t in picks])
+            self.median = np.median(stack, axis=0).astype(np.float32)
+
+    def __call__(self, t: int, flow: np.ndarray | None) -> np.ndarray:
+        if self.static_camera:
+            lab = cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
+            d = lab - self.median
+            d -= np.median(d.reshape(-1, 3), axis=0)  # exposure and white-balance drift
+            d[..., 0] *= 0.25  # shadows of the hands change lightness more than chroma
+            fg = np.linalg.norm(d, axis=2) > 20.0
+        elif flow is not None:
+            h, w = flow.shape[:2]
+            ys, xs = np.mgrid[0:h:8, 0:w:8]
+            src = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float32)
+            dst = src + flow[ys.ravel(), xs.ravel()]
+            H, _ = cv2.findHomography(src, dst, cv2.RANSAC, 1.0)
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+            pts = np.stack([xx, yy, np.ones_like(xx)], axis=-1) @ (H if H is not None else np.eye(3)).T
+            cam = pts[..., :2] / pts[..., 2:3] - np.stack([xx, yy], axis=-1)
+            fg = np.linalg.norm(flow - cam, axis=2) > 1.5
+        else:
+            return np.zeros((self.tracker.h, self.tracker.w), bool)
+        fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8)).astype(bool)
+        n, labels, areas = components(fg)
+        keep = np.zeros(n, bool)
+        keep[1:] = areas[1:] >= 0.002 * fg.size
+        return keep[labels]
+
+
+def segment_video(frame_of, n: int, size: tuple[int, int], prompts: list[tuple[str, int, tuple | None, tuple | None]], *, interactor: bool = True):
+    """Masks of each prompted object and of the interactor over ``n`` frames (working resolution).
+
+    ``prompts``: (name, frame, box, point) with box/point in working-resolution pixels. Returns
+    ({name: [mask per frame]}, [interactor mask per frame], {name: visible fraction per frame})."""
+    tracker = FlowTracker(frame_of, size)
+    starts = []
+    for name, t, box, point in prompts:
+        track, bg = tracker.start(name, t, box, point)
+        starts.append((t, track, bg))
+    t0 = min(t for t, _, _ in starts)
+    bg = np.mean([b for _, _, b in starts], axis=0)
+    names = [tr.name for _, tr, _ in starts]
+    masks = {k: [None] * n for k in names}
+    visible = {k: np.zeros(n) for k in names}
+    motion = MotionForeground(tracker, n) if interactor else None
+    hands: list[np.ndarray | None] = [None] * n
+
+    def fresh():
+        tracks = [Track2D(tr.name, tr.mask.copy(), tr.fg.copy(), tr.typical_px) for _, tr, _ in starts]
+        return tracks + tracker.look_alikes(t0, tracks, bg)
+
+    order = [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
+    tracks, prev = fresh(), None
+    for direction, t in progress(order, "segment (flow)", total=n):
+        flow = None
+        if direction < 0 and t == t0 - 1:
+            tracks, prev = fresh(), t0
+        if prev is None:  # the prompt frame itself
+            fracs = [1.0] * len(tracks)
+        else:
+            fracs, flow = tracker.step(prev, t, tracks, bg)
+        prev = t
+        everything = np.zeros((tracker.h, tracker.w), bool)
+        for tr, frac in zip(tracks, fracs):
+            everything |= tr.last_visible
+            if tr.is_object:
+                masks[tr.name][t] = tr.last_visible.copy()
+                visible[tr.name][t] = frac
+        if motion is not None:
+            # not the hand: the tracks, and whatever their color models claim (a look-alike the
+            # tracks lost is still not the hand)
+            idx = color_index(tracker.frame_of(t))
+            claimed = np.any([tr.fg[idx] > 2.0 * bg[idx] for tr in tracks if tr.is_object], axis=0)
+            hands[t] = motion(t, flow) & ~cv2.dilate((everything | claimed).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    return masks, hands, visible
+
+
+def run(ctx: StageContext) -> None:
+    case = ctx.case
+    n = ctx.time_info.n_frames
+    cfg = ctx.config
+    where = case.folder / "rose.toml"
+    specs = parse_prompts(cfg.prompts, list(case.config.objects))
+    check_prompts(specs, case.width, case.height, n, where)
+    if any(s.prompt is None for s in specs) or not specs:
+        raise InputError("the flow backend needs a prompt (box or point) for every object", path=where, hint="add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml, or pass --prompt NAME=FRAME:x0,y0,x1,y1")
+    w, h, s = _work_size(case.width, case.height, cfg.flow_max_side_px)
+    cache: dict[int, np.ndarray] = {}
+
+    def frame_of(t: int) -> np.ndarray:
+        if t not in cache:
+            if len(cache) > 64:
+                cache.pop(next(iter(cache)))
+            rgb = case.rgb(t)
+            cache[t] = rgb if s == 1.0 else cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+        return cache[t]
+
+    prompts = []
+    for spec in specs:
+        p = spec.prompt
+        box = tuple(v * s for v in p.box) if p.box is not None else None
+        point = tuple(v * s for v in p.point) if p.point is not None else None
+        prompts.append((spec.name, p.frame, box, point))
+    masks, hands, visible = segment_video(frame_of, n, (w, h), prompts)
+
+    def full(frames):
+        for m in frames:
+            yield m if s == 1.0 else cv2.resize(m.astype(np.uint8), (case.width, case.height), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+    tracks = [MaskTrack(spec.name, full(masks[spec.name]), visible[spec.name]) for spec in specs]
+    tracks.append(MaskTrack(INTERACTOR, full(hands)))
+    author_and_check(ctx, tracks, lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"), start="prompt", working_size=[w, h])

@@ -1,0 +1,115 @@
+"""The flow segment backend (RGB only), command-line prompts, static scenes (objects = []), and
+the support plane under the object when a floor holds more points."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rose_usd import registry
+from rose_usd.bench.evaluate import _mask_ious
+from rose_usd.capture.gravity import Plane, plane_under
+from rose_usd.case.config import load_case_config
+from rose_usd.case.gt import GroundTruth
+from rose_usd.errors import ConfigError, InputError
+from rose_usd.pipeline import Options, Pipeline
+from rose_usd.segment.classical import parse_prompts
+from rose_usd.usd.stage import layer_file, read_provenance
+
+
+def _flow(**segment) -> Options:
+    return Options(backends={"segment": "flow"}, settings={"segment": segment}, force=True)
+
+
+def test_flow_backend_needs_no_capture_and_follows_the_box(tmp_path, sample_case):
+    """From rose.toml's first-frame box and the RGB frames alone, the box's masks reach IoU >= 0.9
+    (where it is more than half visible), and no world layer is written or needed."""
+    out = tmp_path / "out"
+    Pipeline(sample_case, out, _flow()).run("segment")
+    assert sorted(p.name for p in (out / "layers").iterdir()) == ["masks.usda"]
+    gt = GroundTruth(sample_case / "gt")
+    assert _mask_ious(gt.mask_dir("Box"), out / "masks" / "Box", gt.n_frames, min_fraction=0.5) >= 0.9
+
+
+def test_flow_backend_without_a_prompt_fails_clearly(tmp_path, case_copy):
+    toml = case_copy / "rose.toml"
+    toml.write_text("\n".join(line for line in toml.read_text().splitlines() if not line.startswith("prompt")) + "\n")
+    with pytest.raises(InputError, match="needs a prompt"):
+        Pipeline(case_copy, tmp_path / "out", _flow()).run("segment")
+    assert not layer_file(tmp_path / "out", "masks").exists()
+
+
+def test_command_line_prompt_overrides_rose_toml(tmp_path, case_copy, sample_case):
+    """--prompt (segment.prompts) replaces rose.toml's box: a box around the true object works
+    even when rose.toml's box is wrong, and the name may be left out for a single object."""
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text().replace("box = [174, 90, 208, 127]", "box = [2, 2, 20, 20]"))
+    out = tmp_path / "out"
+    Pipeline(case_copy, out, _flow(prompts="0:174,90,208,127")).run("segment")
+    gt = GroundTruth(sample_case / "gt")
+    assert _mask_ious(gt.mask_dir("Box"), out / "masks" / "Box", gt.n_frames, min_fraction=0.5) >= 0.9
+
+
+@pytest.mark.parametrize("text", ["Mug=0:1,2,3,4", "Box=0:1,2,3", "Box=x:1,2,3,4", "Box=1,2,3,4"])
+def test_bad_prompt_strings_name_the_format(text, sample_case):
+    specs = list(load_case_config(sample_case, registry.STAGE_NAMES).objects)
+    with pytest.raises(ConfigError, match="Name=frame:x0,y0,x1,y1"):
+        parse_prompts(text, specs)
+
+
+def test_parse_prompts_box_and_point(sample_case):
+    specs = list(load_case_config(sample_case, registry.STAGE_NAMES).objects)
+    (box,) = parse_prompts("Box=3:10,20,30,40", specs)
+    assert box.prompt.frame == 3 and box.prompt.box == (10.0, 20.0, 30.0, 40.0) and box.prompt.point is None
+    (point,) = parse_prompts("5:12,34", specs)
+    assert point.prompt.frame == 5 and point.prompt.point == (12.0, 34.0) and point.prompt.box is None
+
+
+def test_backend_needs_decide_what_runs_first():
+    """segment needs capture, except with the flow backend (RGB alone)."""
+    assert [s.name for s in registry.closure("segment")] == ["capture", "segment"]
+    assert [s.name for s in registry.closure("segment", lambda s: "flow" if s.name == "segment" else "rgbd")] == ["segment"]
+
+
+def test_static_scene_declares_no_objects(tmp_path, case_copy):
+    """rose.toml ``objects = []``: a static scene; segment finds only the interactor."""
+    toml = case_copy / "rose.toml"
+    toml.write_text("fps = 30\nobjects = []\n")
+    assert load_case_config(case_copy, registry.STAGE_NAMES).objects == ()
+    out = tmp_path / "out"
+    Pipeline(case_copy, out, Options(backends={"capture": "rgbd", "segment": "classical"})).run("segment")
+    results = read_provenance(layer_file(out, "masks"))["results"]
+    assert results["start"] == "static-scene"
+    assert set(results["visible_frames"]) == {"Interactor"}
+    assert not (out / "masks" / "Object").exists()
+
+
+def test_support_is_the_plane_under_the_object_even_when_a_floor_is_bigger():
+    """A floor seen all video long can hold 5x the points of the table the object stands on."""
+    up = np.array([0.0, 0.0, 1.0])
+    floor = Plane(up, -0.75, 40_000, 0.0)
+    table = Plane(up, 0.0, 7_800, 0.0)
+    box_top = Plane(up, 0.08, 900, 0.0)
+    on_object = np.array([0.1, 0.0, 0.08])  # a prompt's point on the box's top face
+    assert plane_under([floor, table, box_top], on_object, 40_000, 0.005) is table
+    view_center = np.array([0.3, 0.2, 0.001])  # where the first view looks: the table itself
+    assert plane_under([floor, table, box_top], view_center, 40_000, -0.03) is table
+    assert plane_under([floor], np.array([0.0, 0.0, 0.5]), 40_000, 0.005) is None  # floor is 1.25 m below
+
+
+SAM2_CUPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "sam2-cups"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (SAM2_CUPS / "02_cups.mp4").is_file(), reason="../shared/data/real/sam2-cups is not present")
+def test_sam2_cups_real_video(tmp_path):
+    """Benchmark job: one red cup of three, shuffled by hand, from a first-frame box with no depth:
+    a mask in nearly every frame, mostly whole (the contact sheet shows whether it is the same cup)."""
+    from rose_usd.bench.real import evaluate_sam2_cups
+
+    result = evaluate_sam2_cups(SAM2_CUPS, tmp_path)
+    assert result["frames_cup_found"] >= 0.95 * result["frames"]
+    assert result["cup_visible_fraction_mean"] >= 0.7
+    assert (tmp_path / "real-sam2-cups.png").is_file()
