@@ -44,3 +44,20 @@ def test_open_mesh_is_rejected():
     plane = trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]])
     with pytest.raises(ValueError, match="volume"):
         mass_properties(plane.vertices, plane.faces, 1000.0)
+
+
+def test_hollow_sphere_shell_matches_the_analytic_value():
+    """A 3 mm wall inside a 5 cm sphere: mass rho * 4/3 pi (R^3 - r^3), I = 2/5 m (R^5 - r^5) / (R^3 - r^3)."""
+    import trimesh
+
+    from rose_usd.core.inertia import shell_mass_properties
+
+    big, wall, rho = 0.05, 0.003, 1000.0
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=big)
+    props = shell_mass_properties(sphere.vertices, sphere.faces, rho, wall)
+    small = big - wall
+    mass = rho * 4.0 / 3.0 * np.pi * (big**3 - small**3)
+    inertia = 0.4 * mass * (big**5 - small**5) / (big**3 - small**3)
+    assert props.mass_kg == pytest.approx(mass, rel=0.01)
+    assert props.diagonal_inertia == pytest.approx([inertia] * 3, rel=0.01)
+    assert np.linalg.norm(props.center_of_mass_m) < 1e-6

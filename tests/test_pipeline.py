@@ -33,10 +33,11 @@ def test_changed_setting_reruns_only_that_stage(out_copy, sample_case):
 
 
 def test_run_stage_runs_its_needs_only(tmp_path, sample_case):
-    """`run trajectory` into an empty folder writes world, masks, object, trajectory -- not scene or gate."""
+    """`run trajectory` into an empty folder writes world, masks, scene (the object rests on it),
+    object, trajectory -- not gate."""
     out = tmp_path / "out"
     Pipeline(sample_case, out, oracle_options()).run("trajectory")
-    assert sorted(p.stem for p in (out / "layers").glob("*.usda")) == ["masks", "object", "trajectory", "world"]
+    assert sorted(p.stem for p in (out / "layers").glob("*.usda")) == ["masks", "object", "scene", "trajectory", "world"]
     assert (out / "rose.usda").is_file()
 
 

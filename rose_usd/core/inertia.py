@@ -47,3 +47,37 @@ def mass_properties(vertices: np.ndarray, faces: np.ndarray, density_kg_m3: floa
         diagonal_inertia=moments,
         principal_axes=axes,
     )
+
+
+def _about_origin(inertia_com: np.ndarray, mass: float, com: np.ndarray) -> np.ndarray:
+    """Parallel-axis theorem: the inertia tensor about the frame's origin."""
+    return inertia_com + mass * (float(com @ com) * np.eye(3) - np.outer(com, com))
+
+
+def shell_mass_properties(vertices: np.ndarray, faces: np.ndarray, density_kg_m3: float, thickness_m: float) -> MassProperties:
+    """Mass properties of a hollow object: a wall ``thickness_m`` thick inside the closed mesh
+    (the solid minus the solid shrunk along the vertex normals by the thickness)."""
+    mesh = trimesh.Trimesh(vertices=np.asarray(vertices, dtype=float), faces=np.asarray(faces), process=False)
+    outer = mass_properties(mesh.vertices, mesh.faces, density_kg_m3)
+    inner_vertices = mesh.vertices - thickness_m * mesh.vertex_normals
+    try:
+        inner = mass_properties(inner_vertices, mesh.faces, density_kg_m3)
+    except ValueError:  # thinner than the wall: it is all wall
+        return outer
+    if inner.volume_m3 >= outer.volume_m3:
+        return outer
+    mass = outer.mass_kg - inner.mass_kg
+    com = (outer.mass_kg * outer.center_of_mass_m - inner.mass_kg * inner.center_of_mass_m) / mass
+    about_origin = _about_origin(outer.inertia_com, outer.mass_kg, outer.center_of_mass_m) - _about_origin(inner.inertia_com, inner.mass_kg, inner.center_of_mass_m)
+    inertia = about_origin - mass * (float(com @ com) * np.eye(3) - np.outer(com, com))
+    moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1.0
+    return MassProperties(
+        mass_kg=float(mass),
+        volume_m3=outer.volume_m3 - inner.volume_m3,
+        center_of_mass_m=com,
+        inertia_com=inertia,
+        diagonal_inertia=moments,
+        principal_axes=axes,
+    )

@@ -6,8 +6,8 @@ from rose_usd.stage_api import StageDef
 STAGE = StageDef(
     name="object",
     layer="object",
-    needs=("capture", "segment"),
+    needs=("capture", "segment", "scene"),  # objects are rested on the scene's collider
     config=ObjectConfig,
-    backends={"oracle": "rose_usd.object.oracle:run"},
+    backends={"fusion": "rose_usd.object.fusion:run", "oracle": "rose_usd.object.oracle:run"},
     summary="object meshes, mass priors, colliders, frame-0 poses -> layers/object.usda",
 )

@@ -108,3 +108,19 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
         "approximation": approximation.value,
         "volume_over_hull": round(convexity, 4),
     }
+
+
+def author_objects(ctx: StageContext, models: list[ObjectModel], convex_tolerance: float) -> dict:
+    """Rest the objects on the scene (object.settle), then write them all. Returns facts per object."""
+    from rose_usd.object.settle import scene_collider, settle
+
+    lifts = settle(models, scene_collider(ctx.stage))
+    facts = {}
+    for model in models:
+        lift = lifts.get(model.name, 0.0)
+        if not np.isfinite(lift):
+            ctx.warn(f"object {model.name!r} is more than 3 cm inside the scene at frame 0: left where it is (check its pose and the scene)")
+        elif lift > 0.01:
+            ctx.warn(f"object {model.name!r} was {1e3 * lift:.0f} mm inside the scene at frame 0: lifted onto it")
+        facts[model.name] = author_object(ctx, model, convex_tolerance) | {"settle_lift_m": None if not np.isfinite(lift) else round(lift, 5)}
+    return facts

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 
 class ObjectBackend(enum.Enum):
+    FUSION = "fusion"  # no imported mesh: masked depth of the resting object fused, completed (flat bottom, revolution or height field), alpha-wrapped
     ORACLE = "oracle"  # ground-truth meshes, densities and frame-0 poses from gt/ (benchmark cases)
 
 
@@ -12,6 +13,16 @@ class ObjectBackend(enum.Enum):
 class ObjectConfig:
     backend: ObjectBackend = ObjectBackend.ORACLE
     """Which backend reconstructs the object(s); default oracle."""
+    voxel_m: float = 0.002
+    """fusion: point spacing of the fused and completed object [m] (default 0.002)."""
+    support_gap_m: float = 0.003
+    """fusion: points this near the support (z = 0) are dropped as table [m] (default 0.003)."""
+    rest_tolerance_m: float = 0.01
+    """fusion: the object rests while its median point stays this near its first one [m] (default 0.01)."""
+    revolution_tolerance: float = 0.05
+    """fusion: a solid of revolution when radial spread within height bands is under this fraction of the radius (default 0.05)."""
+    max_triangles: int = 8000
+    """fusion: the object mesh is decimated to at most this many triangles (default 8000)."""
     convex_tolerance: float = 0.02
     """A mesh whose volume is within this fraction of its convex hull's collides as its hull;
     otherwise by convex decomposition [-] (default 0.02)."""

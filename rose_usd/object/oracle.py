@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from rose_usd.core.inertia import mass_properties
-from rose_usd.object.author import ObjectModel, PhysicsValues, author_object
+from rose_usd.object.author import ObjectModel, PhysicsValues, author_objects
 from rose_usd.object.priors import lookup
 from rose_usd.oracle import world_from_gt
 from rose_usd.stage_api import StageContext
@@ -12,7 +12,6 @@ from rose_usd.stage_api import StageContext
 def run(ctx: StageContext) -> None:
     gt = ctx.case.gt
     to_world = world_from_gt(ctx)
-    facts = {}
     models = []
     for spec in ctx.case.config.objects:
         truth = gt.object(spec.name)
@@ -32,6 +31,5 @@ def run(ctx: StageContext) -> None:
             restitution_sigma=0.0,
         )
         models.append(ObjectModel(spec.name, mesh, to_world @ gt.object_poses(spec.name)[0], mass, physics))
-    for model in models:  # everything read and checked: now author
-        facts[model.name] = author_object(ctx, model, ctx.config.convex_tolerance)
+    facts = author_objects(ctx, models, ctx.config.convex_tolerance)  # everything read and checked: now author
     ctx.record(objects=facts)

@@ -36,3 +36,14 @@ def author_trajectory(ctx: StageContext, name: str, world_from_object: np.ndarra
         world_from_object,
         header=f"world_from_object of {name} (rose_usd trajectory stage, source {source})",
     )
+
+
+def from_default_pose(ctx: StageContext, name: str, world_from_object: np.ndarray) -> np.ndarray:
+    """The poses moved rigidly so that frame 0 is the object stage's default pose (which rested
+    the object on the scene, e.g. lifted it out of the table by a few millimeters)."""
+    prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
+    if not prim:
+        raise StageError(f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)")
+    default = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T
+    offset = default @ np.linalg.inv(world_from_object[0])
+    return np.einsum("ij,njk->nik", offset, world_from_object)

@@ -1,0 +1,379 @@
+"""The ``fusion`` object backend: a metric, watertight mesh of each object from its masked depth,
+with no imported mesh. No learned model.
+
+1. **Rest.** The object's masked, back-projected depth (masks eroded by 1 px, away from mixed
+   edge pixels) gives a world point cloud per frame. It rests from its first clear view for as
+   long as its points of that view, projected into later frames, still meet the depth there
+   (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are fused (the world frame is the object's frame
+   while it rests). The trajectory stage will add the frames after.
+2. **Clean.** Voxel-downsampled to ``voxel_m``, statistical outliers dropped, and points within
+   ``support_gap_m`` of the support (z = 0) dropped (the table at the mask's border).
+3. **Complete** what was never seen. The face on the support is flat at the support under the
+   seen footprint (z = 0, or the top of the object it stands on: the top of a stack's lower
+   object seen around the upper one). A solid of revolution (a can, a mug's body: the radial distance of the points to a
+   fitted vertical axis varies by under ``revolution_tolerance`` of the radius within each height
+   band) is completed by revolving its median profile. Anything else is completed as a height
+   field standing on the support: walls go straight down from the seen rim to the table.
+4. **Close**: the completed solid is a voxel grid (``voxel_m``); marching cubes gives its surface
+   (watertight by construction), smoothed (Taubin) and decimated to ``max_triangles``, then
+   checked watertight, 2-manifold, oriented and free of self-intersections. (An alpha wrap of
+   the completed points was tried first: it entered the solid and returned a thin shell.)
+5. **Priors**: density, friction and restitution from the category table (rose.toml may fix any
+   of them, or mass_kg); mass = density x volume, or x the wall's volume for hollow categories;
+   center of mass and inertia from the mesh.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+from scipy.spatial import ConvexHull, cKDTree
+
+from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.core import se3
+from rose_usd.core.inertia import mass_properties, shell_mass_properties
+from rose_usd.core.pinhole import backproject
+from rose_usd.core.watertight import collider_problems
+from rose_usd.errors import InputError, MeshError
+from rose_usd.io.images import read_mask
+from rose_usd.object.author import ObjectModel, PhysicsValues, author_objects
+from rose_usd.object.priors import lookup
+from rose_usd.progress import progress
+from rose_usd.scene.tsdf import self_intersects, transfer_colors
+from rose_usd.segment.tracks import INTERACTOR
+from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths
+from rose_usd.usd.camera import read_camera
+from rose_usd.usd.geom import MeshData
+
+
+def masked_points(depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int = 1):
+    """World points and sRGB colors of the mask's pixels with depth (mask eroded by ``erode_px``:
+    its border pixels mix the object's depth with what is behind it). Leaving out every pixel at a
+    depth discontinuity as well was measured to shrink the object more than it helps."""
+    if erode_px:
+        mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)).astype(bool)
+    v, u = np.nonzero(mask & (depth > 0))
+    pts = se3.transform_points(world_from_cv, backproject(u, v, depth[v, u], K))
+    return pts, rgb[v, u]
+
+
+def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float) -> list[int]:
+    """Frames from ``ref_frame`` on in which the object is still where it was then.
+
+    ``sample(t)`` gives (depth, mask, K, world_from_cv) of frame t (None when the object is not
+    seen). The object's points of the reference frame are projected into frame t; where they
+    land on the object's mask, the depth must agree within ``tolerance_m`` for most of them. Newly
+    revealed parts (the top of a stack's lower object, once the upper one is lifted) do not count
+    as motion, and a hand covering part of the object only leaves fewer points to compare."""
+    depth, mask, K, pose = sample(ref_frame)
+    ref, _ = masked_points(depth, mask, np.zeros((*mask.shape, 3), np.uint8), K, pose)
+    ref = ref[:: max(1, len(ref) // 3000)]
+    frames = []
+    for t in range(ref_frame, n):
+        got = sample(t)
+        if got is None:
+            continue
+        depth, mask, K, pose = got
+        cam = se3.transform_points(se3.invert(pose), ref)
+        z = cam[:, 2]
+        ok = z > 0
+        u = np.round(K[0, 0] * cam[ok, 0] / z[ok] + K[0, 2]).astype(int)
+        v = np.round(K[1, 1] * cam[ok, 1] / z[ok] + K[1, 2]).astype(int)
+        inside = (u >= 0) & (u < mask.shape[1]) & (v >= 0) & (v < mask.shape[0])
+        u, v, zz = u[inside], v[inside], z[ok][inside]
+        d = depth[v, u]
+        unhidden = ~((d > 0) & (d < zz - tolerance_m))  # nothing (a hand) in front of the point
+        if unhidden.sum() < 30:
+            continue  # hidden: nothing to compare
+        on_mask = float(np.mean(mask[v[unhidden], u[unhidden]]))
+        on = unhidden & mask[v, u] & (d > 0)
+        agree = float(np.mean(np.abs(d[on] - zz[on]) < tolerance_m)) if on.sum() >= 30 else 0.0
+        if on_mask < 0.6 or agree < 0.3:
+            break  # moved
+        if on_mask >= 0.93 and agree >= 0.6:
+            frames.append(t)
+    return frames
+
+
+def first_contact(masks: list, hand_folder, depth_of, n: int, *, reach_px: int = 3, depth_m: float = 0.02, min_px: int = 20) -> int:
+    """The first frame in which the interactor touches the object: its mask comes within
+    ``reach_px`` of the object's with depths within ``depth_m`` over ``min_px`` pixels (n if never).
+    Nothing moves an object before that."""
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    for t in range(n):
+        if masks[t] is None or not (hand_folder / f"{t:06d}.png").is_file():
+            continue
+        hand = read_mask(hand_folder / f"{t:06d}.png")
+        near = cv2.dilate(masks[t].astype(np.uint8), kernel).astype(bool) & hand
+        if near.sum() < min_px:
+            continue
+        depth = depth_of(t)
+        obj_depth = np.median(depth[masks[t] & (depth > 0)]) if np.any(masks[t] & (depth > 0)) else 0.0
+        if np.count_nonzero(near & (depth > 0) & (np.abs(depth - obj_depth) < depth_m + 0.5 * _extent_m(masks[t], depth))) >= min_px:
+            return t
+    return n
+
+
+def _extent_m(mask: np.ndarray, depth: np.ndarray) -> float:
+    """The object's depth extent along the view (its far and near sides differ by this) [m]."""
+    d = depth[mask & (depth > 0)]
+    return float(np.percentile(d, 95) - np.percentile(d, 5)) if len(d) else 0.0
+
+
+def _circle_fit(xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares circle (Kasa): center (2,), radius."""
+    a = np.column_stack([2 * xy, np.ones(len(xy))])
+    b = (xy**2).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    center = sol[:2]
+    return center, float(np.sqrt(max(sol[2] + center @ center, 0.0)))
+
+
+def revolution_profile(points: np.ndarray, band_m: float, tolerance: float):
+    """(axis center (2,), heights, radii) when the points are a solid of revolution about a
+    vertical axis, else None."""
+    center, radius = _circle_fit(points[:, :2])
+    if radius <= 0:
+        return None
+    r = np.linalg.norm(points[:, :2] - center, axis=1)
+    z = points[:, 2]
+    edges = np.arange(0.0, z.max() + band_m, band_m)
+    heights, radii, spread = [], [], []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (z >= lo) & (z < hi)
+        if sel.sum() < 20:
+            continue
+        rr = r[sel]
+        med = float(np.median(rr))
+        # points on the outer wall: the rim of a band seen from above holds inner points too
+        wall = rr[rr > 0.8 * med]
+        heights.append(0.5 * (lo + hi))
+        radii.append(float(np.median(wall)))
+        spread.append(float(np.median(np.abs(wall - np.median(wall)))) / max(float(np.median(wall)), 1e-6))
+    if len(heights) < 3 or np.median(spread) > tolerance:
+        return None
+    # the angular coverage must be enough to trust the axis
+    ang = np.degrees(np.arctan2(points[:, 1] - center[1], points[:, 0] - center[0]))
+    hist, _ = np.histogram(ang, bins=36, range=(-180, 180))
+    if np.count_nonzero(hist) < 12:
+        return None
+    return center, np.array(heights), np.array(radii)
+
+
+def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """The object's solid as a voxel grid built from the seen points and what completes them:
+    (occupancy (X, Y, Z) bool, grid origin (3,) = the corner of voxel 0, step, how).
+
+    Voxel k spans z in [k, k+1) * step, so the solid's bottom face is the support, z = 0."""
+    from scipy import ndimage
+
+    top = float(points[:, 2].max())
+    lo = np.array([*(points[:, :2].min(axis=0) - 3 * step_m), 0.0])
+    hi = np.array([*(points[:, :2].max(axis=0) + 3 * step_m), top + step_m])
+    shape = tuple(np.ceil((hi - lo) / step_m).astype(int))
+    centers = [lo[a] + (np.arange(shape[a]) + 0.5) * step_m for a in range(3)]
+    x, y = np.meshgrid(centers[0], centers[1], indexing="ij")
+    z = centers[2]
+    rev = revolution_profile(points, band_m, tolerance)
+    if rev is not None:
+        center, heights, radii = rev
+        rz = np.interp(z, heights, radii)
+        r = np.hypot(x - center[0], y - center[1])
+        solid = (r[..., None] <= rz[None, None, :]) & (z <= top)[None, None, :]
+        how = "revolution"
+    else:
+        # a height field standing on the support: under every seen point the object is solid
+        # down to the table; the footprint is the seen one, closed and made convex-hull-tight
+        cells = np.floor((points[:, :2] - lo[:2]) / step_m).astype(int)
+        height = np.zeros(shape[:2])
+        np.maximum.at(height, (cells[:, 0], cells[:, 1]), points[:, 2])
+        foot = cv2.morphologyEx((height > 0).astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+        hull = ConvexHull(points[:, :2])
+        poly = np.round((points[hull.vertices, :2] - lo[:2]) / step_m - 0.5).astype(np.int32)[:, ::-1]
+        cv2.fillConvexPoly(foot, poly, 1)
+        foot = foot.astype(bool)
+        # the highest point of a cell is biased up by depth noise: take the median of its neighbors'
+        seen = height > 0
+        with warnings.catch_warnings():  # cells with no seen neighbor: NaN, left as they are
+            warnings.simplefilter("ignore", RuntimeWarning)
+            smooth = ndimage.generic_filter(np.where(seen, height, np.nan), np.nanmedian, size=5, mode="constant", cval=np.nan)
+        height = np.where(seen & np.isfinite(smooth), smooth, height)
+        if np.any(foot & (height <= 0)):  # cells never seen from above: the nearest seen cell's height
+            seen_idx = np.argwhere(height > 0)
+            missing = np.argwhere(foot & (height <= 0))
+            _, nearest = cKDTree(seen_idx).query(missing)
+            height[missing[:, 0], missing[:, 1]] = height[seen_idx[nearest, 0], seen_idx[nearest, 1]]
+        solid = foot[..., None] & (z[None, None, :] <= height[..., None])
+        how = "height-field"
+    # every seen point's voxel is solid too (a mug's handle beside its body of revolution)
+    idx = np.clip(np.floor((points - lo) / step_m).astype(int), 0, np.array(shape) - 1)
+    solid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    solid[..., 0] |= solid[..., 1]  # the bottom layer under anything standing
+    return solid, lo, step_m, how
+
+
+def mesh_from_solid(solid: np.ndarray, lo: np.ndarray, step_m: float, max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Marching cubes of the closed (morphologically) solid, smoothed and decimated, checked."""
+    from scipy import ndimage
+    from skimage.measure import marching_cubes
+
+    solid = ndimage.binary_closing(solid, np.ones((3, 3, 3)), iterations=1, border_value=0) | solid
+    solid = ndimage.binary_fill_holes(solid)
+    labels, count = ndimage.label(solid)
+    if count > 1:  # one object: its largest part
+        solid = labels == 1 + int(np.argmax(ndimage.sum(solid, labels, range(1, count + 1))))
+    padded = np.pad(solid, 1).astype(np.float32)
+    verts, faces, _, _ = marching_cubes(padded, level=0.5, spacing=(step_m,) * 3)
+    # padded voxel i has its center at lo + (i - 1 + 0.5) * step: the 0.5 level is a voxel face
+    verts = verts + lo - 0.5 * step_m
+    import trimesh
+
+    mesh = trimesh.Trimesh(verts, faces[:, ::-1], process=True)  # outward winding
+    trimesh.smoothing.filter_taubin(mesh, iterations=10)
+    if len(mesh.faces) > max_triangles:
+        simple = mesh.simplify_quadric_decimation(face_count=max_triangles)
+        if not collider_problems(simple.vertices, simple.faces) and not self_intersects(simple.vertices, simple.faces):
+            mesh = simple
+    if mesh.volume < 0:
+        mesh.invert()
+    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
+
+
+def run(ctx: StageContext) -> None:
+    case = ctx.case
+    cfg = ctx.config
+    n = ctx.time_info.n_frames
+    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    depth_of = metric_depth_reader(ctx.stage, case, cache=8)
+    models, facts = [], {}
+    clouds = {}
+    for spec in case.config.objects:  # every object's resting points first: one may stand on another
+        folder = ctx.out_dir / "masks" / spec.name
+        if not folder.is_dir():
+            raise InputError(f"no masks of object {spec.name!r}", path=folder, hint="run the segment stage")
+        masks, per_frame, visible = [], [], np.zeros(n)
+        for t in progress(range(n), f"object {spec.name}: masked depth", total=n):
+            mask = read_mask(folder / f"{t:06d}.png")
+            if mask.shape != (case.height, case.width):
+                raise InputError(f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {case.width}x{case.height}", path=folder / f"{t:06d}.png", hint="re-run the segment stage")
+            visible[t] = mask.sum()
+            masks.append(mask if visible[t] >= 50 else None)
+        if not np.any(visible >= 50):
+            raise InputError(f"object {spec.name!r} is never visible", path=folder, hint="check its masks (segment stage) or its prompt")
+        clear = np.flatnonzero(visible >= 0.5 * np.percentile(visible[visible >= 50], 90))
+
+        def sample(t, masks=masks):
+            return None if masks[t] is None else (depth_of(t), masks[t], cameras.K[t], cameras.world_from_cv[t])
+
+        touched = first_contact(masks, ctx.out_dir / "masks" / INTERACTOR, depth_of, n)
+        frames = [t for t in rest_frames(int(clear[0]), n, sample, cfg.rest_tolerance_m) if t < touched]
+        if not frames:
+            raise InputError(f"object {spec.name!r} is never clearly visible", path=folder, hint="check its masks (segment stage) or its prompt")
+        for t in frames:
+            per_frame.append(masked_points(depth_of(t), masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t]))
+        pts = np.concatenate([p for p, _ in per_frame])
+        cols = np.concatenate([c for _, c in per_frame])
+        pts, cols = _clean(pts, cols, cfg.voxel_m, cfg.support_gap_m)
+        if len(pts) < 200:
+            raise InputError(f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames", path=folder, hint="check its masks and the depth")
+        clouds[spec.name] = (pts, cols, frames)
+    for spec in case.config.objects:
+        pts, cols, frames = clouds[spec.name]
+        support = support_height(pts, [c[0] for name, c in clouds.items() if name != spec.name])
+        pts, cols = pts[pts[:, 2] > support + cfg.support_gap_m], cols[pts[:, 2] > support + cfg.support_gap_m]
+        lift = np.array([0.0, 0.0, support])
+        solid, lo, step, how = solid_from_points(pts - lift, step_m=cfg.voxel_m, band_m=4 * cfg.voxel_m, tolerance=cfg.revolution_tolerance)
+        vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
+        vertices = vertices + lift
+        problems = collider_problems(vertices, faces)
+        if problems or self_intersects(vertices, faces):
+            raise MeshError(f"object {spec.name!r}: the mesh is {', '.join(problems) or 'self-intersecting'}", hint="try a larger object.voxel_m")
+        # the object frame: world axes at frame 0, origin on its support under its footprint center
+        foot = vertices[vertices[:, 2] < support + 0.5 * cfg.voxel_m]
+        origin = np.array([*(foot[:, :2].mean(axis=0) if len(foot) else vertices[:, :2].mean(axis=0)), support])
+        local = vertices - origin
+        colors = transfer_colors(vertices, pts, _linear(cols))
+        mesh = MeshData(vertices=local, faces=faces, vertex_colors=colors)
+        physics, mass = physics_for(spec, local, faces, ctx)
+        models.append(ObjectModel(spec.name, mesh, se3.make_pose(np.eye(3), origin), mass, physics))
+        facts[spec.name] = {
+            "rest_frames": [frames[0], frames[-1]],
+            "fused_points": int(len(pts)),
+            "support_height_m": round(float(support), 4),
+            "completion": how,
+            "triangles": int(len(faces)),
+        }
+    for name, authored in author_objects(ctx, models, cfg.convex_tolerance).items():  # everything built and checked: now author
+        facts[name] |= authored
+    ctx.record(objects=facts)
+
+
+def support_height(points: np.ndarray, others: list[np.ndarray], *, margin_m: float = 0.01) -> float:
+    """What the object stands on: the top of another object under its footprint (a stack), else
+    the support plane (0). Another object's points count when they lie under the object's
+    footprint (grown by ``margin_m``) and no higher than its lowest seen point plus ``margin_m``."""
+    lowest = float(points[:, 2].min())
+    lo, hi = points[:, :2].min(axis=0) - margin_m, points[:, :2].max(axis=0) + margin_m
+    best = 0.0
+    for other in others:
+        under = other[np.all((other[:, :2] >= lo) & (other[:, :2] <= hi), axis=1) & (other[:, 2] <= lowest + margin_m)]
+        if len(under) >= 30:
+            best = max(best, float(np.percentile(under[:, 2], 95)))
+    return min(best, lowest)
+
+
+def _linear(srgb8: np.ndarray) -> np.ndarray:
+    from rose_usd.core.color import srgb8_to_linear
+
+    return srgb8_to_linear(np.asarray(srgb8, dtype=np.uint8))
+
+
+def _clean(points: np.ndarray, colors: np.ndarray, voxel_m: float, support_gap_m: float) -> tuple[np.ndarray, np.ndarray]:
+    import open3d as o3d
+
+    keep = points[:, 2] > support_gap_m
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[keep]))
+    cloud.colors = o3d.utility.Vector3dVector(colors[keep].astype(float) / 255.0)
+    cloud = cloud.voxel_down_sample(voxel_m)
+    cloud, _ = cloud.remove_statistical_outlier(nb_neighbors=16, std_ratio=2.0)
+    if len(cloud.points) > 50:  # keep the largest cluster (stray mask pixels on the background)
+        labels = np.asarray(cloud.cluster_dbscan(eps=3 * voxel_m, min_points=4))
+        if labels.max() >= 0:
+            biggest = np.bincount(labels[labels >= 0]).argmax()
+            cloud = cloud.select_by_index(np.flatnonzero(labels == biggest))
+    return np.asarray(cloud.points), np.clip(np.asarray(cloud.colors) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def physics_for(spec, vertices: np.ndarray, faces: np.ndarray, ctx: StageContext):
+    """Density, friction, restitution from the category prior with rose.toml's overrides; mass
+    properties of the solid (or of its wall, for hollow categories)."""
+    prior, warning = lookup(spec.category)
+    if warning:
+        ctx.warn(f"object {spec.name!r}: {warning}")
+    o = spec.overrides
+    hollow = bool(o.get("hollow", prior.hollow))
+    density = float(o.get("density_kg_m3", prior.density_kg_m3))
+    thickness = prior.shell_thickness_m if prior.shell_thickness_m > 0 else 0.003
+    props = shell_mass_properties(vertices, faces, density, thickness) if hollow else mass_properties(vertices, faces, density)
+    source = "table"
+    mass_sigma = prior.density_sigma_kg_m3 * props.volume_m3
+    if "mass_kg" in o:  # the user's mass wins: rescale (the mass distribution keeps its shape)
+        k = float(o["mass_kg"]) / props.mass_kg
+        props = type(props)(props.mass_kg * k, props.volume_m3, props.center_of_mass_m, props.inertia_com * k, props.diagonal_inertia * k, props.principal_axes)
+        density, mass_sigma, source = density * k, 0.0, "user"
+    elif "density_kg_m3" in o:
+        mass_sigma, source = 0.0, "user"
+    physics = PhysicsValues(
+        prior=prior,
+        source=source,
+        density_kg_m3=density,
+        friction=float(o.get("friction", prior.friction)),
+        restitution=float(o.get("restitution", prior.restitution)),
+        mass_sigma_kg=float(mass_sigma),
+        friction_sigma=0.0 if "friction" in o else prior.friction_sigma,
+        restitution_sigma=0.0 if "restitution" in o else prior.restitution_sigma,
+    )
+    return physics, props
