@@ -13,6 +13,8 @@ import manifold3d
 import numpy as np
 import trimesh
 
+from rose_usd.core.watertight import manifold_of
+
 
 class ObjectShape(enum.Enum):
     """Target object shapes the generator can make."""
@@ -27,12 +29,7 @@ SHAPE_CATEGORY = {ObjectShape.BOX: "box", ObjectShape.CAN: "can", ObjectShape.MU
 
 
 def to_manifold(mesh: trimesh.Trimesh) -> manifold3d.Manifold:
-    m = manifold3d.Manifold(
-        manifold3d.Mesh(
-            vert_properties=np.ascontiguousarray(mesh.vertices, dtype=np.float32),
-            tri_verts=np.ascontiguousarray(mesh.faces, dtype=np.uint32),
-        )
-    )
+    m = manifold_of(mesh.vertices, mesh.faces)
     if m.status() != manifold3d.Error.NoError:
         raise ValueError(f"mesh is not a manifold: {m.status()}")
     return m
