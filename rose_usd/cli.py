@@ -130,7 +130,8 @@ def cmd_stages(args) -> int:
     from rose_usd import registry
 
     for s in registry.STAGES:
-        print(f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]  backends: {', '.join(s.backends)}")
+        except_ = "".join(f" ({b}: [{', '.join(n)}])" for b, n in s.needs_by_backend.items())
+        print(f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]{except_}  backends: {', '.join(s.backends)}")
         print(f"            {s.summary}")
         for f in dataclasses.fields(s.config):
             default = getattr(s.config(), f.name)
