@@ -35,6 +35,15 @@ def _parse_assignments(values: list[str] | None, what: str) -> dict:
     return out
 
 
+def _size(text: str) -> tuple[int, int]:
+    """--size WIDTHxHEIGHT as (width, height)."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size {text!r} is not WIDTHxHEIGHT", hint="write e.g. --size 640x480") from None
+    return width, height
+
+
 def _options(args):
     from rose_usd.pipeline import Options
 
@@ -145,10 +154,7 @@ def cmd_bench_generate(args) -> int:
     from rose_usd.synth.motion import Task
     from rose_usd.synth.shapes import ObjectShape
 
-    try:
-        width, height = (int(v) for v in args.size.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"--size {args.size!r} is not WIDTHxHEIGHT", hint="write e.g. --size 640x480") from None
+    width, height = _size(args.size)
     config = GenerateConfig(task=Task(args.task), shape=ObjectShape(args.shape), seed=args.seed, n_frames=args.frames, width=width, height=height, fps=args.fps, spp=args.spp)
     generate_case(config, args.output, overwrite=args.overwrite)
     return 0
@@ -195,10 +201,7 @@ def cmd_bench_real(args) -> int:
 def cmd_bench_speed(args) -> int:
     from rose_usd.bench.speed import measure
 
-    try:
-        width, height = (int(v) for v in args.size.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"--size {args.size!r} is not WIDTHxHEIGHT", hint="write e.g. --size 640x480") from None
+    width, height = _size(args.size)
     backends = _parse_assignments(args.backend, "--backend") or {}
     out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / "speed"
     result = measure(args.stage, backends, frames=args.frames, width=width, height=height, out_dir=out)

@@ -263,9 +263,16 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
     from rose_usd import registry
 
     unprompted = all(o.prompt is None for o in load_case_config(Path(case_dir), registry.STAGE_NAMES).objects)
+    pair: dict[tuple[str, str], float | None] = {}  # each (true, found) pair's masks read once
+
+    def iou(a: str, b: str) -> float | None:
+        if (a, b) not in pair:
+            pair[(a, b)] = _mask_ious(gt.mask_dir(a), Path(out_dir) / "masks" / b, n, min_fraction=0.5)
+        return pair[(a, b)]
+
     best = None
     for perm in itertools.permutations(names) if unprompted and len(names) > 1 else [tuple(names)]:
-        ious = [_mask_ious(gt.mask_dir(a), Path(out_dir) / "masks" / b, n, min_fraction=0.5) for a, b in zip(names, perm)]
+        ious = [iou(a, b) for a, b in zip(names, perm)]
         total = sum(v or 0.0 for v in ious)
         if best is None or total > best[0]:
             best = (total, ious)

@@ -38,16 +38,22 @@ def read_seven_scenes_truth(folder: Path) -> tuple[np.ndarray, np.ndarray]:
     return poses, gravity / np.linalg.norm(gravity)
 
 
+def stage_case(case_dir: Path, links: dict[str, Path], rose_toml: str) -> Path:
+    """A fresh case folder of symbolic links to a recording's files (name -> file) and the
+    rose.toml a user would write beside them (the recordings themselves stay read-only)."""
+    shutil.rmtree(case_dir, ignore_errors=True)
+    case_dir.mkdir(parents=True)
+    for name, target in links.items():
+        (case_dir / name).symlink_to(Path(target).resolve())
+    (case_dir / "rose.toml").write_text(rose_toml)
+    return case_dir
+
+
 def stage_static_case(folder: Path, case_dir: Path) -> Path:
     """A case folder linking ``folder``'s files, with a rose.toml that declares a static scene
     (``objects = []``): what a user writes next to a recording in which nothing is moved."""
-    shutil.rmtree(case_dir, ignore_errors=True)
-    case_dir.mkdir(parents=True)
-    for f in sorted(folder.iterdir()):
-        if f.is_file() and f.name != "rose.toml":
-            (case_dir / f.name).symlink_to(f.resolve())
-    (case_dir / "rose.toml").write_text("# a static scene: nothing is moved in this recording\nobjects = []\n")
-    return case_dir
+    links = {f.name: f for f in sorted(folder.iterdir()) if f.is_file() and f.name != "rose.toml"}
+    return stage_case(case_dir, links, "# a static scene: nothing is moved in this recording\nobjects = []\n")
 
 
 def evaluate_seven_scenes(folder: Path, out_dir: Path, *, backends: dict | None = None, scene: bool = True) -> dict:
@@ -211,11 +217,11 @@ def evaluate_sam2_cups(folder: Path, out_dir: Path, *, prompt: str = CUPS_PROMPT
     video = folder / "02_cups.mp4"
     if not video.is_file():
         raise InputError("no 02_cups.mp4", path=folder, hint="give the sam2-cups folder of ../shared/data/real")
-    case_dir = out_dir / "runs" / "case"
-    shutil.rmtree(case_dir, ignore_errors=True)
-    case_dir.mkdir(parents=True)
-    (case_dir / "video.mp4").symlink_to(video.resolve())
-    (case_dir / "rose.toml").write_text('# three identical red cups shuffled by hand\n[[objects]]\nname = "Cup"\ncategory = "cup"\n')
+    case_dir = stage_case(
+        out_dir / "runs" / "case",
+        {"video.mp4": video},
+        '# three identical red cups shuffled by hand\n[[objects]]\nname = "Cup"\ncategory = "cup"\n',
+    )
     run_dir = out_dir / "runs" / "out"
     pipe = Pipeline(case_dir, run_dir, Options(backends={"segment": "flow"}, settings={"segment": {"prompts": prompt}}, force=True))
     t0 = time.perf_counter()

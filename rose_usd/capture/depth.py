@@ -7,7 +7,7 @@ already metric) or a fit (``unidepth``, ``size-prior``, ...) of MegaSaM's depth,
 
 from __future__ import annotations
 
-from collections import OrderedDict
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -46,17 +46,10 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
 def cached_frames(read: Callable[[int], np.ndarray], size: int) -> Callable[[int], np.ndarray]:
     """``read`` (t -> depth [m]) with invalid values (NaN, inf, <= 0) set to 0 and the last
     ``size`` frames kept."""
-    store: OrderedDict[int, np.ndarray] = OrderedDict()
 
+    @functools.lru_cache(maxsize=size)
     def depth_of(t: int) -> np.ndarray:
-        if t in store:
-            store.move_to_end(t)
-            return store[t]
         d = np.asarray(read(t), dtype=np.float32)
-        d = np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32)
-        store[t] = d
-        if len(store) > size:
-            store.popitem(last=False)
-        return d
+        return np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32)
 
     return depth_of

@@ -1,8 +1,11 @@
-"""The OpenCV pinhole camera's back-projection, in one place: pixel (u, v) at depth z -> camera point."""
+"""The OpenCV pinhole camera in one place: back-projection (pixel (u, v) at depth z -> camera
+point) and projection (camera or world point -> pixel)."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from rose_usd.core import se3
 
 
 def backproject(u, v, z, K: np.ndarray) -> np.ndarray:
@@ -11,3 +14,34 @@ def backproject(u, v, z, K: np.ndarray) -> np.ndarray:
     x = (u - K[0, 2]) / K[0, 0] * z
     y = (v - K[1, 2]) / K[1, 1] * z
     return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+
+
+def project(points_cam: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates (u, v), as floats with pixel centers at integers, of camera points
+    (..., 3) in OpenCV axes in front of the camera: the inverse of ``backproject``."""
+    z = points_cam[..., 2]
+    return K[0, 0] * points_cam[..., 0] / z + K[0, 2], K[1, 1] * points_cam[..., 1] / z + K[1, 2]
+
+
+def pixels_of(points_world: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 0.0):
+    """Where world points (N, 3) fall in a camera: (u, v, z), the nearest pixel (integers) and the
+    depth along the optical axis; u = v = -1 for points not farther than ``min_z`` or outside the
+    ``width`` x ``height`` image."""
+    cam = se3.transform_points(se3.invert(world_from_cv), points_world)
+    z = cam[:, 2]
+    ok = z > min_z
+    u = np.full(len(z), -1)
+    v = np.full(len(z), -1)
+    fu, fv = project(cam[ok], K)
+    u[ok], v[ok] = np.round(fu).astype(int), np.round(fv).astype(int)
+    outside = (u < 0) | (u >= width) | (v < 0) | (v >= height)
+    u[outside], v[outside] = -1, -1
+    return u, v, z
+
+
+def sample_at(image: np.ndarray, u: np.ndarray, v: np.ndarray, fill=0):
+    """``image`` at the pixels (u, v) from ``pixels_of``, ``fill`` where u = -1."""
+    inside = u >= 0
+    out = np.full(len(u), fill, dtype=image.dtype)
+    out[inside] = image[v[inside], u[inside]]
+    return out

@@ -33,8 +33,9 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
+from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.inertia import mass_properties, shell_mass_properties
-from rose_usd.core.pinhole import backproject
+from rose_usd.core.pinhole import backproject, pixels_of
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io.images import read_mask
@@ -77,13 +78,9 @@ def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float) -> list[int]
         if got is None:
             continue
         depth, mask, K, pose = got
-        cam = se3.transform_points(se3.invert(pose), ref)
-        z = cam[:, 2]
-        ok = z > 0
-        u = np.round(K[0, 0] * cam[ok, 0] / z[ok] + K[0, 2]).astype(int)
-        v = np.round(K[1, 1] * cam[ok, 1] / z[ok] + K[1, 2]).astype(int)
-        inside = (u >= 0) & (u < mask.shape[1]) & (v >= 0) & (v < mask.shape[0])
-        u, v, zz = u[inside], v[inside], z[ok][inside]
+        u, v, z = pixels_of(ref, pose, K, mask.shape[1], mask.shape[0])
+        inside = u >= 0
+        u, v, zz = u[inside], v[inside], z[inside]
         d = depth[v, u]
         unhidden = ~((d > 0) & (d < zz - tolerance_m))  # nothing (a hand) in front of the point
         if unhidden.sum() < 30:
@@ -283,7 +280,8 @@ def run(ctx: StageContext) -> None:
     for spec in case.config.objects:
         pts, cols, frames = clouds[spec.name]
         support = support_height(pts, [c[0] for name, c in clouds.items() if name != spec.name])
-        pts, cols = pts[pts[:, 2] > support + cfg.support_gap_m], cols[pts[:, 2] > support + cfg.support_gap_m]
+        above = pts[:, 2] > support + cfg.support_gap_m
+        pts, cols = pts[above], cols[above]
         lift = np.array([0.0, 0.0, support])
         solid, lo, step, how = solid_from_points(pts - lift, step_m=cfg.voxel_m, band_m=4 * cfg.voxel_m, tolerance=cfg.revolution_tolerance)
         vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
@@ -295,7 +293,7 @@ def run(ctx: StageContext) -> None:
         foot = vertices[vertices[:, 2] < support + 0.5 * cfg.voxel_m]
         origin = np.array([*(foot[:, :2].mean(axis=0) if len(foot) else vertices[:, :2].mean(axis=0)), support])
         local = vertices - origin
-        colors = transfer_colors(vertices, pts, _linear(cols))
+        colors = transfer_colors(vertices, pts, srgb8_to_linear(cols))
         mesh = MeshData(vertices=local, faces=faces, vertex_colors=colors)
         physics, mass = physics_for(spec, local, faces, ctx)
         models.append(ObjectModel(spec.name, mesh, se3.make_pose(np.eye(3), origin), mass, physics))
@@ -323,12 +321,6 @@ def support_height(points: np.ndarray, others: list[np.ndarray], *, margin_m: fl
         if len(under) >= 30:
             best = max(best, float(np.percentile(under[:, 2], 95)))
     return min(best, lowest)
-
-
-def _linear(srgb8: np.ndarray) -> np.ndarray:
-    from rose_usd.core.color import srgb8_to_linear
-
-    return srgb8_to_linear(np.asarray(srgb8, dtype=np.uint8))
 
 
 def _clean(points: np.ndarray, colors: np.ndarray, voxel_m: float, support_gap_m: float) -> tuple[np.ndarray, np.ndarray]:

@@ -33,13 +33,13 @@ def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lif
     it. A penetration deeper than ``max_lift_m`` is left alone (it is not a contact error but a
     wrong pose or scene, and lifting would hide it): the caller warns."""
     lifts: dict[str, float] = {}
-    supports = [] if scene is None else [scene]
+    supports = [] if scene is None else [metrics.SignedDistance(*scene)]
     order = sorted(models, key=lambda m: float(se3.transform_points(m.world_from_object_0, m.mesh.vertices)[:, 2].min()))
     for model in order:
         world = se3.transform_points(model.world_from_object_0, model.mesh.vertices)
         depth = 0.0
-        for verts, faces in supports:
-            inside = metrics.SignedDistance(verts, faces)(world)
+        for signed_distance in supports:
+            inside = signed_distance(world)
             depth = max(depth, float(-inside.min()) if inside.min() < 0 else 0.0)
         lift = depth + CLEARANCE_M if depth > TOUCHING_M else 0.0
         if lift > max_lift_m:
@@ -47,5 +47,5 @@ def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lif
             continue
         model.world_from_object_0[2, 3] += lift
         lifts[model.name] = lift
-        supports.append((world + np.array([0.0, 0.0, lift]), model.mesh.faces))
+        supports.append(metrics.SignedDistance(world + np.array([0.0, 0.0, lift]), model.mesh.faces))
     return lifts

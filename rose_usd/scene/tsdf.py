@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import linear_to_srgb8, srgb8_to_linear
-from rose_usd.core.pinhole import backproject
+from rose_usd.core.pinhole import backproject, pixels_of, sample_at
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io.images import read_mask
@@ -110,19 +110,9 @@ def seen_through(points: np.ndarray, depth_of, cameras, frames, *, tol_m: float 
     seen = np.zeros(len(points), np.int32)
     for t in frames:
         depth = depth_of(t)
-        h, w = depth.shape
-        cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), points)
-        z = cam[:, 2]
-        ok = z > 0.05
-        K = cameras.K[t]
-        u = np.full(len(points), -1)
-        v = np.full(len(points), -1)
-        u[ok] = np.round(K[0, 0] * cam[ok, 0] / z[ok] + K[0, 2]).astype(int)
-        v[ok] = np.round(K[1, 1] * cam[ok, 1] / z[ok] + K[1, 2]).astype(int)
-        ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        d = np.zeros(len(points))
-        d[ok] = depth[v[ok], u[ok]]
-        ok &= d > 0
+        u, v, z = pixels_of(points, cameras.world_from_cv[t], cameras.K[t], depth.shape[1], depth.shape[0], min_z=0.05)
+        d = sample_at(depth, u, v).astype(float)
+        ok = d > 0
         tol = tol_m + rel * z
         through += ok & (d > z + tol)
         seen += ok & (np.abs(d - z) <= tol)

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import backproject
+from rose_usd.core.pinhole import backproject, project
 
 
 class StaticBackground:
@@ -63,8 +63,9 @@ class StaticBackground:
             z = cam[:, 2]
             ok = z > 0.05
             cam, z = cam[ok], z[ok]
-            u = ((k[0, 0] * cam[:, 0] / z + k[0, 2]) / s).round().astype(np.int64)
-            v = ((k[1, 1] * cam[:, 1] / z + k[1, 2]) / s).round().astype(np.int64)
+            fu, fv = project(cam, k)
+            u = (fu / s).round().astype(np.int64)
+            v = (fv / s).round().astype(np.int64)
             inside = (u >= 0) & (u < self.w) & (v >= 0) & (v < self.h)
             idx, z = v[inside] * self.w + u[inside], z[inside].astype(np.float32)
             order = np.argsort(-z, kind="stable")  # far first: the nearest splat is written last

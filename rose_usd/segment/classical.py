@@ -24,6 +24,7 @@ support plane, so every pixel has a world point and a height above the support.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -32,8 +33,7 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 
 from rose_usd.capture.depth import metric_depth_reader
-from rose_usd.core import se3
-from rose_usd.core.pinhole import backproject
+from rose_usd.core.pinhole import backproject, pixels_of, sample_at
 from rose_usd.errors import InputError
 from rose_usd.progress import progress
 from rose_usd.segment.background import StaticBackground
@@ -145,17 +145,13 @@ class Segmenter:
         self.rgb_of, self.depth_of, self.cam, self.config, self.bg = rgb_of, depth_of, cameras, config, background
         self.width, self.height = cameras.width, cameras.height
         self.scale_px = self.width * self.height / (640 * 480)
-        self._frame_cache: dict[int, tuple] = {}
-
-    def frame(self, t: int):
+        self.frame = functools.lru_cache(maxsize=5)(self._frame)
         """(rgb, depth, world points, edges, color index) of frame t (the last few are cached)."""
-        if t not in self._frame_cache:
-            if len(self._frame_cache) > 4:
-                self._frame_cache.pop(next(iter(self._frame_cache)))
-            rgb, depth = self.rgb_of(t), self.depth_of(t)
-            pts = world_points(depth, self.cam.K[t], self.cam.world_from_cv[t])
-            self._frame_cache[t] = (rgb, depth, pts, depth_edges(depth), color_index(rgb))
-        return self._frame_cache[t]
+
+    def _frame(self, t: int):
+        rgb, depth = self.rgb_of(t), self.depth_of(t)
+        pts = world_points(depth, self.cam.K[t], self.cam.world_from_cv[t])
+        return rgb, depth, pts, depth_edges(depth), color_index(rgb)
 
     # ----------------------------------------------------------------- start
     def start_from_prompt(self, name: str, prompt, where) -> ObjectTrack:
@@ -248,17 +244,8 @@ class Segmenter:
         world = pts[v, u]
         left = np.zeros(len(v), bool)
         for t in range(n_frames // 2, n_frames, max(1, n_frames // 20)):
-            depth = self.frame(t)[1]
-            cam = se3.transform_points(se3.invert(self.cam.world_from_cv[t]), world)
-            K = self.cam.K[t]
-            z = cam[:, 2]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                uu = np.round(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(int)
-                vv = np.round(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(int)
-            ok = (z > 0) & (uu >= 0) & (uu < self.width) & (vv >= 0) & (vv < self.height)
-            seen = np.zeros(len(v))
-            seen[ok] = depth[vv[ok], uu[ok]]
-            left |= ok & (seen > z + leave_m)
+            uu, vv, z = pixels_of(world, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
+            left |= (uu >= 0) & (sample_at(self.frame(t)[1], uu, vv) > z + leave_m)
         moved = np.zeros_like(region)
         moved[v[left], u[left]] = True
         moved = cv2.morphologyEx(moved.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)).astype(bool)

@@ -23,6 +23,7 @@ a working resolution whose long side is at most ``flow_max_side_px``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -309,15 +310,11 @@ def run(ctx: StageContext) -> None:
     if any(s.prompt is None for s in specs) or not specs:
         raise InputError("the flow backend needs a prompt (box or point) for every object", path=where, hint="add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml, or pass --prompt NAME=FRAME:x0,y0,x1,y1")
     w, h, s = _work_size(case.width, case.height, cfg.flow_max_side_px)
-    cache: dict[int, np.ndarray] = {}
 
+    @functools.lru_cache(maxsize=64)
     def frame_of(t: int) -> np.ndarray:
-        if t not in cache:
-            if len(cache) > 64:
-                cache.pop(next(iter(cache)))
-            rgb = case.rgb(t)
-            cache[t] = rgb if s == 1.0 else cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
-        return cache[t]
+        rgb = case.rgb(t)
+        return rgb if s == 1.0 else cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
 
     prompts = []
     for spec in specs:
