@@ -88,8 +88,19 @@ class StaticBackground:
         nearest_bg = cv2.erode(far, kernel)  # the nearest static surface in the window
         farthest_bg = cv2.dilate(np.where(bg > 0, bg, 0).astype(np.float32), kernel)
         valid = depth > 0
-        tol = tau_m + 0.01 * depth
         known = nearest_bg < 1e5
+        # depth that is not a sensor's (MegaSaM's) drifts in scale from frame to frame and is
+        # noisier: most pixels are static, so their ratio to the static surface gives the frame's
+        # scale (divided out) and its relative noise (which widens the tolerance)
+        both = valid & (bg > 0)
+        rel = 0.01
+        if np.count_nonzero(both) > 1000:
+            ratio = depth[both][::7] / bg[both][::7]
+            scale = float(np.median(ratio))
+            if abs(scale - 1.0) > 0.002:
+                depth = depth / np.float32(scale)
+            rel = max(rel, 3.0 * 1.4826 * float(np.median(np.abs(ratio / scale - 1.0))))
+        tol = tau_m + rel * depth
         fg = valid & known & (depth < nearest_bg - tol)
         static = valid & known & (depth > nearest_bg - tol) & (depth < farthest_bg + tol)
         return fg, static
