@@ -202,6 +202,7 @@ def alpha_wrap(points: np.ndarray, alpha_m: float, offset_m: float) -> tuple[np.
 def self_intersects(vertices: np.ndarray, faces: np.ndarray) -> bool:
     """CGAL's exact self-intersection test (the mesh goes to CGAL through an OFF file)."""
     import trimesh
+    from CGAL import CGAL_Alpha_wrap_3  # noqa: F401  before PMP: once PMP is loaded first, SWIG no longer matches alpha_wrap_3's arguments (seen with cgal 6.0.1)
     from CGAL import CGAL_Polygon_mesh_processing as pmp
     from CGAL.CGAL_Polyhedron_3 import Polyhedron_3
 
