@@ -41,6 +41,9 @@ class ObjectScore:
     ape_translation_per_frame_m: list[float] = field(default_factory=list)
     mass_kg: float | None = None
     true_mass_kg: float | None = None
+    size_error: float | None = None
+    """Signed relative size error at frame 0: RMS distance of surface samples to their centroid,
+    reconstructed over true, minus 1 (the object's scale error)."""
     mask_iou: float | None = None
     """Mean mask IoU over the frames where the object is more than half visible (None: no segment stage)."""
 
@@ -92,6 +95,10 @@ def _meshes(stage: Usd.Stage, root, time: Usd.TimeCode = Usd.TimeCode.Default())
     if not verts:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     return np.concatenate(verts), np.concatenate(faces)
+
+
+def _rms_radius(points: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
 
 
 def _backproject(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
@@ -255,6 +262,7 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
                 ape_translation_per_frame_m=[float(v) for v in a.translation_m],
                 mass_kg=float(mass_attr.Get()) if mass_attr and mass_attr.HasAuthoredValue() else None,
                 true_mass_kg=true_mass,
+                size_error=_rms_radius(rec_samples) / _rms_radius(true_samples) - 1.0,
             )
         )
     # without prompts nothing tells which found object is which name of rose.toml: unprompted

@@ -18,6 +18,14 @@ from rose_usd.errors import StageError
 from rose_usd.usd import paths
 
 
+def depth_is_sensor(stage: Usd.Stage) -> bool:
+    """Whether later stages read the case's own depth/ (a sensor's, or ground truth's): then its
+    scale holds from frame to frame, which MegaSaM's does only to a few %."""
+    world = stage.GetPrimAtPath(paths.WORLD)
+    attr = world.GetAttribute("rose:world:scaleSource") if world else None
+    return bool(attr) and attr.Get() in ("sensor", "oracle")
+
+
 def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Callable[[int], np.ndarray]:
     """A function t -> metric depth (H, W) float32 [m] of frame t (0 = no depth), with a small cache."""
     world = stage.GetPrimAtPath(paths.WORLD)

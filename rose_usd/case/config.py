@@ -23,7 +23,7 @@ from rose_usd.usd.paths import check_name
 
 CASE_CONFIG_FILE = "rose.toml"
 _TOP_KEYS = {"fps", "objects", "backends"}
-_OBJECT_KEYS = {"name", "category", "prompt", "mass_kg", "density_kg_m3", "friction", "restitution", "hollow", "size_m"}
+_OBJECT_KEYS = {"name", "category", "prompt", "mass_kg", "density_kg_m3", "friction", "restitution", "hollow", "size_m", "mesh", "mesh_up"}
 
 
 @dataclass(frozen=True)
@@ -42,7 +42,8 @@ class ObjectSpec:
     prompt: Prompt | None = None
     overrides: dict = field(default_factory=dict)
     """Values the user fixed: physics (mass_kg, density_kg_m3, friction, restitution, hollow) and
-    size_m, the object's largest dimension [m] (a metric scale prior)."""
+    size_m, the object's largest dimension [m] (a metric scale prior); mesh, the object's mesh file
+    (relative to the case) and mesh_up, its up axis ("y" or "z"), for the imported object backend."""
 
 
 @dataclass(frozen=True)

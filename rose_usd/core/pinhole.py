@@ -3,6 +3,7 @@ point) and projection (camera or world point -> pixel)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from rose_usd.core import se3
@@ -45,3 +46,20 @@ def sample_at(image: np.ndarray, u: np.ndarray, v: np.ndarray, fill=0):
     out = np.full(len(u), fill, dtype=image.dtype)
     out[inside] = image[v[inside], u[inside]]
     return out
+
+
+def silhouette(vertices_world: np.ndarray, faces: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 1e-3) -> np.ndarray:
+    """The mesh's silhouette in a camera: a (height, width) bool image of the pixels whose
+    centers some triangle covers. Triangles with a vertex not in front of ``min_z`` are left out
+    (an object is never that close to the camera)."""
+    cam = se3.transform_points(se3.invert(world_from_cv), vertices_world)
+    u, v = project(np.where(cam[:, 2:3] > min_z, cam, 1.0), K)
+    tri = faces[np.all(cam[faces, 2] > min_z, axis=1)]
+    # fixed point with 4 fractional bits: cv2 rasterizes pixel centers at integers
+    pts = np.round(np.stack([u, v], axis=-1) * 16).astype(np.int32)[tri]
+    lo, hi = pts.min(axis=1), pts.max(axis=1)
+    onscreen = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < 16 * width) & (lo[:, 1] < 16 * height)
+    out = np.zeros((height, width), np.uint8)
+    for p in pts[onscreen]:
+        cv2.fillConvexPoly(out, p, 1, lineType=cv2.LINE_8, shift=4)
+    return out.astype(bool)

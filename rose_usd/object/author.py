@@ -63,6 +63,37 @@ def collision_approximation(mesh: MeshData, convex_tolerance: float) -> tuple[Ap
     return (Approximation.CONVEX_HULL if ratio >= 1.0 - convex_tolerance else Approximation.CONVEX_DECOMPOSITION), ratio
 
 
+NEWTON_COACD = {"threshold": 0.05, "mcts_nodes": 20, "mcts_iterations": 5, "mcts_max_depth": 1, "merge": False}
+"""The CoACD settings Newton 1.8 uses for ``convexDecomposition`` colliders
+(``ModelBuilder.approximate_meshes``): running CoACD with them (per connected part, as Newton
+does) gives the parts Newton will simulate."""
+
+
+def decomposition_coverage(mesh: MeshData) -> dict:
+    """CoACD's convex parts of the collision mesh (as Newton will make them) against the mesh:
+    the part count, the fraction of the mesh's volume inside their union (coverage, ideally 1)
+    and the union's volume over the mesh's (over 1: the parts bulge out)."""
+    import coacd
+    import manifold3d
+
+    from rose_usd.core.watertight import manifold_of
+
+    coacd.set_log_level("error")
+    vertices = np.asarray(mesh.vertices, np.float32).astype(np.float64)  # as authored (USD points are float)
+    tm = trimesh.Trimesh(vertices, mesh.faces, process=False)
+    hulls = []
+    for part in tm.split(only_watertight=False):
+        for pv, _ in coacd.run_coacd(coacd.Mesh(np.asarray(part.vertices), np.asarray(part.faces)), **NEWTON_COACD):
+            hulls.append(manifold3d.Manifold.hull_points(np.asarray(pv, np.float64)))
+    union = manifold3d.Manifold.batch_boolean(hulls, manifold3d.OpType.Add)
+    solid = manifold_of(vertices, mesh.faces)
+    return {
+        "collision_parts": len(hulls),
+        "collision_coverage": round(float((union ^ solid).volume() / solid.volume()), 4),
+        "collision_volume_ratio": round(float(union.volume() / solid.volume()), 4),
+    }
+
+
 def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float) -> dict:
     """Write one object prim. Returns facts for the layer's provenance."""
     check_collider(model.mesh.vertices, model.mesh.faces, f"object {model.name!r} mesh")
@@ -99,6 +130,12 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
     bind_material(visual.GetPrim(), look)
     collision = author_mesh(stage, paths.object_collision(model.name), MeshData(model.mesh.vertices, model.mesh.faces), purpose=UsdGeom.Tokens.guide)
     approximation, convexity = collision_approximation(model.mesh, convex_tolerance)
+    if approximation is Approximation.CONVEX_DECOMPOSITION:
+        cover = decomposition_coverage(model.mesh)
+        if cover["collision_coverage"] < 0.98:
+            ctx.warn(f"object {model.name!r}: its convex parts cover only {100 * cover['collision_coverage']:.1f} % of its volume")
+    else:  # the hull covers the mesh
+        cover = {"collision_parts": 1, "collision_coverage": 1.0, "collision_volume_ratio": round(1.0 / convexity, 4)}
     make_collider(collision.GetPrim(), approximation)
     material = author_physics_material(stage, looks.AppendChild("PhysicsMaterial"), friction=phys.friction, restitution=phys.restitution, density=phys.density_kg_m3)
     bind_physics_material(collision.GetPrim(), material)
@@ -107,7 +144,7 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
         "volume_m3": model.mass.volume_m3,
         "approximation": approximation.value,
         "volume_over_hull": round(convexity, 4),
-    }
+    } | cover
 
 
 def author_objects(ctx: StageContext, models: list[ObjectModel], convex_tolerance: float) -> dict:

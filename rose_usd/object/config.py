@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 class ObjectBackend(enum.Enum):
     FUSION = "fusion"  # no imported mesh: masked depth of the resting object fused, completed (flat bottom, revolution or height field), alpha-wrapped
+    IMPORTED = "imported"  # a mesh from another tool (TRELLIS GLB, scan, CAD): scale by the paper's silhouette search, posed on its support
     ORACLE = "oracle"  # ground-truth meshes, densities and frame-0 poses from gt/ (benchmark cases)
 
 
@@ -23,6 +24,10 @@ class ObjectConfig:
     """fusion: a solid of revolution when radial spread within height bands is under this fraction of the radius (default 0.05)."""
     max_triangles: int = 8000
     """fusion: the object mesh is decimated to at most this many triangles (default 8000)."""
+    scale_search_alpha: float = 1.5
+    """imported: rho is searched in [rho_0 / alpha, rho_0 * alpha] (the paper's Eq. 3) [-] (default 1.5)."""
+    scale_search_steps: int = 15
+    """imported: log-spaced scales tried over that range before refining around the best (default 15)."""
     convex_tolerance: float = 0.02
     """A mesh whose volume is within this fraction of its convex hull's collides as its hull;
     otherwise by convex decomposition [-] (default 0.02)."""

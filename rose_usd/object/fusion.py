@@ -7,9 +7,11 @@ with no imported mesh. No learned model.
    (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are fused (the world frame is the object's frame
    while it rests). The trajectory stage will add the frames after.
 2. **Clean.** Voxel-downsampled to ``voxel_m``, statistical outliers dropped, and points within
-   ``support_gap_m`` of the support (z = 0) dropped (the table at the mask's border).
+   ``support_gap_m`` of the surface around the object dropped (the table at the mask's border;
+   that surface's height is measured in a ring of pixels around the mask, since the world's
+   z = 0 is one plane for the whole scene and may be off under this object).
 3. **Complete** what was never seen. The face on the support is flat at the support under the
-   seen footprint (z = 0, or the top of the object it stands on: the top of a stack's lower
+   seen footprint (the surface around it, or the top of the object it stands on: the top of a stack's lower
    object seen around the upper one). A solid of revolution (a can, a mug's body: the radial distance of the points to a
    fitted vertical axis varies by under ``revolution_tolerance`` of the radius within each height
    band) is completed by revolving its median profile. Anything else is completed as a height
@@ -26,12 +28,13 @@ with no imported mesh. No learned model.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy.spatial import ConvexHull, cKDTree
 
-from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.capture.depth import depth_is_sensor, metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.inertia import mass_properties, shell_mass_properties
@@ -61,14 +64,17 @@ def masked_points(depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.nd
     return pts, rgb[v, u]
 
 
-def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float) -> list[int]:
-    """Frames from ``ref_frame`` on in which the object is still where it was then.
+def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float, *, scale_drift: bool = False) -> list[tuple[int, float]]:
+    """Frames from ``ref_frame`` on in which the object is still where it was then, each with the
+    ratio of its depth there to the reference frame's (1 for a sensor).
 
     ``sample(t)`` gives (depth, mask, K, world_from_cv) of frame t (None when the object is not
     seen). The object's points of the reference frame are projected into frame t; where they
     land on the object's mask, the depth must agree within ``tolerance_m`` for most of them. Newly
     revealed parts (the top of a stack's lower object, once the upper one is lifted) do not count
-    as motion, and a hand covering part of the object only leaves fewer points to compare."""
+    as motion, and a hand covering part of the object only leaves fewer points to compare.
+    With ``scale_drift`` (depth that is not a sensor's: MegaSaM's scale varies by a few % from
+    frame to frame), the frame's median depth ratio (within 6 %) is divided out first."""
     depth, mask, K, pose = sample(ref_frame)
     ref, _ = masked_points(depth, mask, np.zeros((*mask.shape, 3), np.uint8), K, pose)
     ref = ref[:: max(1, len(ref) // 3000)]
@@ -82,16 +88,21 @@ def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float) -> list[int]
         inside = u >= 0
         u, v, zz = u[inside], v[inside], z[inside]
         d = depth[v, u]
+        on = mask[v, u] & (d > 0)
+        ratio = float(np.median(d[on] / zz[on])) if scale_drift and on.sum() >= 30 else 1.0
+        if abs(ratio - 1.0) > 0.06:
+            break  # moved along the view (or the depth jumped): not the same rest
+        d = d / np.float32(ratio)
         unhidden = ~((d > 0) & (d < zz - tolerance_m))  # nothing (a hand) in front of the point
         if unhidden.sum() < 30:
             continue  # hidden: nothing to compare
         on_mask = float(np.mean(mask[v[unhidden], u[unhidden]]))
-        on = unhidden & mask[v, u] & (d > 0)
+        on = unhidden & on
         agree = float(np.mean(np.abs(d[on] - zz[on]) < tolerance_m)) if on.sum() >= 30 else 0.0
         if on_mask < 0.6 or agree < 0.3:
             break  # moved
         if on_mask >= 0.93 and agree >= 0.6:
-            frames.append(t)
+            frames.append((t, ratio))
     return frames
 
 
@@ -230,24 +241,32 @@ def mesh_from_solid(solid: np.ndarray, lo: np.ndarray, step_m: float, max_triang
 
     mesh = trimesh.Trimesh(verts, faces[:, ::-1], process=True)  # outward winding
     trimesh.smoothing.filter_taubin(mesh, iterations=10)
-    if len(mesh.faces) > max_triangles:
-        simple = mesh.simplify_quadric_decimation(face_count=max_triangles)
-        if not collider_problems(simple.vertices, simple.faces) and not self_intersects(simple.vertices, simple.faces):
-            mesh = simple
+    mesh = decimate(mesh, max_triangles)
     if mesh.volume < 0:
         mesh.invert()
     return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
 
 
-def run(ctx: StageContext) -> None:
-    case = ctx.case
-    cfg = ctx.config
-    n = ctx.time_info.n_frames
-    cameras = read_camera(ctx.stage, paths.CAMERA, n)
-    depth_of = metric_depth_reader(ctx.stage, case, cache=8)
-    models, facts = [], {}
+@dataclass
+class RestingCloud:
+    """What the object's resting frames show: its cleaned world points above the support with
+    their sRGB colors, the frames they came from, and its masks (None where barely visible)."""
+
+    points: np.ndarray
+    colors: np.ndarray
+    frames: list[int]
+    masks: list
+    ground: float = 0.0
+    """The height of the surface around the object [m] (0 = the world's support plane)."""
+
+
+def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingCloud]:
+    """Every object's points while it rests before the interactor first touches it (all objects
+    first: one may stand on another). InputError when an object is never clearly seen."""
+    case, cfg, n = ctx.case, ctx.config, ctx.time_info.n_frames
+    drifts = not depth_is_sensor(ctx.stage)
     clouds = {}
-    for spec in case.config.objects:  # every object's resting points first: one may stand on another
+    for spec in case.config.objects:
         folder = ctx.out_dir / "masks" / spec.name
         if not folder.is_dir():
             raise InputError(f"no masks of object {spec.name!r}", path=folder, hint="run the segment stage")
@@ -259,27 +278,76 @@ def run(ctx: StageContext) -> None:
             visible[t] = mask.sum()
             masks.append(mask if visible[t] >= 50 else None)
         if not np.any(visible >= 50):
-            raise InputError(f"object {spec.name!r} is never visible", path=folder, hint="check its masks (segment stage) or its prompt")
+            raise InputError(f"object {spec.name!r} is never visible (every mask is empty)", path=folder, hint="check its masks (segment stage) or its prompt")
         clear = np.flatnonzero(visible >= 0.5 * np.percentile(visible[visible >= 50], 90))
 
         def sample(t, masks=masks):
             return None if masks[t] is None else (depth_of(t), masks[t], cameras.K[t], cameras.world_from_cv[t])
 
         touched = first_contact(masks, ctx.out_dir / "masks" / INTERACTOR, depth_of, n)
-        frames = [t for t in rest_frames(int(clear[0]), n, sample, cfg.rest_tolerance_m) if t < touched]
-        if not frames:
+        rests = [(t, r) for t, r in rest_frames(int(clear[0]), n, sample, cfg.rest_tolerance_m, scale_drift=drifts) if t < touched]
+        if not rests:
             raise InputError(f"object {spec.name!r} is never clearly visible", path=folder, hint="check its masks (segment stage) or its prompt")
-        for t in frames:
-            per_frame.append(masked_points(depth_of(t), masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t]))
+        frames = [t for t, _ in rests]
+        typical = float(np.median([r for _, r in rests]))
+        for t, ratio in rests:  # every frame's depth brought to the rest's typical scale
+            per_frame.append(masked_points(depth_of(t) * np.float32(typical / ratio), masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t]))
+        ground = _ground_height(ctx, spec.name, rests, masks, depth_of, cameras, typical)
         pts = np.concatenate([p for p, _ in per_frame])
         cols = np.concatenate([c for _, c in per_frame])
-        pts, cols = _clean(pts, cols, cfg.voxel_m, cfg.support_gap_m)
+        pts, cols = _clean(pts, cols, cfg.voxel_m, ground + cfg.support_gap_m)
         if len(pts) < 200:
             raise InputError(f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames", path=folder, hint="check its masks and the depth")
-        clouds[spec.name] = (pts, cols, frames)
+        clouds[spec.name] = RestingCloud(pts, cols, frames, masks, ground)
+    return clouds
+
+
+def _ground_height(ctx: StageContext, name: str, rests: list, masks: list, depth_of, cameras, typical: float, *, count: int = 8) -> float:
+    """The height of the surface around the object: the median z of a ring of pixels 3-12 px
+    outside its mask (other objects and the interactor left out) in up to ``count`` resting frames.
+    The world's z = 0 is one plane fitted for the whole scene; under a given object the table may
+    sit a few mm (or, with MegaSaM depth, centimeters) off it."""
+    zs = []
+    for t, ratio in [rests[i] for i in np.unique(np.linspace(0, len(rests) - 1, min(count, len(rests))).astype(int))]:
+        mask = masks[t].astype(np.uint8)
+        ring = cv2.dilate(mask, np.ones((25, 25), np.uint8)).astype(bool) & ~cv2.dilate(mask, np.ones((7, 7), np.uint8)).astype(bool)
+        for other in [o.name for o in ctx.case.config.objects if o.name != name] + [INTERACTOR]:
+            f = ctx.out_dir / "masks" / other / f"{t:06d}.png"
+            if f.is_file():
+                ring &= ~cv2.dilate(read_mask(f).astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+        pts, _ = masked_points(depth_of(t) * np.float32(typical / ratio), ring, np.zeros((*mask.shape, 3), np.uint8), cameras.K[t], cameras.world_from_cv[t], erode_px=0)
+        zs.append(pts[:, 2])
+    z = np.concatenate(zs) if zs else np.zeros(0)
+    return float(np.median(z)) if len(z) >= 50 else 0.0
+
+
+def decimate(mesh, max_triangles: int, *, check: bool = True):
+    """Quadric decimation of a trimesh to at most ``max_triangles``; with ``check``, the input is
+    kept when the decimated mesh would not be a closed, self-intersection-free 2-manifold."""
+    import trimesh
+
+    if len(mesh.faces) <= max_triangles:
+        return mesh
+    for target in (max_triangles, int(0.75 * max_triangles), int(0.5 * max_triangles)):
+        simple = mesh.simplify_quadric_decimation(face_count=target)
+        # the decimator may leave collapsed (two-vertex) triangles: drop them
+        simple = trimesh.Trimesh(simple.vertices, simple.faces[simple.nondegenerate_faces()], process=True)
+        if not check or not (collider_problems(simple.vertices, simple.faces) or self_intersects(simple.vertices, simple.faces)):
+            return simple
+    return mesh
+
+
+def run(ctx: StageContext) -> None:
+    case = ctx.case
+    cfg = ctx.config
+    n = ctx.time_info.n_frames
+    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    depth_of = metric_depth_reader(ctx.stage, case, cache=8)
+    models, facts = [], {}
+    clouds = resting_clouds(ctx, cameras, depth_of)
     for spec in case.config.objects:
-        pts, cols, frames = clouds[spec.name]
-        support = support_height(pts, [c[0] for name, c in clouds.items() if name != spec.name])
+        pts, cols, frames = clouds[spec.name].points, clouds[spec.name].colors, clouds[spec.name].frames
+        support = support_height(pts, [c.points for name, c in clouds.items() if name != spec.name], ground=clouds[spec.name].ground)
         above = pts[:, 2] > support + cfg.support_gap_m
         pts, cols = pts[above], cols[above]
         lift = np.array([0.0, 0.0, support])
@@ -309,13 +377,13 @@ def run(ctx: StageContext) -> None:
     ctx.record(objects=facts)
 
 
-def support_height(points: np.ndarray, others: list[np.ndarray], *, margin_m: float = 0.01) -> float:
+def support_height(points: np.ndarray, others: list[np.ndarray], *, ground: float = 0.0, margin_m: float = 0.01) -> float:
     """What the object stands on: the top of another object under its footprint (a stack), else
-    the support plane (0). Another object's points count when they lie under the object's
-    footprint (grown by ``margin_m``) and no higher than its lowest seen point plus ``margin_m``."""
+    the surface around it (``ground``). Another object's points count when they lie under the
+    object's footprint (grown by ``margin_m``) and no higher than its lowest seen point plus ``margin_m``."""
     lowest = float(points[:, 2].min())
     lo, hi = points[:, :2].min(axis=0) - margin_m, points[:, :2].max(axis=0) + margin_m
-    best = 0.0
+    best = ground
     for other in others:
         under = other[np.all((other[:, :2] >= lo) & (other[:, :2] <= hi), axis=1) & (other[:, 2] <= lowest + margin_m)]
         if len(under) >= 30:
@@ -323,10 +391,12 @@ def support_height(points: np.ndarray, others: list[np.ndarray], *, margin_m: fl
     return min(best, lowest)
 
 
-def _clean(points: np.ndarray, colors: np.ndarray, voxel_m: float, support_gap_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _clean(points: np.ndarray, colors: np.ndarray, voxel_m: float, above_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points higher than ``above_m`` (the table is left out), voxel-downsampled, outliers and
+    stray clusters dropped."""
     import open3d as o3d
 
-    keep = points[:, 2] > support_gap_m
+    keep = points[:, 2] > above_m
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[keep]))
     cloud.colors = o3d.utility.Vector3dVector(colors[keep].astype(float) / 255.0)
     cloud = cloud.voxel_down_sample(voxel_m)

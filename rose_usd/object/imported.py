@@ -1,0 +1,470 @@
+"""The ``imported`` object backend: an object mesh made by another tool (TRELLIS's normalized
+GLB, a scan or CAD model as GLB/OBJ/PLY/STL), brought to metric scale and posed at frame 0.
+
+1. **Find** the mesh: ``mesh = "..."`` in the object's ``[[objects]]`` entry of rose.toml, else
+   ``perception/<Name>.glb`` (or .obj/.ply/.stl), else, for a case with one object, the only
+   mesh in ``perception/`` or in ``mesh/`` (FoundationPose's demo layout).
+2. **Read and repair**: texture colors sampled at the vertices, vertices merged across UV seams,
+   loose floaters (under 2 % of the surface) dropped, holes filled; a mesh that is still not a
+   closed, self-intersection-free 2-manifold is rebuilt from its signed distance (Open3D ray
+   parity, marching cubes). Each repair is a warning.
+3. **Scale** by the paper's Eq. 1-3: rho_0 = d_image / d_mesh, the diameters of the object's
+   resting points (masked metric depth, see object.fusion) and of the mesh; then a discrete
+   search over rho in [rho_0 / alpha, rho_0 * alpha] (log-spaced, then refined around the best)
+   for the highest silhouette IoU between the mesh rendered at its fitted pose and the masks of
+   the resting frames (pixels of the interactor and of other objects left out). Masks a pixel
+   off leave a flat top: among scales within 0.01 IoU of the best, the one whose surface meets
+   the depth points best (ICP RMS) is taken. A mesh that is
+   already metric (not TRELLIS's unit cube) keeps its scale, or its unit's (mm, cm, inch) when
+   rho_0 says so; anything else is searched with a warning.
+4. **Pose** at each rho: the mesh's up axis (+Y for glTF, +Z otherwise, or ``mesh_up``) is the
+   world's, it stands on its support (the surface around it, or the object under it), and yaw and horizontal
+   position are fitted to the resting points by ICP (12 starting yaws, plus FoundationPose's
+   pose of that frame when ``perception/ob_in_cam`` has one).
+
+The object's frame is the mesh's own, scaled to meters, so FoundationPose poses (made for the
+same mesh) compose with the cameras unchanged. Priors, mass and collider as object.fusion."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull, cKDTree
+
+from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.core import se3
+from rose_usd.core.color import srgb8_to_linear
+from rose_usd.core.pinhole import silhouette
+from rose_usd.core.watertight import collider_problems
+from rose_usd.errors import InputError, MeshError
+from rose_usd.io import foundationpose, trellis
+from rose_usd.io.images import read_mask
+from rose_usd.io.meshfile import read_mesh_file
+from rose_usd.object.author import ObjectModel, author_objects
+from rose_usd.object.fusion import decimate, physics_for, resting_clouds, support_height
+from rose_usd.progress import say
+from rose_usd.scene.tsdf import self_intersects, transfer_colors
+from rose_usd.segment.tracks import INTERACTOR
+from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths
+from rose_usd.usd.camera import read_camera
+from rose_usd.usd.geom import MeshData
+
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
+UNITS = {"millimeters": 1e-3, "centimeters": 1e-2, "inches": 0.0254}
+"""Units a metric-looking mesh may be in by mistake, and meters per unit."""
+
+
+def find_mesh(case_root: Path, name: str, override: str | None, n_objects: int) -> Path:
+    """The mesh file of object ``name`` (see the module's step 1); InputError naming where to put one."""
+    if override is not None:
+        path = (case_root / override).resolve()
+        if not path.is_file():
+            raise InputError(f"object {name!r}: the mesh named in rose.toml does not exist", path=path, hint="fix mesh = ... (relative to the case folder)")
+        return path
+    perception = case_root / "perception"
+    for suffix in MESH_SUFFIXES:
+        if (perception / f"{name}{suffix}").is_file():
+            return perception / f"{name}{suffix}"
+    if n_objects == 1:
+        for folder in (perception, case_root / "mesh"):
+            found = sorted(p for p in folder.glob("*") if p.suffix.lower() in MESH_SUFFIXES) if folder.is_dir() else []
+            if len(found) == 1:
+                return found[0]
+    raise InputError(
+        f"no mesh of object {name!r}",
+        path=perception / f"{name}.glb",
+        hint='put it there, set mesh = "..." in its [[objects]] entry of rose.toml, or use --backend object=fusion',
+    )
+
+
+@dataclass
+class ImportedMesh:
+    vertices: np.ndarray
+    """In the file's own frame and units."""
+    faces: np.ndarray
+    colors: np.ndarray | None
+    """Linear RGB per vertex, or None."""
+    normalized: bool
+    """Inside TRELLIS's unit cube with its longest side 1: no metric scale at all."""
+    up: np.ndarray
+    """The mesh's up axis in its own frame (unit 3-vector)."""
+    repairs: list[str]
+
+
+def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
+    """sRGB8 per vertex: the texture at each vertex's UV, or the vertex colors; None if neither."""
+    visual = mesh.visual
+    try:
+        if visual.kind == "texture" and getattr(visual, "uv", None) is not None:
+            return np.asarray(visual.to_color().vertex_colors)[:, :3]
+        if visual.kind == "vertex":
+            return np.asarray(visual.vertex_colors)[:, :3]
+    except Exception:  # a material trimesh cannot sample: no colors rather than no mesh  # noqa: BLE001
+        return None
+    return None
+
+
+def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
+    """Read and repair one mesh file (the module's step 2). MeshError when nothing usable is left."""
+    raw = read_mesh_file(path)
+    colors8 = _vertex_colors(raw)
+    mesh = trimesh.Trimesh(raw.vertices, raw.faces, vertex_colors=colors8, process=False)
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise MeshError("the mesh has NaN or infinite vertices", path=path, hint="export it again")
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)  # UV seams split vertices: rejoin them
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.update_faces(mesh.unique_faces())
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.faces) < 4:
+        raise MeshError(f"the mesh has only {len(mesh.faces)} usable triangles", path=path, hint="export the object's surface")
+    repairs = []
+    parts = mesh.split(only_watertight=False)
+    if len(parts) > 1:
+        areas = np.array([p.area for p in parts])
+        keep = areas >= 0.02 * areas.sum()
+        if not keep.all():
+            repairs.append(f"dropped {int((~keep).sum())} loose part(s) holding {100 * areas[~keep].sum() / areas.sum():.1f} % of the surface")
+        if keep.sum() > 1:
+            repairs.append(f"{int(keep.sum())} separate parts kept as one rigid body")
+        mesh = trimesh.util.concatenate([p for p, k in zip(parts, keep) if k])
+    if not mesh.is_watertight:
+        holes = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
+        mesh = _fill_holes(mesh)
+        repairs.append(f"filled holes ({holes} open edges)")
+    if not mesh.is_winding_consistent or mesh.volume < 0:
+        trimesh.repair.fix_normals(mesh)
+    if collider_problems(mesh.vertices, mesh.faces) or self_intersects(mesh.vertices, mesh.faces):
+        problems = collider_problems(mesh.vertices, mesh.faces) or ["self-intersecting"]
+        mesh = _remesh(mesh)
+        repairs.append(f"the mesh is {', '.join(problems)}: rebuilt from its signed distance at 1/96 of its size")
+    colors = None
+    if colors8 is not None and mesh.visual.kind == "vertex":
+        colors = srgb8_to_linear(np.asarray(mesh.visual.vertex_colors)[:, :3])
+    elif colors8 is not None:  # rebuilt: carry the colors over from the file's vertices
+        colors = transfer_colors(mesh.vertices, raw.vertices, srgb8_to_linear(colors8))
+    extent = mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)
+    normalized = bool(np.abs(raw.vertices).max() <= 0.5 + 1e-3 and extent.max() > 0.9)
+    if up is None:
+        up = "y" if path.suffix.lower() in (".glb", ".gltf") else "z"  # glTF is Y-up by its spec
+    if up not in ("y", "z"):
+        raise MeshError(f"mesh_up = {up!r}", path=path, hint='write mesh_up = "y" or "z" in its [[objects]] entry')
+    axis = np.array([0.0, 1.0, 0.0]) if up == "y" else np.array([0.0, 0.0, 1.0])
+    return ImportedMesh(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64), colors, normalized, axis, repairs)
+
+
+def _fill_holes(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Each hole (a loop of edges used by one triangle) closed by a fan around its centroid,
+    wound like its neighbors. Holes whose border touches itself are left to the caller's checks."""
+    directed = mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    border = directed[counts[inverse.ravel()] == 1]
+    nxt = dict(zip(border[:, 0].tolist(), border[:, 1].tolist()))
+    if len(nxt) != len(border):
+        return mesh  # a vertex starts two border edges: not simple loops
+    vertices, faces, seen = [np.asarray(mesh.vertices)], [np.asarray(mesh.faces)], set()
+    count = len(mesh.vertices)
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen and v in nxt:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        if v != start or len(loop) < 3:
+            return mesh
+        vertices.append(mesh.vertices[loop].mean(axis=0, keepdims=True))
+        a = np.array(loop)
+        faces.append(np.column_stack([np.roll(a, -1), a, np.full(len(a), count)]))  # border edge reversed
+        count += 1
+    return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
+
+
+def _remesh(mesh: trimesh.Trimesh, resolution: int = 96) -> trimesh.Trimesh:
+    """A closed, self-intersection-free 2-manifold of the input's solid: its signed distance on a
+    grid of ``resolution`` cells along its longest side (inside by the majority of 3 ray parities,
+    Open3D, so small holes and self-intersections do not leak), marched at zero."""
+    import open3d as o3d
+    from skimage.measure import marching_cubes
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+    step = float((mesh.bounds[1] - mesh.bounds[0]).max()) / resolution
+    # off the grid by an odd fraction: flat faces exactly on grid nodes give zero distances there,
+    # and marching cubes then leaves non-manifold edges
+    lo = mesh.bounds[0] - (2 - 0.3819) * step
+    shape = tuple(np.ceil((mesh.bounds[1] + 2 * step - lo) / step).astype(int) + 1)
+    grid = np.stack(np.meshgrid(*[lo[a] + np.arange(shape[a]) * step for a in range(3)], indexing="ij"), axis=-1)
+    sdf = scene.compute_signed_distance(o3d.core.Tensor(grid.reshape(-1, 3).astype(np.float32)), nsamples=3).numpy().reshape(shape)
+    verts, faces, _, _ = marching_cubes(sdf, 0.0, spacing=(step,) * 3)
+    out = trimesh.Trimesh(verts + lo, faces[:, ::-1], process=True)
+    if out.volume < 0:
+        out.invert()
+    return out
+
+
+# ---------------------------------------------------------------- scale and pose
+
+
+def world_from_up(up: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3) that turns the mesh's up axis into +Z (Y-up: -90 degrees about X)."""
+    if np.allclose(up, [0, 0, 1]):
+        return np.eye(3)
+    if np.allclose(up, [0, 1, 0]):
+        return trellis.Y_UP_FROM_Z_UP.T
+    raise ValueError(f"unsupported up axis {up}")
+
+
+def diameter(points: np.ndarray) -> float:
+    """The largest distance between two of the points (over their convex hull's vertices)."""
+    hull = points[ConvexHull(points).vertices]
+    if len(hull) > 2000:
+        hull = hull[np.linspace(0, len(hull) - 1, 2000).astype(int)]
+    d2 = ((hull[:, None, :] - hull[None, :, :]) ** 2).sum(axis=-1)
+    return float(np.sqrt(d2.max()))
+
+
+def _rot_z(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class Fit:
+    rho: float
+    yaw: float
+    translation: np.ndarray
+    rms_m: float
+    iou: float = float("nan")
+
+    def world_from_up_frame(self) -> np.ndarray:
+        return se3.make_pose(_rot_z(self.yaw), self.translation)
+
+
+def fit_yaw_xy(model: np.ndarray, tree: cKDTree, observed: np.ndarray, rho: float, support_z: float, yaw: float, xy: np.ndarray, *, iters: int = 25) -> Fit:
+    """ICP over yaw and horizontal position of the up-aligned model points (unit scale, scaled
+    by ``rho``) standing on z = ``support_z``, against the observed world points. Each observed
+    point pairs with its nearest model point (observed points see one side; the model is whole);
+    the worst 10 % of pairs are left out."""
+    tz = support_z - rho * float(model[:, 2].min())
+    xy = np.asarray(xy, float).copy()
+    rms = float("inf")
+    for _ in range(iters):
+        local = (observed - np.array([*xy, tz])) @ _rot_z(yaw)  # into the model frame (rotated)
+        d, idx = tree.query(local / rho)
+        d = d * rho
+        keep = d <= np.percentile(d, 90)
+        a = (rho * model[idx[keep]]) @ _rot_z(yaw).T  # paired model points, world-rotated
+        b = observed[keep] - np.array([*xy, tz])
+        ca, cb = a[:, :2].mean(axis=0), b[:, :2].mean(axis=0)
+        a2, b2 = a[:, :2] - ca, b[:, :2] - cb
+        dyaw = float(np.arctan2(np.sum(a2[:, 0] * b2[:, 1] - a2[:, 1] * b2[:, 0]), np.sum(a2 * b2)))
+        r2 = _rot_z(dyaw)[:2, :2]
+        xy = xy + cb - r2 @ ca
+        yaw += dyaw
+        rms = float(np.sqrt(np.mean(d[keep] ** 2)))
+        if abs(dyaw) < 1e-4 and np.linalg.norm(cb - r2 @ ca) < 1e-5:
+            break
+    return Fit(rho, float(np.arctan2(np.sin(yaw), np.cos(yaw))), np.array([*xy, tz]), rms)
+
+
+@dataclass
+class View:
+    """One resting frame for the silhouette loss: the object's mask, the pixels to leave out (the
+    interactor and other objects, which may hide the object), and the camera."""
+
+    mask: np.ndarray
+    ignore: np.ndarray
+    K: np.ndarray
+    world_from_cv: np.ndarray
+
+
+def silhouette_iou(vertices_world: np.ndarray, faces: np.ndarray, views: list[View]) -> float:
+    """IoU of the rendered silhouettes and the masks, summed over the views, outside ``ignore``."""
+    inter = union = 0
+    for view in views:
+        h, w = view.mask.shape
+        rendered = silhouette(vertices_world, faces, view.world_from_cv, view.K, w, h) & ~view.ignore
+        mask = view.mask & ~view.ignore
+        inter += int(np.count_nonzero(rendered & mask))
+        union += int(np.count_nonzero(rendered | mask))
+    return inter / max(union, 1)
+
+
+def fit_scale_and_pose(
+    vertices_up: np.ndarray,
+    faces: np.ndarray,
+    observed: np.ndarray,
+    support_z: float,
+    views: list[View],
+    *,
+    rho0: float,
+    alpha: float,
+    steps: int,
+    search: bool,
+    plateau: float = 0.01,
+    extra_starts: tuple = (),
+) -> tuple[Fit, list[Fit]]:
+    """The paper's discrete scale search (module step 3): the best fit and every fit tried.
+    ``vertices_up`` are the mesh's vertices, up-aligned, in file units; ``extra_starts`` are
+    (yaw, xy) poses to start ICP from besides the yaw grid."""
+    rng = np.random.default_rng(0)
+    model = np.asarray(trimesh.Trimesh(vertices_up, faces, process=False).sample(3000, seed=0))
+    tree = cKDTree(model)
+    obs = observed[rng.choice(len(observed), size=min(len(observed), 2000), replace=False)]
+    faces_small = faces
+    if len(faces) > 3000:  # the silhouette needs no detail finer than a pixel
+        small = decimate(trimesh.Trimesh(vertices_up, faces, process=False), 3000, check=False)
+        vertices_small, faces_small = small.vertices, small.faces
+    else:
+        vertices_small = vertices_up
+    center_xy = 0.5 * (model[:, :2].min(axis=0) + model[:, :2].max(axis=0))
+    obs_center = 0.5 * (obs[:, :2].min(axis=0) + obs[:, :2].max(axis=0))
+
+    def starts_at(rho: float) -> list:
+        grid = [(yaw, obs_center - rho * (_rot_z(yaw)[:2, :2] @ center_xy)) for yaw in np.radians(np.arange(0, 360, 30))]
+        return list(extra_starts) + grid
+
+    def evaluate(rho: float, starts) -> Fit:
+        fits = [fit_yaw_xy(model, tree, obs, rho, support_z, yaw, xy) for yaw, xy in starts]
+        best = min(fits, key=lambda f: f.rms_m)
+        world = se3.transform_points(best.world_from_up_frame(), rho * vertices_small)
+        best.iou = silhouette_iou(world, faces_small, views)
+        return best
+
+    first = evaluate(rho0, starts_at(rho0))
+    if not search:
+        return first, [first]
+    tried = [first]
+    grid = rho0 * alpha ** np.linspace(-1.0, 1.0, steps)
+    for rho in grid:
+        tried.append(evaluate(float(rho), [(first.yaw, first.translation[:2])] + starts_at(rho)[: len(extra_starts)]))
+    best = _pick(tried, plateau)
+    step = alpha ** (2.0 / (steps - 1))
+    for rho in best.rho * step ** np.linspace(-1.0, 1.0, 9):
+        tried.append(evaluate(float(rho), [(best.yaw, best.translation[:2])]))
+    return _pick(tried, plateau), tried
+
+
+def _pick(fits: list[Fit], plateau: float) -> Fit:
+    """The fit of highest silhouette IoU; among those within ``plateau`` of it (masks a pixel off
+    make a flat top), the one whose surface best meets the depth points."""
+    top = max(f.iou for f in fits)
+    return min((f for f in fits if f.iou >= top - plateau), key=lambda f: f.rms_m)
+
+
+def choose_unit(rho0: float, tolerance: float = 0.25) -> tuple[float | None, str | None]:
+    """For a mesh that claims to be metric: (meters per file unit, that unit's name) when rho_0
+    is 1 or a known unit's within ``tolerance`` (ratio), else (None, None): the scale is unknown."""
+    for name, scale in {"meters": 1.0, **UNITS}.items():
+        if abs(np.log(rho0 / scale)) <= np.log(1.0 + tolerance):
+            return scale, name
+    return None, None
+
+
+# ---------------------------------------------------------------- the backend
+
+
+def _views(ctx: StageContext, name: str, frames: list[int], masks: list, cameras, count: int = 6) -> list[View]:
+    """Up to ``count`` resting frames spread over the rest, with what to leave out of each."""
+    import cv2
+
+    picked = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
+    views = []
+    for t in picked:
+        ignore = np.zeros_like(masks[t])
+        for other in ctx.case.config.objects:
+            f = ctx.out_dir / "masks" / other.name / f"{t:06d}.png"
+            if other.name != name and f.is_file():
+                ignore |= read_mask(f)
+        hand = ctx.out_dir / "masks" / INTERACTOR / f"{t:06d}.png"
+        if hand.is_file():
+            ignore |= read_mask(hand)
+        ignore = cv2.dilate(ignore.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        views.append(View(masks[t], ignore, cameras.K[t], cameras.world_from_cv[t]))
+    return views
+
+
+def _foundationpose_start(ctx: StageContext, name: str, t: int, cameras, up_rot: np.ndarray):
+    """(yaw, xy) of FoundationPose's pose of frame t as an ICP start, or None without one."""
+    root = ctx.case.root / "perception" / "ob_in_cam"
+    for folder in (root / name, root):
+        path = folder / f"{ctx.case.frame_name(t)}.txt"
+        if path.is_file():
+            world_from_mesh = cameras.world_from_cv[t] @ foundationpose.read_pose(path)
+            rot = world_from_mesh[:3, :3] @ up_rot.T  # world from the up-aligned frame
+            yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+            return yaw, world_from_mesh[:2, 3]
+    return None
+
+
+def run(ctx: StageContext) -> None:
+    case, cfg, n = ctx.case, ctx.config, ctx.time_info.n_frames
+    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    depth_of = metric_depth_reader(ctx.stage, case, cache=8)
+    specs = case.config.objects
+    meshes = {}
+    for spec in specs:  # every file read and repaired before any depth work: bad files fail fast
+        path = find_mesh(case.root, spec.name, spec.overrides.get("mesh"), len(specs))
+        meshes[spec.name] = (path, read_imported(path, spec.overrides.get("mesh_up")))
+        for repair in meshes[spec.name][1].repairs:
+            ctx.warn(f"object {spec.name!r} ({path.name}): {repair}")
+    clouds = resting_clouds(ctx, cameras, depth_of)
+    models, facts = [], {}
+    for spec in specs:
+        path, imp = meshes[spec.name]
+        cloud = clouds[spec.name]
+        support = support_height(cloud.points, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground)
+        observed = cloud.points[cloud.points[:, 2] > support + cfg.support_gap_m]
+        up_rot = world_from_up(imp.up)
+        vertices_up = imp.vertices @ up_rot.T
+        d_image, d_mesh = diameter(observed), diameter(imp.vertices)
+        rho0 = d_image / d_mesh
+        search, how = True, "searched (normalized mesh)"
+        if not imp.normalized:
+            unit_scale, unit = choose_unit(rho0)
+            if unit_scale is None:
+                ctx.warn(f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh")
+                how = "searched (unknown units)"
+            else:
+                if unit != "meters":
+                    ctx.warn(f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} ({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}")
+                rho0, search, how = unit_scale, False, f"file units ({unit})"
+        views = _views(ctx, spec.name, cloud.frames, cloud.masks, cameras)
+        fp = _foundationpose_start(ctx, spec.name, cloud.frames[0], cameras, up_rot)
+        say(f"object {spec.name}: fitting scale and pose to {len(observed)} points and {len(views)} silhouettes")
+        best, tried = fit_scale_and_pose(vertices_up, imp.faces, observed, support, views, rho0=rho0, alpha=cfg.scale_search_alpha, steps=cfg.scale_search_steps, search=search, extra_starts=() if fp is None else (fp,))
+        if best.iou < 0.5:
+            ctx.warn(f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); check that {path.name} is this object")
+        local = best.rho * imp.vertices
+        tm = trimesh.Trimesh(local, imp.faces, vertex_colors=None, process=False)
+        if len(tm.faces) > cfg.max_triangles:
+            tm = decimate(tm, cfg.max_triangles)
+        vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
+        colors = transfer_colors(vertices, local, imp.colors) if imp.colors is not None else None
+        mesh = MeshData(vertices=vertices, faces=faces, vertex_colors=colors, color=None if colors is not None else (0.5, 0.5, 0.5))
+        physics, mass = physics_for(spec, vertices, faces, ctx)
+        pose = best.world_from_up_frame() @ se3.make_pose(up_rot, np.zeros(3))
+        models.append(ObjectModel(spec.name, mesh, pose, mass, physics))
+        facts[spec.name] = {
+            "mesh_file": str(path),
+            "scale": how,
+            "rho0": round(float(rho0 if search else d_image / d_mesh), 6),
+            "rho": round(float(best.rho), 6),
+            "silhouette_iou": round(float(best.iou), 4),
+            "icp_rms_m": round(float(best.rms_m), 5),
+            "search": [[round(f.rho, 6), round(f.iou, 4), round(1e3 * f.rms_m, 2)] for f in sorted(tried, key=lambda f: f.rho)],
+            "rest_frames": [cloud.frames[0], cloud.frames[-1]],
+            "support_height_m": round(float(support), 4),
+            "foundationpose_start": fp is not None,
+            "repairs": imp.repairs,
+            "triangles": int(len(faces)),
+        }
+    for name, authored in author_objects(ctx, models, cfg.convex_tolerance).items():  # everything built and checked: now author
+        facts[name] |= authored
+    ctx.record(objects=facts)

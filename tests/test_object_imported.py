@@ -1,0 +1,202 @@
+"""The imported object backend: TRELLIS-format GLBs and metric meshes read, repaired, brought to
+metric scale by the paper's silhouette search and posed on their support; clear messages on bad
+meshes; CoACD coverage of the collider."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import trimesh
+
+from rose_usd.bench.evaluate import evaluate
+from rose_usd.case.gt import GroundTruth
+from rose_usd.core import se3
+from rose_usd.core.pinhole import silhouette
+from rose_usd.core.watertight import collider_problems
+from rose_usd.errors import InputError, MeshError
+from rose_usd.io import trellis
+from rose_usd.object.author import decomposition_coverage
+from rose_usd.object.imported import View, choose_unit, find_mesh, fit_scale_and_pose, read_imported, world_from_up
+from rose_usd.pipeline import Options, Pipeline
+from rose_usd.synth.perception import PerceptionErrors, simulate_trellis
+from rose_usd.usd.geom import MeshData
+from rose_usd.usd.stage import layer_file, read_provenance
+from rose_usd.usd.validate import validate
+
+K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+
+
+def _look_at(eye, target=(0.0, 0.0, 0.05)) -> np.ndarray:
+    """world_from_cv of an OpenCV camera at ``eye`` looking at ``target`` (world +Z up)."""
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    return se3.make_pose(np.column_stack([x, np.cross(z, x), z]), eye)
+
+
+def test_silhouette_of_a_square_facing_the_camera_has_its_projected_area():
+    """A 0.2 m square 1 m in front of f = 500 px covers 100 x 100 pixels."""
+    v = np.array([[-0.1, -0.1, 1.0], [0.1, -0.1, 1.0], [0.1, 0.1, 1.0], [-0.1, 0.1, 1.0]])
+    sil = silhouette(v, np.array([[0, 1, 2], [0, 2, 3]]), np.eye(4), K, 640, 480)
+    assert sil.sum() == pytest.approx(100 * 100, rel=0.03)
+    assert sil[240, 320] and not sil[240, 200]
+
+
+def test_scale_and_pose_search_recovers_a_known_box():
+    """A TRELLIS-like unit box (Y-up, longest side 1) seen as a 12 cm box, yawed 40 degrees, from
+    three cameras: starting 25 % off, the search finds the scale within 2 % and the pose."""
+    unit = trimesh.creation.box(extents=(1.0, 0.5, 0.7))  # Y (0.5) is up
+    up_rot = world_from_up(np.array([0.0, 1.0, 0.0]))
+    vertices_up = unit.vertices @ up_rot.T
+    rho, yaw, xy = 0.12, np.radians(40.0), np.array([0.03, -0.02])
+    truth = se3.make_pose(se3.rotation_about([0, 0, 1], yaw), np.array([*xy, 0.25 * rho]))  # bottom on z = 0
+    world = se3.transform_points(truth, rho * vertices_up)
+    cams = [_look_at(e) for e in ((0.5, -0.3, 0.35), (-0.2, -0.55, 0.3), (0.45, 0.3, 0.4))]
+    views = [View(silhouette(world, unit.faces, c, K, 640, 480), np.zeros((480, 640), bool), K, c) for c in cams]
+    # observed points: surface samples facing some camera, above the support
+    pts, face = trimesh.sample.sample_surface(trimesh.Trimesh(world, unit.faces), 4000, seed=1)
+    normals = trimesh.Trimesh(world, unit.faces).face_normals[face]
+    seen = np.zeros(len(pts), bool)
+    for c in cams:
+        seen |= np.einsum("ij,ij->i", normals, c[:3, 3] - pts) > 0
+    observed = pts[seen & (pts[:, 2] > 0.003)]
+    best, tried = fit_scale_and_pose(vertices_up, unit.faces, observed, 0.0, views, rho0=0.75 * rho, alpha=1.5, steps=15, search=True)
+    assert best.rho == pytest.approx(rho, rel=0.02)
+    assert best.iou > 0.95
+    dyaw = (best.yaw - yaw + np.pi / 2) % np.pi - np.pi / 2  # a box is the same turned 180 degrees
+    assert abs(np.degrees(dyaw)) < 2.0
+    assert np.linalg.norm(best.translation[:2] - xy) < 0.003
+    assert len(tried) > 15
+
+
+def test_choose_unit_recognizes_millimeters_and_refuses_a_guess():
+    assert choose_unit(1.02) == (1.0, "meters")
+    assert choose_unit(0.00108) == (1e-3, "millimeters")
+    assert choose_unit(0.0262) == (0.0254, "inches")
+    assert choose_unit(0.3) == (None, None)
+
+
+def _textured_box_glb(path, extents=(1.0, 0.6, 0.8), color=(200, 40, 30)):
+    import xatlas
+
+    box = trimesh.creation.box(extents=extents)
+    box = box.subdivide().subdivide()
+    box.vertices /= np.max(extents)
+    vmap, idx, uv = xatlas.parametrize(box.vertices.astype(np.float32), box.faces.astype(np.uint32))
+    trellis.write_trellis_glb(path, box.vertices[vmap], idx, uv, np.tile(np.array(color, np.uint8), (16, 16, 1)))
+
+
+def test_trellis_glb_round_trip_merges_seams_and_keeps_the_color(tmp_path):
+    """A TRELLIS-format GLB (unit cube, Y-up, xatlas UVs splitting vertices at seams, a texture):
+    read back closed, normalized, Y-up, with the texture's color at the vertices."""
+    path = tmp_path / "Box.glb"
+    _textured_box_glb(path)
+    imp = read_imported(path)
+    assert imp.normalized and np.allclose(imp.up, [0, 1, 0])
+    assert imp.repairs == []
+    assert collider_problems(imp.vertices, imp.faces) == []
+    assert trimesh.Trimesh(imp.vertices, imp.faces).volume == pytest.approx(0.6 * 0.8, rel=1e-6)
+    linear = imp.colors.mean(axis=0)
+    from rose_usd.core.color import srgb8_to_linear
+
+    assert np.allclose(linear, srgb8_to_linear(np.array([200, 40, 30], np.uint8)), atol=0.01)
+
+
+def test_a_mesh_with_holes_is_closed_with_a_warning(tmp_path):
+    box = trimesh.creation.box(extents=(0.1, 0.06, 0.04)).subdivide()
+    holed = trimesh.Trimesh(box.vertices, box.faces[3:], process=False)  # three triangles gone
+    path = tmp_path / "holed.ply"
+    holed.export(path)
+    imp = read_imported(path)
+    assert any("holes" in r for r in imp.repairs)
+    assert collider_problems(imp.vertices, imp.faces) == []
+    assert not imp.normalized and np.allclose(imp.up, [0, 0, 1])  # PLY: Z-up, metric
+    assert trimesh.Trimesh(imp.vertices, imp.faces).volume == pytest.approx(0.1 * 0.06 * 0.04, rel=0.02)
+
+
+def test_floaters_are_dropped_and_big_parts_kept(tmp_path):
+    body = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    lid = trimesh.creation.box(extents=(0.1, 0.1, 0.02))
+    lid.apply_translation([0, 0, 0.08])
+    speck = trimesh.creation.icosphere(radius=0.003)
+    speck.apply_translation([0.2, 0, 0])
+    path = tmp_path / "parts.obj"
+    trimesh.util.concatenate([body, lid, speck]).export(path)
+    imp = read_imported(path)
+    assert any("dropped 1 loose part" in r for r in imp.repairs)
+    assert any("2 separate parts kept" in r for r in imp.repairs)
+    assert imp.vertices[:, 0].max() < 0.06  # the speck is gone
+    assert collider_problems(imp.vertices, imp.faces) == []
+
+
+def test_unreadable_and_empty_meshes_are_clear_errors(tmp_path):
+    bad = tmp_path / "broken.glb"
+    bad.write_bytes(b"glTF not really")
+    with pytest.raises(MeshError, match="broken.glb"):
+        read_imported(bad)
+    nan = tmp_path / "nan.ply"
+    trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [0, np.nan, 0], [0, 0, 1]]), [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], process=False).export(nan)
+    with pytest.raises(MeshError):
+        read_imported(nan)
+
+
+def test_find_mesh_looks_where_the_tools_write(tmp_path):
+    (tmp_path / "perception").mkdir()
+    with pytest.raises(InputError, match="no mesh of object 'Mug'"):
+        find_mesh(tmp_path, "Mug", None, 1)
+    (tmp_path / "mesh").mkdir()
+    (tmp_path / "mesh" / "textured.obj").write_text("v 0 0 0\n")  # FoundationPose's demo layout
+    assert find_mesh(tmp_path, "Mug", None, 1).name == "textured.obj"
+    with pytest.raises(InputError):
+        find_mesh(tmp_path, "Mug", None, 2)  # several objects: no guessing
+    (tmp_path / "perception" / "Mug.glb").write_bytes(b"")
+    assert find_mesh(tmp_path, "Mug", None, 2).name == "Mug.glb"
+    with pytest.raises(InputError, match="rose.toml"):
+        find_mesh(tmp_path, "Mug", "scans/mug.ply", 1)
+
+
+def test_convex_decomposition_covers_a_non_convex_object():
+    """An L-shaped solid: CoACD (Newton's settings) splits it and its parts cover it."""
+    a = trimesh.creation.box(extents=(0.1, 0.03, 0.03))
+    b = trimesh.creation.box(extents=(0.03, 0.03, 0.1))
+    b.apply_translation([0.035, 0, 0.035])
+    from rose_usd.core.watertight import manifold_of
+
+    solid = manifold_of(a.vertices, a.faces) + manifold_of(b.vertices, b.faces)
+    m = solid.to_mesh()
+    cover = decomposition_coverage(MeshData(np.asarray(m.vert_properties)[:, :3], np.asarray(m.tri_verts)))
+    assert cover["collision_parts"] >= 2
+    assert cover["collision_coverage"] > 0.99
+    assert 1.0 <= cover["collision_volume_ratio"] < 1.2
+
+
+@pytest.fixture(scope="module")
+def imported_out(tmp_path_factory, sample_case):
+    """The sample with a TRELLIS GLB of its box (the benchmark's simulated TRELLIS: unit cube, Y-up,
+    random yaw, ~0.4 % shape noise), reconstructed with the imported backend."""
+    case = tmp_path_factory.mktemp("imported") / "case"
+    shutil.copytree(sample_case, case)
+    gt = GroundTruth(case / "gt")
+    _, info = simulate_trellis(case, gt, "Box", np.random.default_rng(3), PerceptionErrors())
+    out = case.parent / "out"
+    Pipeline(case, out, Options(backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf", "object": "imported"})).run("object")
+    return case, out, info
+
+
+def test_imported_trellis_box_gets_its_scale_and_pose(imported_out):
+    """On the 320x240 sample: scale within 3 % of the simulated TRELLIS scale (-2.1 % measured),
+    Chamfer to the true box under 4.5 mm (3.6 mm measured; the 640x480 benchmark target is 3 mm),
+    the stage valid and loading in Newton."""
+    case, out, info = imported_out
+    facts = read_provenance(layer_file(out, "object"))["results"]["objects"]["Box"]
+    assert facts["rho"] == pytest.approx(info["scale_m_per_unit"], rel=0.03)
+    assert facts["silhouette_iou"] > 0.85  # 0.87 measured: classical masks at 320x240 are a pixel or two off
+    score = evaluate(case, out)
+    assert score.objects[0].chamfer_m < 0.0045
+    assert abs(score.objects[0].size_error) < 0.03
+    report = validate(out / "rose.usda")
+    assert report.errors == []
+    assert report.newton["bodies"] == 1
