@@ -44,6 +44,9 @@ class ObjectScore:
     size_error: float | None = None
     """Signed relative size error at frame 0: RMS distance of surface samples to their centroid,
     reconstructed over true, minus 1 (the object's scale error)."""
+    rest_drift_m: float | None = None
+    """Largest displacement of its bounding box's corners in 1 s of Newton from the frame-0 stage
+    without the trajectory (None: no object stage, or no scene to rest on)."""
     mask_iou: float | None = None
     """Mean mask IoU over the frames where the object is more than half visible (None: no segment stage)."""
 
@@ -95,6 +98,24 @@ def _meshes(stage: Usd.Stage, root, time: Usd.TimeCode = Usd.TimeCode.Default())
     if not verts:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     return np.concatenate(verts), np.concatenate(faces)
+
+
+def _rest_drifts(out_dir, scores: list[ObjectScore]) -> None:
+    """Each object's rest drift in Newton (1 s from frame 0) on a stage of the world, scene and
+    object layers only (a trajectory layer's time samples are not what rests)."""
+    from rose_usd.sim.rest import simulate_rest
+    from rose_usd.usd.stage import layer_file
+
+    if not scores or not all(layer_file(Path(out_dir), name).is_file() for name in ("object", "scene")):
+        return
+    stage = open_stage(Path(out_dir) / "rose.usda")
+    for name in ("trajectory", "gate"):
+        layer = layer_file(Path(out_dir), name)
+        if layer.is_file():
+            stage.MuteLayer(str(layer.resolve()))
+    objects = {sc.name: str(paths.object_path(sc.name)) for sc in scores if stage.GetPrimAtPath(paths.object_path(sc.name))}
+    for result in simulate_rest(stage, objects):
+        next(sc for sc in scores if sc.name == result.name).rest_drift_m = result.max_displacement_m
 
 
 def _rms_radius(points: np.ndarray) -> float:
@@ -286,6 +307,8 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
             best = (total, ious)
     for sc, iou in zip(scores, best[1] if best else []):
         sc.mask_iou = iou
+
+    _rest_drifts(out_dir, scores)
 
     gate = stage.GetPrimAtPath(paths.GATE)
     ssim = float(gate.GetAttribute("rose:gate:ssimMean").Get()) if gate else None

@@ -164,17 +164,18 @@ def build_report(results_dir: Path) -> Path:
             "## Objects",
             "",
             "Chamfer at frame 0 (as above); size error: RMS radius of the surface about its centroid, reconstructed over true, minus 1; "
+            "rest drift: largest corner displacement in 1 s of Newton from frame 0 (target < 5 mm); "
             "object (s): the object stage's wall time for the case (all its objects).",
             "",
-            "| Case | object | Chamfer (mm) | size error (%) | mass (kg) | true mass (kg) | object (s) |",
-            "|---|---|---|---|---|---|---|",
+            "| Case | object | Chamfer (mm) | size error (%) | mass (kg) | true mass (kg) | rest drift (mm) | object (s) |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for case, o in object_rows:
             size = o.get("size_error")
             t_obj = (case.get("stages") or {}).get("object", {}).get("wall_time_s")
             lines.append(
                 f"| {case['case']} | {o['name']} | {_fmt(1e3 * o['chamfer_m'])} | {_fmt(None if size is None else 1e2 * size, 2)} | "
-                f"{_fmt(o.get('mass_kg'), 3)} | {_fmt(o.get('true_mass_kg'), 3)} | {_fmt(t_obj, 1)} |"
+                f"{_fmt(o.get('mass_kg'), 3)} | {_fmt(o.get('true_mass_kg'), 3)} | {_fmt(None if o.get('rest_drift_m') is None else 1e3 * o['rest_drift_m'], 1)} | {_fmt(t_obj, 1)} |"
             )
     lines += [
         "",

@@ -267,11 +267,49 @@ def _dilate_ids(ids: np.ndarray, steps: int) -> np.ndarray:
     return ids
 
 
+def fill_support_holes(points: np.ndarray, *, cell_m: float = 0.01, max_area_m2: float = 0.25, flat_m: float = 0.01) -> np.ndarray:
+    """Points that close the holes of the support surface: what an object that never moved hid
+    (the table under it) is never fused, and a wrap spans only gaps narrower than its alpha.
+
+    The points are binned on a horizontal grid; a hole is a connected group of empty cells that
+    points surround on every side (enclosed), at most ``max_area_m2``, whose surrounding cells'
+    lowest points are flat (their spread within ``flat_m``): it is filled at their median height.
+    Returns the new points (N, 3), possibly none."""
+    from scipy import ndimage
+
+    lo = points[:, :2].min(axis=0)
+    cells = np.floor((points[:, :2] - lo) / cell_m).astype(int)
+    shape = tuple(cells.max(axis=0) + 1)
+    low = np.full(shape, np.inf)
+    np.minimum.at(low, (cells[:, 0], cells[:, 1]), points[:, 2])
+    seen = np.isfinite(low)
+    holes, count = ndimage.label(ndimage.binary_fill_holes(seen) & ~seen)
+    new = []
+    for k in range(1, count + 1):
+        hole = holes == k
+        if hole.sum() * cell_m**2 > max_area_m2:
+            continue
+        ring = ndimage.binary_dilation(hole, iterations=2) & seen
+        z = low[ring]
+        if len(z) < 4 or np.percentile(z, 90) - np.percentile(z, 10) > flat_m:
+            continue
+        ij = np.argwhere(ndimage.binary_dilation(hole, iterations=1))  # overlap the rim a little
+        sub = np.linspace(0.25, 0.75, 2)
+        offsets = np.array([(a, b) for a in sub for b in sub])
+        xy = (ij[:, None, :] + offsets[None, :, :]).reshape(-1, 2) * cell_m + lo
+        new.append(np.column_stack([xy, np.full(len(xy), float(np.median(z)))]))
+    return np.concatenate(new) if new else np.zeros((0, 3))
+
+
 def run(ctx: StageContext) -> None:
     cfg = ctx.config
     points, colors, used, carved = fuse_static(
         ctx, voxel_m=cfg.voxel_m, frame_stride=cfg.frame_stride, margin_px=cfg.mask_margin_px, depth_max_m=cfg.depth_max_m, carve_m=cfg.carve_m
     )
+    filled = fill_support_holes(points)
+    if len(filled):  # colored by their nearest fused neighbors, like any other point
+        colors = np.concatenate([colors, transfer_colors(filled, points, colors)])
+        points = np.concatenate([points, filled])
     # solidify: a copy of the surface thickness_m lower makes supports (table tops, floors) solid
     # slabs instead of a thin shell that a resting object could be pushed through
     slab = np.concatenate([points, points - np.array([0.0, 0.0, cfg.thickness_m])])
@@ -297,6 +335,7 @@ def run(ctx: StageContext) -> None:
     ctx.record(
         fused_frames=used,
         fused_points=int(len(points)),
+        support_hole_points=int(len(filled)),
         carved_points=carved,
         wrap_triangles=first_triangles,
         alpha_m=round(alpha, 4),
