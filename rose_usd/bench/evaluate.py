@@ -44,6 +44,8 @@ class ObjectScore:
     size_error: float | None = None
     """Signed relative size error at frame 0: RMS distance of surface samples to their centroid,
     reconstructed over true, minus 1 (the object's scale error)."""
+    mass_range_kg: list[float] | None = None
+    """The mass the category's density range gives the reconstructed volume (or shell) [kg]."""
     rest_drift_m: float | None = None
     """Largest displacement of its bounding box's corners in 1 s of Newton from the frame-0 stage
     without the trajectory (None: no object stage, or no scene to rest on)."""
@@ -116,6 +118,15 @@ def _rest_drifts(out_dir, scores: list[ObjectScore]) -> None:
     objects = {sc.name: str(paths.object_path(sc.name)) for sc in scores if stage.GetPrimAtPath(paths.object_path(sc.name))}
     for result in simulate_rest(stage, objects):
         next(sc for sc in scores if sc.name == result.name).rest_drift_m = result.max_displacement_m
+
+
+def _mass_range(prim) -> list[float] | None:
+    """mass x (density range / density): mass is density x volume, so this is the range's mass."""
+    mass, rng, rho = (prim.GetAttribute(a) for a in ("physics:mass", "rose:prior:densityRange", "rose:prior:density"))
+    if not (mass and rng and rho and mass.HasAuthoredValue() and rng.HasAuthoredValue() and rho.HasAuthoredValue()):
+        return None
+    k = float(mass.Get()) / float(rho.Get())
+    return [k * float(rng.Get()[0]), k * float(rng.Get()[1])]
 
 
 def _rms_radius(points: np.ndarray) -> float:
@@ -284,6 +295,7 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
                 mass_kg=float(mass_attr.Get()) if mass_attr and mass_attr.HasAuthoredValue() else None,
                 true_mass_kg=true_mass,
                 size_error=_rms_radius(rec_samples) / _rms_radius(true_samples) - 1.0,
+                mass_range_kg=_mass_range(prim),
             )
         )
     # without prompts nothing tells which found object is which name of rose.toml: unprompted

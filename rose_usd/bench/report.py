@@ -36,6 +36,10 @@ def _fmt(value, digits: int = 2) -> str:
     return f"{value:.{digits}f}"
 
 
+def _range(values) -> str:
+    return "–" if not values else f"{values[0]:.3f}-{values[1]:.3f}"
+
+
 def _mean(values) -> float:
     vals = [v for v in values if v is not None and np.isfinite(v)]
     return float(np.mean(vals)) if vals else float("nan")
@@ -164,18 +168,18 @@ def build_report(results_dir: Path) -> Path:
             "## Objects",
             "",
             "Chamfer at frame 0 (as above); size error: RMS radius of the surface about its centroid, reconstructed over true, minus 1; "
-            "rest drift: largest corner displacement in 1 s of Newton from frame 0 (target < 5 mm); "
+            "category range: the mass the category's density range gives the reconstructed volume (the wall's, for hollow categories); rest drift: largest corner displacement in 1 s of Newton from frame 0 (target < 5 mm); "
             "object (s): the object stage's wall time for the case (all its objects).",
             "",
-            "| Case | object | Chamfer (mm) | size error (%) | mass (kg) | true mass (kg) | rest drift (mm) | object (s) |",
-            "|---|---|---|---|---|---|---|---|",
+            "| Case | object | Chamfer (mm) | size error (%) | mass (kg) | category range (kg) | true mass (kg) | rest drift (mm) | object (s) |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         for case, o in object_rows:
             size = o.get("size_error")
             t_obj = (case.get("stages") or {}).get("object", {}).get("wall_time_s")
             lines.append(
                 f"| {case['case']} | {o['name']} | {_fmt(1e3 * o['chamfer_m'])} | {_fmt(None if size is None else 1e2 * size, 2)} | "
-                f"{_fmt(o.get('mass_kg'), 3)} | {_fmt(o.get('true_mass_kg'), 3)} | {_fmt(None if o.get('rest_drift_m') is None else 1e3 * o['rest_drift_m'], 1)} | {_fmt(t_obj, 1)} |"
+                f"{_fmt(o.get('mass_kg'), 3)} | {_range(o.get('mass_range_kg'))} | {_fmt(o.get('true_mass_kg'), 3)} | {_fmt(None if o.get('rest_drift_m') is None else 1e3 * o['rest_drift_m'], 1)} | {_fmt(t_obj, 1)} |"
             )
     lines += [
         "",
