@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 
 class TrajectoryBackend(enum.Enum):
+    FOUNDATIONPOSE = "foundationpose"  # import FoundationPose's ob_in_cam/ (T_cam<-mesh per frame) through the recovered cameras
     ORACLE = "oracle"  # ground-truth object poses from gt/ (benchmark cases)
 
 

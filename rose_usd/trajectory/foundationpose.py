@@ -1,0 +1,83 @@
+"""The ``foundationpose`` trajectory backend: FoundationPose's ``ob_in_cam/<frame>.txt`` (T_cam<-object
+in the mesh FoundationPose was given, meters, OpenCV axes: formats.md) composed with the recovered
+cameras into the world.
+
+- Folders: ``perception/ob_in_cam/`` for a case with one object, ``perception/ob_in_cam/<Name>/``
+  for several (architecture amendment 10). Frame ids are the stems of the RGB files.
+- The object frame: the imported object backend keeps the mesh's own frame (amendment 17), so
+  the poses compose as they are; the track is then moved rigidly so that frame 0 is the object
+  stage's default pose (which rested the object on the scene), as every backend does.
+- Frames without a file are interpolated on SE(3) between the nearest frames with one
+  (confidence 0.5) or hold the nearest pose before the first / after the last (confidence 0);
+  each gap is a warning. Frames with a file have confidence 1 (FoundationPose gives no score).
+- A file that is not a rigid transform (bad shape, last row, or a rotation that is not one) is an
+  error naming the file, before anything is written.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rose_usd.core import se3
+from rose_usd.errors import InputError
+from rose_usd.io import foundationpose
+from rose_usd.stage_api import StageContext
+from rose_usd.trajectory.author import author_trajectory, from_default_pose
+from rose_usd.usd import paths
+from rose_usd.usd.camera import read_camera
+
+
+def fill_gaps(poses: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (N, 4, 4) with the missing ones interpolated (SE(3) slerp between the nearest present
+    frames) or held at the ends; and the confidence per frame (1 read, 0.5 interpolated, 0 held)."""
+    have = np.flatnonzero(present)
+    out = poses.copy()
+    confidence = np.where(present, 1.0, 0.0)
+    for t in np.flatnonzero(~present):
+        after = have[have > t]
+        before = have[have < t]
+        if len(before) and len(after):
+            a, b = before[-1], after[0]
+            out[t] = se3.slerp_poses(poses[a], poses[b], (t - a) / (b - a))
+            confidence[t] = 0.5
+        else:
+            out[t] = poses[before[-1] if len(before) else after[0]]
+    return out, confidence
+
+
+def _gaps(missing: np.ndarray) -> str:
+    """Runs of missing frames as "3-7, 12"."""
+    idx = np.flatnonzero(missing)
+    runs, start = [], None
+    for i, t in enumerate(idx):
+        if start is None:
+            start = t
+        if i + 1 == len(idx) or idx[i + 1] != t + 1:
+            runs.append(f"{start}" if start == t else f"{start}-{t}")
+            start = None
+    return ", ".join(runs[:6]) + (" ..." if len(runs) > 6 else "")
+
+
+def run(ctx: StageContext) -> None:
+    case, n = ctx.case, ctx.time_info.n_frames
+    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    specs = case.config.objects
+    root = case.root / "perception" / "ob_in_cam"
+    frame_ids = [case.frame_name(t) for t in range(n)]
+    tracks = {}
+    for spec in specs:  # every file read and checked before anything is written
+        folder = root / spec.name if len(specs) > 1 or (root / spec.name).is_dir() else root
+        if not folder.is_dir():
+            raise InputError(f"no FoundationPose poses of object {spec.name!r}", path=folder, hint="put FoundationPose's ob_in_cam/ there (one folder per object when there are several)")
+        cam_from_object, present = foundationpose.read_track(folder, frame_ids)
+        if not present.any():
+            raise InputError(f"no pose file of object {spec.name!r} matches a frame (expected e.g. {frame_ids[0]}.txt)", path=folder, hint="name the files by the RGB frames' stems")
+        poses, confidence = fill_gaps(np.einsum("nij,njk->nik", cameras.world_from_cv, cam_from_object), present)
+        if not present.all():
+            ctx.warn(f"object {spec.name!r}: no FoundationPose pose for {int((~present).sum())} of {n} frames ({_gaps(~present)}): interpolated between neighbors (confidence 0.5) or held at the ends (0)")
+        tracks[spec.name] = (poses, confidence, int(present.sum()))
+    facts = {}
+    for name, (poses, confidence, read) in tracks.items():
+        author_trajectory(ctx, name, from_default_pose(ctx, name, poses), confidence, "foundationpose")
+        facts[name] = {"frames_read": read, "frames_filled": n - read}
+    ctx.record(objects=facts)
