@@ -200,3 +200,19 @@ def test_imported_trellis_box_gets_its_scale_and_pose(imported_out):
     report = validate(out / "rose.usda")
     assert report.errors == []
     assert report.newton["bodies"] == 1
+
+
+def test_a_mesh_in_millimeters_is_scaled_with_a_warning(tmp_path, case_copy):
+    """The true box written as an OBJ in millimeters (a CAD export): recognized by rho_0, scaled by
+    0.001 exactly (no search), warned about, and placed within 3 mm (Chamfer) of the true box."""
+    gt = GroundTruth(case_copy / "gt")
+    truth = gt.object_mesh("Box")
+    (case_copy / "perception").mkdir(exist_ok=True)
+    trimesh.Trimesh(1000.0 * truth.vertices, truth.faces).export(case_copy / "perception" / "Box.obj")
+    out = tmp_path / "out"
+    Pipeline(case_copy, out, Options(backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf", "object": "imported"})).run("object")
+    prov = read_provenance(layer_file(out, "object"))
+    facts = prov["results"]["objects"]["Box"]
+    assert facts["rho"] == 0.001 and facts["scale"] == "file units (millimeters)"
+    assert any("millimeters" in w for w in prov["warnings"])
+    assert evaluate(case_copy, out).objects[0].chamfer_m < 0.003

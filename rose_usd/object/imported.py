@@ -332,10 +332,13 @@ def fit_scale_and_pose(
 
     def evaluate(rho: float, starts) -> Fit:
         fits = [fit_yaw_xy(model, tree, obs, rho, support_z, yaw, xy) for yaw, xy in starts]
-        best = min(fits, key=lambda f: f.rms_m)
-        world = se3.transform_points(best.world_from_up_frame(), rho * vertices_small)
-        best.iou = silhouette_iou(world, faces_small, views)
-        return best
+        distinct = []  # starts that converged to the same pose are scored once
+        for fit in sorted(fits, key=lambda f: f.rms_m):
+            if all(abs(np.angle(np.exp(1j * (fit.yaw - d.yaw)))) > np.radians(2) or np.linalg.norm(fit.translation - d.translation) > 0.002 for d in distinct):
+                distinct.append(fit)
+        for fit in distinct:  # a box turned 90 degrees may meet the depth as well: the silhouettes decide
+            fit.iou = silhouette_iou(se3.transform_points(fit.world_from_up_frame(), rho * vertices_small), faces_small, views)
+        return _pick(distinct, plateau)
 
     first = evaluate(rho0, starts_at(rho0))
     if not search:
