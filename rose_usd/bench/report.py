@@ -49,15 +49,17 @@ def _case_metrics(case: dict) -> dict:
     s = case.get("score") or {}
     objs = s.get("objects") or []
     stages = case.get("stages") or {}
+    tracked = "trajectory" in stages or not stages
     return {
         "scene_chamfer_mm": 1e3 * s.get("scene_chamfer_m", float("nan")) if s else float("nan"),
         "scene_visible_mm": 1e3 * s.get("scene_chamfer_visible_m", float("nan")) if s else float("nan"),
         "scene_ghost_cm2": s.get("scene_ghost_cm2", float("nan")) if s else float("nan"),
         "object_chamfer_mm": 1e3 * _mean(o["chamfer_m"] for o in objs),
-        "ape_t_cm": 1e2 * _mean(o["ape_translation_m"] for o in objs),
-        "ape_r_deg": _mean(o["ape_rotation_deg"] for o in objs),
-        "rpe_t_mm": 1e3 * _mean(o["rpe_translation_m"] for o in objs),
-        "rpe_r_deg": _mean(o["rpe_rotation_deg"] for o in objs),
+        # without a trajectory stage the object's pose is its frame-0 default: no trajectory to score
+        "ape_t_cm": 1e2 * _mean(o["ape_translation_m"] for o in objs) if tracked else float("nan"),
+        "ape_r_deg": _mean(o["ape_rotation_deg"] for o in objs) if tracked else float("nan"),
+        "rpe_t_mm": 1e3 * _mean(o["rpe_translation_m"] for o in objs) if tracked else float("nan"),
+        "rpe_r_deg": _mean(o["rpe_rotation_deg"] for o in objs) if tracked else float("nan"),
         "ssim": s.get("ssim_mean", float("nan")) if s else float("nan"),
         "mask_iou": _mean(o.get("mask_iou") if o.get("mask_iou") is not None else float("nan") for o in objs),
         "mask_iou_min": min((o["mask_iou"] for o in objs if o.get("mask_iou") is not None), default=float("nan")),
