@@ -226,8 +226,12 @@ def _plots(results_dir: Path, cases: list[dict], by_task: dict, tasks: list[str]
     fig.savefig(out / "per_task.png")
     plt.close(fig)
 
+    tracked = [case for case in cases if "trajectory" in (case.get("stages") or {"trajectory": None})]
+    if not tracked:  # no trajectory stage ran: no APE over time to draw
+        (out / "ape_over_time.png").unlink(missing_ok=True)
+        return ["per_task"]
     fig, ax = plt.subplots(figsize=(8, 3.2), dpi=100, layout="constrained")
-    for case in cases:
+    for case in tracked:
         for obj in (case.get("score") or {}).get("objects") or []:
             err = np.asarray(obj.get("ape_translation_per_frame_m") or [], dtype=float)
             if len(err):
