@@ -216,3 +216,13 @@ def test_a_mesh_in_millimeters_is_scaled_with_a_warning(tmp_path, case_copy):
     assert facts["rho"] == 0.001 and facts["scale"] == "file units (millimeters)"
     assert any("millimeters" in w for w in prov["warnings"])
     assert evaluate(case_copy, out).objects[0].chamfer_m < 0.003
+
+
+def test_a_category_typo_is_an_error_and_an_unknown_category_a_warning():
+    from rose_usd.errors import ConfigError
+    from rose_usd.object.priors import PRIORS, lookup
+
+    with pytest.raises(ConfigError, match="did you mean 'bottle'"):
+        lookup("botle")
+    prior, warning = lookup("sculpture")
+    assert prior is PRIORS["generic"] and "generic prior" in warning
