@@ -28,15 +28,6 @@ from rose_usd.usd.validate import validate
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
 
 
-def _look_at(eye, target=(0.0, 0.0, 0.05)) -> np.ndarray:
-    """world_from_cv of an OpenCV camera at ``eye`` looking at ``target`` (world +Z up)."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    return se3.make_pose(np.column_stack([x, np.cross(z, x), z]), eye)
-
-
 def test_silhouette_of_a_square_facing_the_camera_has_its_projected_area():
     """A 0.2 m square 1 m in front of f = 500 px covers 100 x 100 pixels."""
     v = np.array([[-0.1, -0.1, 1.0], [0.1, -0.1, 1.0], [0.1, 0.1, 1.0], [-0.1, 0.1, 1.0]])
@@ -54,7 +45,7 @@ def test_scale_and_pose_search_recovers_a_known_box():
     rho, yaw, xy = 0.12, np.radians(40.0), np.array([0.03, -0.02])
     truth = se3.make_pose(se3.rotation_about([0, 0, 1], yaw), np.array([*xy, 0.25 * rho]))  # bottom on z = 0
     world = se3.transform_points(truth, rho * vertices_up)
-    cams = [_look_at(e) for e in ((0.5, -0.3, 0.35), (-0.2, -0.55, 0.3), (0.45, 0.3, 0.4))]
+    cams = [se3.look_at(e, (0.0, 0.0, 0.05)) for e in ((0.5, -0.3, 0.35), (-0.2, -0.55, 0.3), (0.45, 0.3, 0.4))]
     views = [View(silhouette(world, unit.faces, c, K, 640, 480), np.zeros((480, 640), bool), K, c) for c in cams]
     # observed points: surface samples facing some camera, above the support
     pts, face = trimesh.sample.sample_surface(trimesh.Trimesh(world, unit.faces), 4000, seed=1)

@@ -17,23 +17,29 @@ from rose_usd.case.layout import Case
 from rose_usd.errors import StageError
 from rose_usd.usd import paths
 
+SENSOR_SOURCES = ("sensor", "oracle")
+"""Scale sources under which later stages read the case's own depth/."""
+
+
+def _scale_source(stage: Usd.Stage) -> str | None:
+    """The world layer's ``rose:world:scaleSource``, None when the capture stage has not run."""
+    world = stage.GetPrimAtPath(paths.WORLD)
+    attr = world.GetAttribute("rose:world:scaleSource") if world else None
+    return attr.Get() if attr and attr.HasAuthoredValue() else None
+
 
 def depth_is_sensor(stage: Usd.Stage) -> bool:
     """Whether later stages read the case's own depth/ (a sensor's, or ground truth's): then its
     scale holds from frame to frame, which MegaSaM's does only to a few %."""
-    world = stage.GetPrimAtPath(paths.WORLD)
-    attr = world.GetAttribute("rose:world:scaleSource") if world else None
-    return bool(attr) and attr.Get() in ("sensor", "oracle")
+    return _scale_source(stage) in SENSOR_SOURCES
 
 
 def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Callable[[int], np.ndarray]:
     """A function t -> metric depth (H, W) float32 [m] of frame t (0 = no depth), with a small cache."""
-    world = stage.GetPrimAtPath(paths.WORLD)
-    attr = world.GetAttribute("rose:world:scaleSource") if world else None
-    if not attr or not attr.HasAuthoredValue():
+    source = _scale_source(stage)
+    if source is None:
         raise StageError("the world layer has no scale source", path=stage.GetRootLayer().identifier, hint="run the capture stage")
-    source = attr.Get()
-    if source in ("sensor", "oracle"):
+    if source in SENSOR_SOURCES:
         if not case.has_depth:
             raise StageError(f"capture used {source} depth but the case has no depth/", path=case.folder, hint="re-run capture")
         read = case.depth_m
@@ -41,6 +47,7 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
         from rose_usd.capture.megasam import find_npz, metric_from_megasam
         from rose_usd.io.megasam import read_megasam
 
+        world = stage.GetPrimAtPath(paths.WORLD)
         alpha = float(world.GetAttribute("rose:world:scaleAlpha").Get())
         beta = float(world.GetAttribute("rose:world:scaleBeta").Get())
         depths = read_megasam(find_npz(case.folder)).depths

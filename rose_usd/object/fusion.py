@@ -311,14 +311,22 @@ def _ground_height(ctx: StageContext, name: str, rests: list, masks: list, depth
     for t, ratio in [rests[i] for i in np.unique(np.linspace(0, len(rests) - 1, min(count, len(rests))).astype(int))]:
         mask = masks[t].astype(np.uint8)
         ring = cv2.dilate(mask, np.ones((25, 25), np.uint8)).astype(bool) & ~cv2.dilate(mask, np.ones((7, 7), np.uint8)).astype(bool)
-        for other in [o.name for o in ctx.case.config.objects if o.name != name] + [INTERACTOR]:
-            f = ctx.out_dir / "masks" / other / f"{t:06d}.png"
-            if f.is_file():
-                ring &= ~cv2.dilate(read_mask(f).astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+        ring &= ~occluders(ctx, name, t, mask.shape, grow_px=3)
         pts, _ = masked_points(depth_of(t) * np.float32(typical / ratio), ring, np.zeros((*mask.shape, 3), np.uint8), cameras.K[t], cameras.world_from_cv[t], erode_px=0)
         zs.append(pts[:, 2])
     z = np.concatenate(zs) if zs else np.zeros(0)
     return float(np.median(z)) if len(z) >= 50 else 0.0
+
+
+def occluders(ctx: StageContext, name: str, t: int, shape: tuple[int, int], *, grow_px: int) -> np.ndarray:
+    """What may stand in front of object ``name`` or beside it in frame t: the masks of the other
+    objects and of the interactor, grown by ``grow_px`` (bool, ``shape``)."""
+    out = np.zeros(shape, np.uint8)
+    for other in [o.name for o in ctx.case.config.objects if o.name != name] + [INTERACTOR]:
+        f = ctx.out_dir / "masks" / other / f"{t:06d}.png"
+        if f.is_file():
+            out |= read_mask(f).astype(np.uint8)
+    return cv2.dilate(out, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8)).astype(bool)
 
 
 def decimate(mesh, max_triangles: int, *, check: bool = True):

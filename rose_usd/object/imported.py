@@ -41,13 +41,11 @@ from rose_usd.core.pinhole import silhouette
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io import foundationpose, trellis
-from rose_usd.io.images import read_mask
 from rose_usd.io.meshfile import read_mesh_file
 from rose_usd.object.author import ObjectModel, author_objects
-from rose_usd.object.fusion import decimate, physics_for, resting_clouds, support_height
+from rose_usd.object.fusion import decimate, occluders, physics_for, resting_clouds, support_height
 from rose_usd.progress import say
 from rose_usd.scene.tsdf import self_intersects, transfer_colors
-from rose_usd.segment.tracks import INTERACTOR
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
 from rose_usd.usd.camera import read_camera
@@ -137,8 +135,8 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
         repairs.append(f"filled holes ({holes} open edges)")
     if not mesh.is_winding_consistent or mesh.volume < 0:
         trimesh.repair.fix_normals(mesh)
-    if collider_problems(mesh.vertices, mesh.faces) or self_intersects(mesh.vertices, mesh.faces):
-        problems = collider_problems(mesh.vertices, mesh.faces) or ["self-intersecting"]
+    problems = collider_problems(mesh.vertices, mesh.faces) or (["self-intersecting"] if self_intersects(mesh.vertices, mesh.faces) else [])
+    if problems:
         mesh = _remesh(mesh)
         repairs.append(f"the mesh is {', '.join(problems)}: rebuilt from its signed distance at 1/96 of its size")
     colors = None
@@ -375,34 +373,17 @@ def choose_unit(rho0: float, tolerance: float = 0.25) -> tuple[float | None, str
 
 def _views(ctx: StageContext, name: str, frames: list[int], masks: list, cameras, count: int = 6) -> list[View]:
     """Up to ``count`` resting frames spread over the rest, with what to leave out of each."""
-    import cv2
-
     picked = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
-    views = []
-    for t in picked:
-        ignore = np.zeros_like(masks[t])
-        for other in ctx.case.config.objects:
-            f = ctx.out_dir / "masks" / other.name / f"{t:06d}.png"
-            if other.name != name and f.is_file():
-                ignore |= read_mask(f)
-        hand = ctx.out_dir / "masks" / INTERACTOR / f"{t:06d}.png"
-        if hand.is_file():
-            ignore |= read_mask(hand)
-        ignore = cv2.dilate(ignore.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-        views.append(View(masks[t], ignore, cameras.K[t], cameras.world_from_cv[t]))
-    return views
+    return [View(masks[t], occluders(ctx, name, t, masks[t].shape, grow_px=2), cameras.K[t], cameras.world_from_cv[t]) for t in picked]
 
 
 def _foundationpose_start(ctx: StageContext, name: str, t: int, cameras, up_rot: np.ndarray):
     """(yaw, xy) of FoundationPose's pose of frame t as an ICP start, or None without one."""
-    root = ctx.case.root / "perception" / "ob_in_cam"
-    for folder in (root / name, root):
-        path = folder / f"{ctx.case.frame_name(t)}.txt"
-        if path.is_file():
-            world_from_mesh = cameras.world_from_cv[t] @ foundationpose.read_pose(path)
-            rot = world_from_mesh[:3, :3] @ up_rot.T  # world from the up-aligned frame
-            yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
-            return yaw, world_from_mesh[:2, 3]
+    path = foundationpose.track_folder(ctx.case.root, name, len(ctx.case.config.objects)) / f"{ctx.case.frame_name(t)}.txt"
+    if path.is_file():
+        world_from_mesh = cameras.world_from_cv[t] @ foundationpose.read_pose(path)
+        rot = world_from_mesh[:3, :3] @ up_rot.T  # world from the up-aligned frame
+        return float(np.arctan2(rot[1, 0], rot[0, 0])), world_from_mesh[:2, 3]
     return None
 
 
@@ -445,9 +426,7 @@ def run(ctx: StageContext) -> None:
         if best.iou < 0.5:
             ctx.warn(f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); check that {path.name} is this object")
         local = best.rho * imp.vertices
-        tm = trimesh.Trimesh(local, imp.faces, vertex_colors=None, process=False)
-        if len(tm.faces) > cfg.max_triangles:
-            tm = decimate(tm, cfg.max_triangles)
+        tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), cfg.max_triangles)
         vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
         colors = transfer_colors(vertices, local, imp.colors) if imp.colors is not None else None
         mesh = MeshData(vertices=vertices, faces=faces, vertex_colors=colors, color=None if colors is not None else (0.5, 0.5, 0.5))

@@ -62,11 +62,10 @@ def run(ctx: StageContext) -> None:
     case, n = ctx.case, ctx.time_info.n_frames
     cameras = read_camera(ctx.stage, paths.CAMERA, n)
     specs = case.config.objects
-    root = case.root / "perception" / "ob_in_cam"
     frame_ids = [case.frame_name(t) for t in range(n)]
     tracks = {}
     for spec in specs:  # every file read and checked before anything is written
-        folder = root / spec.name if len(specs) > 1 or (root / spec.name).is_dir() else root
+        folder = foundationpose.track_folder(case.root, spec.name, len(specs))
         if not folder.is_dir():
             raise InputError(f"no FoundationPose poses of object {spec.name!r}", path=folder, hint="put FoundationPose's ob_in_cam/ there (one folder per object when there are several)")
         cam_from_object, present = foundationpose.read_track(folder, frame_ids)
