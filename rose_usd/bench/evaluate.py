@@ -165,8 +165,9 @@ def _icp_correction(rec_points: np.ndarray, true_surface: metrics.SurfaceDistanc
     for _ in range(30):
         dist, idx = tree.query(src)
         keep = dist < max(0.02, 3 * np.median(dist))
-        step, _ = metrics.umeyama_sim3(src[keep], true_points[idx[keep]])
-        step[:3, :3] /= np.cbrt(np.linalg.det(step[:3, :3]))  # rigid only
+        # rigid: a similarity's translation (my - s R mx) would shift a larger-than-true object
+        # each iteration, and on a solid of revolution that drift spins it freely
+        step, _ = metrics.umeyama_sim3(src[keep], true_points[idx[keep]], with_scale=False)
         src = se3.transform_points(step, src)
         correction = step @ correction
         if np.linalg.norm(step[:3, 3]) < 1e-6 and se3.rotation_angle_deg(step[:3, :3]) < 1e-4:

@@ -89,8 +89,9 @@ def align_poses(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return se3.make_pose(rot, trans)
 
 
-def umeyama_sim3(source_points: np.ndarray, target_points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Similarity (pose (4, 4), scale) mapping source points onto target points (Umeyama 1991)."""
+def umeyama_sim3(source_points: np.ndarray, target_points: np.ndarray, *, with_scale: bool = True) -> tuple[np.ndarray, float]:
+    """Similarity (pose (4, 4), scale) mapping source points onto target points (Umeyama 1991);
+    with ``with_scale=False`` the best rigid transform (Kabsch), scale 1."""
     x, y = np.asarray(source_points, dtype=float), np.asarray(target_points, dtype=float)
     mx, my = x.mean(axis=0), y.mean(axis=0)
     xc, yc = x - mx, y - my
@@ -99,7 +100,7 @@ def umeyama_sim3(source_points: np.ndarray, target_points: np.ndarray) -> tuple[
     sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
     rot = u @ sign @ vt
     var = np.mean(np.sum(xc**2, axis=1))
-    scale = float(np.trace(np.diag(d) @ sign) / var) if var > 0 else 1.0
+    scale = float(np.trace(np.diag(d) @ sign) / var) if var > 0 and with_scale else 1.0
     return se3.make_pose(rot, my - scale * rot @ mx), scale
 
 
