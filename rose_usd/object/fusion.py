@@ -110,19 +110,23 @@ def first_contact(masks: list, hand_folder, depth_of, n: int, *, reach_px: int =
     """The first frame in which the interactor touches the object: its mask comes within
     ``reach_px`` of the object's with depths within ``depth_m`` over ``min_px`` pixels (n if never).
     Nothing moves an object before that."""
-    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
     for t in range(n):
         if masks[t] is None or not (hand_folder / f"{t:06d}.png").is_file():
             continue
-        hand = read_mask(hand_folder / f"{t:06d}.png")
-        near = cv2.dilate(masks[t].astype(np.uint8), kernel).astype(bool) & hand
-        if near.sum() < min_px:
-            continue
-        depth = depth_of(t)
-        obj_depth = np.median(depth[masks[t] & (depth > 0)]) if np.any(masks[t] & (depth > 0)) else 0.0
-        if np.count_nonzero(near & (depth > 0) & (np.abs(depth - obj_depth) < depth_m + 0.5 * _extent_m(masks[t], depth))) >= min_px:
+        if touches(read_mask(hand_folder / f"{t:06d}.png"), masks[t], depth_of(t), reach_px=reach_px, depth_m=depth_m, min_px=min_px):
             return t
     return n
+
+
+def touches(hand: np.ndarray, mask: np.ndarray, depth: np.ndarray, *, reach_px: int = 3, depth_m: float = 0.02, min_px: int = 20) -> bool:
+    """Whether the interactor's mask ``hand`` comes within ``reach_px`` of the object's ``mask``
+    with depths within ``depth_m`` (plus half the object's extent) over ``min_px`` pixels."""
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    near = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool) & hand
+    if near.sum() < min_px:
+        return False
+    obj_depth = np.median(depth[mask & (depth > 0)]) if np.any(mask & (depth > 0)) else 0.0
+    return bool(np.count_nonzero(near & (depth > 0) & (np.abs(depth - obj_depth) < depth_m + 0.5 * _extent_m(mask, depth))) >= min_px)
 
 
 def _extent_m(mask: np.ndarray, depth: np.ndarray) -> float:

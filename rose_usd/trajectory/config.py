@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 class TrajectoryBackend(enum.Enum):
     FOUNDATIONPOSE = "foundationpose"  # import FoundationPose's ob_in_cam/ (T_cam<-mesh per frame) through the recovered cameras
+    TRACKER = "tracker"  # classical model-based tracker: the object mesh registered to its masked metric depth frame by frame
     ORACLE = "oracle"  # ground-truth object poses from gt/ (benchmark cases)
 
 
@@ -13,3 +14,19 @@ class TrajectoryBackend(enum.Enum):
 class TrajectoryConfig:
     backend: TrajectoryBackend = TrajectoryBackend.ORACLE
     """Which backend tracks the object(s); default oracle."""
+    model_points: int = 3000
+    """tracker: points sampled on the object mesh to register against (default 3000)."""
+    max_points: int = 1500
+    """tracker: at most this many masked depth points per frame (default 1500)."""
+    erode_px: int = 2
+    """tracker: the object's mask is eroded by this many pixels (mixed depth at its border) [px] (default 2)."""
+    min_points: int = 60
+    """tracker: a frame with fewer masked depth points is lost (default 60)."""
+    min_fitness: float = 0.3
+    """tracker: a fit with fewer observed points within 5 mm of the mesh is lost [-] (default 0.3)."""
+    prior_weight: float = 0.001
+    """tracker: pull toward the constant-velocity prediction, relative to the depth's own stiffness per coordinate [-] (default 0.001)."""
+    smooth_window: int = 5
+    """tracker: frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""
+    release_frames: int = 10
+    """tracker: an object may move for this many frames after the interactor last touched it (it settles) (default 10)."""

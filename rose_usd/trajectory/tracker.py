@@ -1,0 +1,327 @@
+"""The ``tracker`` trajectory backend: a classical model-based tracker on masked metric depth, for when
+no pose files are given (the paper's FoundationPose role, with no learned model).
+
+1. **Model.** The object stage's visual mesh at its frame-0 pose (the world frame), sampled
+   evenly (``model_points``) with normals. The tracker estimates, per frame, the rigid motion
+   ``D_t`` that carries the frame-0 object to where frame t sees it; ``D_0`` is the identity up to
+   what ICP corrects at frame 0 (the object stage already registered the mesh there: by its own
+   fusion, or by the imported backend's silhouette-checked ICP). The track is then moved rigidly
+   so that frame 0 is the object stage's default pose, as every backend does.
+2. **Observation.** The object's mask of the frame (eroded by ``erode_px``: border pixels mix the
+   object with what lies behind it) back-projected with the frame's metric depth, at most
+   ``max_points`` points. The hand and other objects are outside the mask, so occlusion only
+   removes points.
+3. **Registration.** Point-to-plane ICP (Gauss-Newton, Cauchy weights) of the observed points
+   onto the model, from a constant-velocity prediction, coarse to fine (3 cm, 1.5 cm, 8 mm
+   correspondence radius). Model points facing away from the camera are never matched (a mug's
+   far wall). A weak pull toward the prediction keeps what depth cannot see (a can's spin about
+   its axis) at the predicted motion instead of drifting.
+4. **Confidence.** The fraction of observed points within 5 mm of the model after ICP. A frame
+   with fewer than ``min_points`` observed points, or a fit under ``min_fitness``, is lost: the pose
+   holds, confidence 0. When the object shows again it is re-acquired: ICP from the last pose
+   moved onto the observed points and turned about the vertical in 45 deg steps, the best by
+   fitness and silhouette IoU against the mask. Frames lost between two tracked ones are then
+   interpolated on SE(3) (confidence 0.5); lost at the end they hold (confidence 0).
+5. **Rest.** Objects move only when touched: while the interactor's mask has not come near the
+   object's (``object.fusion.touches``) for ``release_frames`` frames and the last pose still fits
+   the depth, the pose holds. (A can standing beside a stack it is not part of would otherwise
+   follow depth noise and masks that grow onto a neighbor.) A case with no interactor masks has
+   no gate. A fit that moves an untouched object is counted (``moved_untouched``).
+6. **Smoothing.** A centered (zero-lag) binomial window of ``smooth_window`` frames on SE(3) over
+   tracked frames: it removes per-frame ICP noise without delaying the motion at contacts.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.core import se3
+from rose_usd.core.pinhole import backproject, silhouette
+from rose_usd.errors import InputError, StageError
+from rose_usd.io.images import read_mask
+from rose_usd.progress import progress
+from rose_usd.segment.tracks import INTERACTOR
+from rose_usd.stage_api import StageContext
+from rose_usd.trajectory.author import author_trajectory, from_default_pose
+from rose_usd.trajectory.foundationpose import fill_gaps
+from rose_usd.usd import paths
+from rose_usd.usd.camera import read_camera
+from rose_usd.usd.geom import read_mesh
+
+SCHEDULE = ((0.03, 6), (0.015, 6), (0.008, 8))
+"""(correspondence radius [m], Gauss-Newton iterations) of each ICP level."""
+INLIER_M = 0.005
+"""An observed point within this distance of the model after ICP counts toward fitness [m]."""
+
+
+@dataclass
+class Model:
+    """The object's surface at its frame-0 pose (world coordinates), for registration."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    center: np.ndarray
+    tree: cKDTree
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    @classmethod
+    def from_mesh(cls, vertices: np.ndarray, faces: np.ndarray, count: int) -> Model:
+        import trimesh
+
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        points, tri = trimesh.sample.sample_surface_even(mesh, count, seed=0)
+        normals = mesh.face_normals[tri]
+        return cls(points, normals, points.mean(axis=0), cKDTree(points), vertices, faces)
+
+
+@dataclass
+class Fit:
+    motion: np.ndarray
+    """D_t: world pose of the frame-0 object -> its pose at frame t (4, 4)."""
+    fitness: float
+    rms_m: float
+
+
+def _exp(xi: np.ndarray) -> np.ndarray:
+    """A twist (rotation vector, translation) as a 4x4 transform (rotation first order exact)."""
+    return se3.make_pose(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
+
+
+def register(model: Model, observed: np.ndarray, camera: np.ndarray, start: np.ndarray, *, prior_weight: float = 1e-3, schedule=SCHEDULE) -> Fit:
+    """Point-to-plane ICP of ``observed`` (world points of frame t) onto ``model`` from motion
+    ``start``; ``camera`` is the frame's camera center (for the facing test). Returns the motion,
+    the inlier fraction and the inliers' RMS distance."""
+    c = model.center
+    # work on the model side: observed points pulled back by the inverse motion, centered at c
+    inv = se3.invert(start)
+    dir_world = observed - camera  # viewing rays
+    acc = np.zeros(6)  # the correction accumulated since ``start`` (for the prior)
+    for radius, iters in schedule:
+        for _ in range(iters):
+            p = se3.transform_points(inv, observed)
+            d, idx = model.tree.query(p, distance_upper_bound=radius)
+            ok = np.isfinite(d)
+            idx = np.where(ok, idx, 0)
+            n = model.normals[idx]
+            # model normals brought to frame t must face the camera
+            facing = np.einsum("ij,ij->i", n @ se3.invert(inv)[:3, :3].T, dir_world) < 0
+            ok &= facing
+            if ok.sum() < 12:
+                break
+            pc, m, n = p[ok] - c, model.points[idx[ok]] - c, n[ok]
+            r = np.einsum("ij,ij->i", n, pc - m)
+            w = 1.0 / (1.0 + (r / 0.003) ** 2)
+            J = np.hstack([np.cross(pc, n), n])
+            H = (J * w[:, None]).T @ J
+            g = (J * w[:, None]).T @ r
+            # per-coordinate (rotation terms are ~(size)^2 smaller than translation terms), with a
+            # floor so that a direction depth cannot see (a can's spin) still holds
+            diag = np.diag(H)
+            lam = prior_weight * (diag + 0.01 * np.repeat([diag[:3].mean(), diag[3:].mean()], 3))
+            xi = np.linalg.solve(H + np.diag(lam), -g - lam * acc)
+            step = se3.make_pose(np.eye(3), c) @ _exp(xi) @ se3.make_pose(np.eye(3), -c)
+            inv = step @ inv
+            acc += xi
+            if np.linalg.norm(xi[:3]) < 1e-5 and np.linalg.norm(xi[3:]) < 1e-5:
+                break
+    return evaluate(model, observed, se3.invert(inv))
+
+
+def evaluate(model: Model, observed: np.ndarray, motion: np.ndarray) -> Fit:
+    """The fit of ``observed`` points to the model moved by ``motion``: the fraction within
+    ``INLIER_M`` and their RMS distance."""
+    d, _ = model.tree.query(se3.transform_points(se3.invert(motion), observed))
+    inl = d < INLIER_M
+    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
+    return Fit(motion, float(inl.mean()) if len(d) else 0.0, rms)
+
+
+def silhouette_iou(model: Model, motion: np.ndarray, mask: np.ndarray, ignore: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray) -> float:
+    """IoU of the model's silhouette at ``motion`` with ``mask``, pixels of ``ignore`` (hand and
+    other objects: they may hide the object) left out."""
+    h, w = mask.shape
+    sil = silhouette(se3.transform_points(motion, model.vertices), model.faces, world_from_cv, K, w, h)
+    keep = ~ignore
+    inter = np.sum(sil & mask & keep)
+    union = np.sum((sil | mask) & keep)
+    return float(inter / union) if union else 0.0
+
+
+def smooth(motions: np.ndarray, good: np.ndarray, window: int) -> np.ndarray:
+    """A centered binomial window on SE(3) over the ``good`` frames (others kept as they are)."""
+    if window < 3:
+        return motions
+    half = window // 2
+    weights = np.array([math.comb(2 * half, k) for k in range(2 * half + 1)], float)
+    out = motions.copy()
+    n = len(motions)
+    rots = Rotation.from_matrix(motions[:, :3, :3])
+    for t in np.flatnonzero(good):
+        idx = np.arange(max(0, t - half), min(n, t + half + 1))
+        idx = idx[good[idx]]
+        # a symmetric window: as many frames on each side (no lag at the ends of a motion)
+        reach = min(t - idx.min(), idx.max() - t)
+        idx = idx[np.abs(idx - t) <= reach]
+        if len(idx) < 3:
+            continue
+        wt = weights[idx - t + half]
+        wt = wt / wt.sum()
+        rel = (rots[t].inv() * rots[idx]).as_rotvec()
+        out[t, :3, :3] = (rots[t] * Rotation.from_rotvec(wt @ rel)).as_matrix()
+        out[t, :3, 3] = wt @ motions[idx, :3, 3]
+    return out
+
+
+def _observed(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int, max_points: int) -> np.ndarray:
+    if erode_px:
+        mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1,) * 2, np.uint8)).astype(bool)
+    v, u = np.nonzero(mask & (depth > 0))
+    if len(v) > max_points:  # an even subsample: every k-th pixel in scan order
+        pick = np.linspace(0, len(v) - 1, max_points).astype(int)
+        v, u = v[pick], u[pick]
+    return se3.transform_points(world_from_cv, backproject(u, v, depth[v, u], K))
+
+
+def _predict(motions: list[np.ndarray], damping: float = 0.7) -> np.ndarray:
+    """Constant velocity (damped) from the last two motions."""
+    if len(motions) < 2:
+        return motions[-1]
+    velocity = motions[-1] @ se3.invert(motions[-2])
+    rv = Rotation.from_matrix(velocity[:3, :3]).as_rotvec() * damping
+    step = se3.make_pose(Rotation.from_rotvec(rv).as_matrix(), velocity[:3, 3] * damping)
+    # the velocity applied about the object's current position, not the world origin
+    return step @ motions[-1]
+
+
+def _reacquire(model: Model, observed: np.ndarray, camera: np.ndarray, last: np.ndarray, score, *, margin: float = 0.05) -> Fit:
+    """The fit from ``last`` (an object hidden for a while has often not moved), unless a start
+    moved so the model's center meets the observed points' (pushed back by half the object along
+    the view) and turned about the vertical in 45 deg steps scores ``margin`` better (a solid of
+    revolution scores alike at every turn: it keeps its last spin)."""
+    best = register(model, observed, camera, last, prior_weight=0.0)
+    best_score = score(best) + margin
+    radius = float(np.max(np.linalg.norm(model.points - model.center, axis=1)))
+    seen = observed.mean(axis=0)
+    ray = (seen - camera) / np.linalg.norm(seen - camera)
+    target = seen + 0.5 * radius * ray
+    here = se3.transform_points(last, model.center[None])[0]
+    for yaw in np.radians(np.arange(0, 360, 45)):
+        turn = se3.make_pose(se3.rotation_about(np.array([0.0, 0.0, 1.0]), yaw), np.zeros(3))
+        start = se3.make_pose(np.eye(3), target) @ turn @ se3.make_pose(np.eye(3), -here) @ last
+        fit = register(model, observed, camera, start, prior_weight=0.0)
+        s = score(fit)
+        if s > best_score:
+            best, best_score = fit, s
+    return best
+
+
+def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Motions D_t (N, 4, 4), confidence (N,) and facts of object ``name``."""
+    cfg, n = ctx.config, ctx.time_info.n_frames
+    folder = ctx.out_dir / "masks" / name
+    if not folder.is_dir():
+        raise InputError(f"no masks of object {name!r}", path=folder, hint="run the segment stage")
+    from rose_usd.object.fusion import occluders, touches
+
+    hands = ctx.out_dir / "masks" / INTERACTOR
+    motions, tracked, fitness = [np.eye(4)], np.zeros(n, bool), np.zeros(n)
+    lost_since, reacquired, iou0, last_touch, moved_untouched = None, 0, float("nan"), -n, 0
+    for t in progress(range(n), f"trajectory {name}: tracking", total=n):
+        mask = read_mask(folder / f"{t:06d}.png")
+        if mask.shape != (ctx.case.height, ctx.case.width):
+            raise InputError(f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {ctx.case.width}x{ctx.case.height}", path=folder / f"{t:06d}.png", hint="re-run the segment stage")
+        cam, K, depth = cameras.world_from_cv[t], cameras.K[t], depth_of(t)
+        hand = hands / f"{t:06d}.png"
+        if not hands.is_dir() or (hand.is_file() and mask.any() and touches(read_mask(hand), mask, depth)):
+            last_touch = t
+        observed = _observed(depth, mask, K, cam, cfg.erode_px, cfg.max_points) if mask.sum() >= cfg.min_points else np.zeros((0, 3))
+        prev = motions[-1] if t else np.eye(4)
+        if len(observed) < cfg.min_points:
+            motions.append(prev) if t else None
+            lost_since = t if lost_since is None else lost_since
+            continue
+        hold = evaluate(model, observed, prev) if t else None
+        if t and t - last_touch > cfg.release_frames and hold.fitness >= cfg.min_fitness:
+            # untouched and still where it was: it rests (objects move only when touched)
+            fit = hold
+        elif lost_since is not None and lost_since < t:
+
+            def score(fit, t=t, mask=mask):
+                ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
+                return fit.fitness + silhouette_iou(model, fit.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t])
+
+            fit = _reacquire(model, observed, cam[:3, 3], prev, score)
+            reacquired += 1
+        else:
+            start = _predict(motions) if t else np.eye(4)
+            fit = register(model, observed, cam[:3, 3], start, prior_weight=cfg.prior_weight)
+        if t == 0:
+            iou0 = silhouette_iou(model, fit.motion, mask, occluders(ctx, name, 0, mask.shape, grow_px=2), cam, K)
+        if fit.fitness < cfg.min_fitness:
+            motions.append(prev) if t else None
+            lost_since = t if lost_since is None else lost_since
+            continue
+        if t and t - last_touch > cfg.release_frames and fit is not hold:
+            moved_untouched += 1
+        lost_since = None
+        if t:
+            motions.append(fit.motion)
+        else:
+            motions[0] = fit.motion
+        tracked[t], fitness[t] = True, fit.fitness
+    motions = np.stack(motions)
+    if not tracked.any():
+        raise InputError(f"object {name!r} was never tracked: no frame has {cfg.min_points} masked depth points fitting its mesh", path=folder, hint="check its masks (segment stage) and the object mesh")
+    motions = smooth(motions, tracked, cfg.smooth_window)
+    filled, confidence = fill_gaps(motions, tracked)
+    confidence[tracked] = np.clip(fitness[tracked], 0.0, 1.0)
+    facts = {
+        "frames_tracked": int(tracked.sum()),
+        "frames_lost": int(n - tracked.sum()),
+        "reacquired": reacquired,
+        "moved_untouched": moved_untouched,
+        "fitness_mean": round(float(fitness[tracked].mean()), 3),
+        "silhouette_iou_frame0": round(iou0, 3),
+    }
+    return filled, confidence, facts
+
+
+def run(ctx: StageContext) -> None:
+    n = ctx.time_info.n_frames
+    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    depth_of = metric_depth_reader(ctx.stage, ctx.case, cache=4)
+    results, facts = {}, {}
+    for spec in ctx.case.config.objects:  # every object tracked before anything is written
+        prim = ctx.stage.GetPrimAtPath(paths.object_visual(spec.name))
+        if not prim:
+            raise StageError(f"object {spec.name!r} has no visual mesh in the stage", hint="run the object stage first (rose-usd run object ...)")
+        mesh = read_mesh(prim)  # world coordinates at the default (frame-0) pose
+        model = Model.from_mesh(mesh.vertices, mesh.faces, ctx.config.model_points)
+        start = time.perf_counter()
+        motions, confidence, fact = track(ctx, spec.name, model, cameras, depth_of)
+        fact["frames_per_s"] = round(n / (time.perf_counter() - start), 1)
+        lost = fact["frames_lost"]
+        if lost:
+            ctx.warn(f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): interpolated between tracked frames (confidence 0.5) or held at the ends (0)")
+        world0 = _default_pose(ctx, spec.name)
+        results[spec.name] = (np.einsum("nij,jk->nik", motions, world0), confidence)
+        facts[spec.name] = fact
+    for name, (poses, confidence) in results.items():
+        author_trajectory(ctx, name, from_default_pose(ctx, name, poses), confidence, "tracker")
+    ctx.record(objects=facts)
+
+
+def _default_pose(ctx: StageContext, name: str) -> np.ndarray:
+    from pxr import Usd, UsdGeom
+
+    prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
+    return np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T
