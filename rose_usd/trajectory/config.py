@@ -25,7 +25,7 @@ class TrajectoryConfig:
     min_fitness: float = 0.3
     """tracker: a fit with fewer observed points within 5 mm of the mesh is lost [-] (default 0.3)."""
     prior_weight: float = 0.001
-    """tracker: pull toward the constant-velocity prediction, relative to the depth's own stiffness per coordinate [-] (default 0.001)."""
+    """tracker: pull toward the constant-velocity prediction, a fraction of the depth's mean stiffness (trace of the ICP Hessian / 6) [-] (default 0.001)."""
     smooth_window: int = 5
     """tracker: frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""
     release_frames: int = 10

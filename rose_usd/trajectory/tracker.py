@@ -15,7 +15,11 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    onto the model, from a constant-velocity prediction, coarse to fine (3 cm, 1.5 cm, 8 mm
    correspondence radius). Model points facing away from the camera are never matched (a mug's
    far wall). A weak pull toward the prediction keeps what depth cannot see (a can's spin about
-   its axis) at the predicted motion instead of drifting.
+   its axis) at the predicted motion instead of drifting. It is one damping for all six
+   coordinates, a fraction of the depth's mean stiffness: weak on position, strong on the turn
+   of a small object (its rotation terms are ~size^2 smaller), a filter on the turn rate.
+   Damping each coordinate by its own stiffness was measured worse (RPE rotation of lift-mug
+   1.6-2.1 deg against 0.84 deg).
 4. **Confidence.** The fraction of observed points within 5 mm of the model after ICP. A frame
    with fewer than ``min_points`` observed points, or a fit under ``min_fitness``, is lost: the pose
    holds, confidence 0. When the object shows again it is re-acquired: ICP from the last pose
@@ -96,10 +100,11 @@ def _exp(xi: np.ndarray) -> np.ndarray:
     return se3.make_pose(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
 
 
-def register(model: Model, observed: np.ndarray, camera: np.ndarray, start: np.ndarray, *, prior_weight: float = 1e-3, schedule=SCHEDULE) -> Fit:
+def register(model: Model, observed: np.ndarray, camera: np.ndarray, start: np.ndarray, *, prior_weight: float = 0.0, schedule=SCHEDULE) -> Fit:
     """Point-to-plane ICP of ``observed`` (world points of frame t) onto ``model`` from motion
-    ``start``; ``camera`` is the frame's camera center (for the facing test). Returns the motion,
-    the inlier fraction and the inliers' RMS distance."""
+    ``start``; ``camera`` is the frame's camera center (for the facing test). ``prior_weight``
+    pulls toward ``start``, as a fraction of the depth's mean stiffness (trace / 6). Returns the
+    motion, the inlier fraction and the inliers' RMS distance."""
     c = model.center
     # work on the model side: observed points pulled back by the inverse motion, centered at c
     inv = se3.invert(start)
@@ -123,11 +128,11 @@ def register(model: Model, observed: np.ndarray, camera: np.ndarray, start: np.n
             J = np.hstack([np.cross(pc, n), n])
             H = (J * w[:, None]).T @ J
             g = (J * w[:, None]).T @ r
-            # per-coordinate (rotation terms are ~(size)^2 smaller than translation terms), with a
-            # floor so that a direction depth cannot see (a can's spin) still holds
-            diag = np.diag(H)
-            lam = prior_weight * (diag + 0.01 * np.repeat([diag[:3].mean(), diag[3:].mean()], 3))
-            xi = np.linalg.solve(H + np.diag(lam), -g - lam * acc)
+            # one damping for all six coordinates, a fraction of the depth's mean stiffness: the
+            # rotation terms are ~(object size)^2 smaller than the translation terms, so for a
+            # 5-10 cm object this is a weak pull on position and a strong one on the turn
+            lam = prior_weight * np.trace(H) / 6.0
+            xi = np.linalg.solve(H + lam * np.eye(6), -g - lam * acc)
             step = se3.make_pose(np.eye(3), c) @ _exp(xi) @ se3.make_pose(np.eye(3), -c)
             inv = step @ inv
             acc += xi
