@@ -73,3 +73,29 @@ def test_default_suite_meets_oracle_targets(tmp_path):
         assert score["scene_chamfer_m"] < 0.002 and score["scene_chamfer_visible_m"] < 0.002 and score["ssim_mean"] > 0.98, case["case"]
         for obj in score["objects"]:
             assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001, (case["case"], obj["name"])
+
+
+def test_start_from_an_earlier_run_reruns_only_what_changed(small_results, tmp_path):
+    """``--start-from``: a kept run's current layers are kept with their recorded times; a changed
+    setting re-runs its stage (and what depends on it), and the scores match."""
+    earlier_dir, earlier = small_results
+    summary = run_suite("small", PerceptionMode.RGBD, tmp_path / "again", cases_dir=earlier_dir.parent / "cases", settings={"gate": {"frame_stride": 3}}, start_from=earlier_dir)
+    assert summary["started_from"]["folder"] == str(earlier_dir)
+    for before, after in zip(earlier["cases"], summary["cases"], strict=True):
+        assert "error" not in after, after
+        for name in ("capture", "segment", "scene", "object", "trajectory"):
+            assert after["stages"][name]["reused"] and after["stages"][name]["wall_time_s"] == pytest.approx(before["stages"][name]["wall_time_s"], abs=1e-3)
+            assert after["stages"][name]["peak_rss_mb"] == before["stages"][name]["peak_rss_mb"]
+        assert "reused" not in after["stages"]["gate"]
+        assert [o["ape_translation_m"] for o in after["score"]["objects"]] == [o["ape_translation_m"] for o in before["score"]["objects"]]
+    gate = json.loads((tmp_path / "again" / "runs" / earlier["cases"][0]["case"] / "report" / "gate.json").read_text())
+    assert gate["frames_rendered"] < earlier["cases"][0]["n_frames"]
+
+
+def test_start_from_refuses_another_mode(small_results, tmp_path):
+    """Runs of another perception mode are not reused: a one-line error naming results.json."""
+    from rose_usd.errors import InputError
+
+    earlier_dir, _ = small_results
+    with pytest.raises(InputError, match=r"results\.json.*mode 'rgbd'"):
+        run_suite("small", PerceptionMode.MONO_IMPORTED, tmp_path / "x", cases_dir=earlier_dir.parent / "cases", start_from=earlier_dir)

@@ -8,6 +8,7 @@ import datetime as dt
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -83,8 +84,15 @@ def run_suite(
     command: str = "",
     until: str | None = None,
     prompts: bool = True,
+    start_from: Path | None = None,
 ) -> dict:
+    """Run every case of ``suite`` in ``mode`` into ``out_dir``/runs and write the results. With
+    ``start_from`` (an earlier results folder of the same suite, mode and prompts), each case starts
+    from a copy of that folder's kept run: its layers that are still current are not run again
+    (their recorded wall times and peak memory are carried over), so later stages can be added to
+    a kept benchmark."""
     specs = get_suite(suite)
+    source = _start_from(start_from, suite, mode, prompts) if start_from else None
     commit = _git_commit()  # at the start: the code that runs
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -98,13 +106,22 @@ def run_suite(
         run_out = out_dir / "runs" / spec.name
         result_file = out_dir / "runs" / f"{spec.name}.json"
         say(f"bench [{i}/{len(specs)}] {spec.name} ({mode.value})")
+        earlier = source["cases"].get(spec.name) if source else None
+        if earlier is not None:
+            if run_out.exists():
+                shutil.rmtree(run_out)
+            shutil.copytree(Path(start_from) / "runs" / spec.name, run_out)
         t0 = time.perf_counter()
         proc = subprocess.run(
             [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(run_out), "--result", str(result_file), "--backends", json.dumps(backends), "--settings", json.dumps(settings or {})]
-            + (["--until", until] if until else []),
+            + (["--until", until] if until else [])
+            + (["--reuse"] if earlier is not None else []),
             env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
         )
         result = json.loads(result_file.read_text()) if result_file.is_file() else {"error": f"worker exited with {proc.returncode} and wrote no result"}
+        for name, st in (result.get("stages") or {}).items():
+            if st.get("reused"):
+                st["peak_rss_mb"] = ((earlier or {}).get("stages") or {}).get(name, {}).get("peak_rss_mb")
         result.update(case=spec.name, task=spec.task.value, shape=spec.shape.value, seed=spec.seed, mode=mode.value, n_frames=spec.n_frames, size=[spec.width, spec.height], generate_time_s=round(gen_time, 1), case_wall_time_s=round(time.perf_counter() - t0, 1))
         if "error" in result:
             say(f"bench: {spec.name} failed: {result['error']}")
@@ -116,6 +133,7 @@ def run_suite(
         "settings": settings or {},
         "until": until,
         "prompts": prompts,
+        "started_from": {"folder": str(start_from), "commit": source["commit"]} if source else None,
         "command": command,
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
@@ -126,6 +144,20 @@ def run_suite(
     }
     _write(summary, out_dir)
     return summary
+
+
+def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -> dict:
+    """The earlier results folder's summary, checked to hold runs of the same cases; its cases by name."""
+    folder = Path(folder)
+    summary_file = folder / "results.json"
+    if not summary_file.is_file() or not (folder / "runs").is_dir():
+        raise InputError("no kept benchmark here (results.json and runs/ are needed)", path=folder, hint="pass a folder that `rose-usd bench run` wrote on this machine")
+    summary = json.loads(summary_file.read_text())
+    theirs = (summary["suite"], summary["mode"], summary.get("prompts", True))
+    if theirs != (suite, mode.value, prompts):
+        raise InputError(f"its runs are of suite {theirs[0]!r}, mode {theirs[1]!r}, prompts {theirs[2]}, not {suite!r}, {mode.value!r}, {prompts}", path=summary_file, hint="start from a folder of the same suite and mode")
+    cases = {c["case"]: c for c in summary["cases"] if "error" not in c and (folder / "runs" / c["case"]).is_dir()}
+    return {"commit": summary.get("commit"), "cases": cases}
 
 
 def rescore(out_dir: Path, *, cases_dir: Path = DEFAULT_CASES) -> dict:

@@ -46,15 +46,22 @@ class RssMonitor:
         self._stop.set()
 
 
-def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str | None = None) -> dict:
+def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str | None = None, reuse: bool = False) -> dict:
+    """Run the stages into ``out`` and score them. With ``reuse``, a stage whose layer in ``out`` is
+    current (same config and inputs) is kept, with the wall time its provenance recorded."""
     from rose_usd import registry
     from rose_usd.bench.evaluate import evaluate
     from rose_usd.pipeline import Options, Pipeline
+    from rose_usd.usd.stage import layer_file, read_provenance
 
     monitor = RssMonitor()
     pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True))
     stages = {}
     for stage_def in registry.closure(until) if until else registry.STAGES:
+        if reuse and pipe.is_current(stage_def):
+            prov = read_provenance(layer_file(out, stage_def.layer))
+            stages[stage_def.name] = {"backend": prov["backend"], "wall_time_s": prov["wall_time_s"], "peak_rss_mb": None, "reused": True}
+            continue
         monitor.reset()
         outcome = pipe.run_stage(stage_def)
         stages[stage_def.name] = {"backend": outcome.backend, "wall_time_s": outcome.wall_time_s, "peak_rss_mb": round(monitor.peak_mb(), 1)}
@@ -90,11 +97,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backends", default="{}", help="JSON {stage: backend}")
     parser.add_argument("--settings", default="{}", help="JSON {stage: {field: value}}")
     parser.add_argument("--until", default=None, help="run only this stage and what it needs")
+    parser.add_argument("--reuse", action="store_true", help="keep the layers in --out that are current")
     args = parser.parse_args(argv)
     from rose_usd.errors import RoseError
 
     try:
-        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings), args.until)
+        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings), args.until, args.reuse)
         code = 0
     except RoseError as exc:
         result = {"error": exc.one_line()}
