@@ -80,3 +80,38 @@ def test_an_object_that_never_appears_is_a_clear_error(tmp_path, case_copy, fusi
     with pytest.raises(InputError, match="'Box' is never visible"):
         Pipeline(case_copy, out, Options(backends=BACKENDS)).run_stage(registry.get("object"))
     assert not layer_file(out, "object").exists()
+
+
+def _wall(radius: float, height: float, angles_deg: tuple[float, float], rng, n: int = 4000, center=(0.0, 0.0)) -> np.ndarray:
+    """Points on a vertical cylinder wall over an arc of angles, with 1 mm noise."""
+    a = np.radians(rng.uniform(*angles_deg, n))
+    r = radius + rng.normal(0, 0.001, n)
+    return np.column_stack([center[0] + r * np.cos(a), center[1] + r * np.sin(a), rng.uniform(0, height, n)])
+
+
+def test_a_mug_seen_from_one_side_is_a_solid_of_revolution():
+    """A mug's outer wall seen over 200 deg, its inner wall seen over the rim and a handle beside
+    it: still a solid of revolution about the right axis, with the right radius (the handle's
+    sectors are left out); a box's walls are not."""
+    from rose_usd.object.fusion import revolution_profile
+
+    rng = np.random.default_rng(0)
+    center = (0.10, -0.05)
+    outer = _wall(0.04, 0.095, (-100, 100), rng, center=center)
+    inner = _wall(0.036, 0.095, (120, 240), rng, n=1500, center=center)
+    inner = inner[inner[:, 2] > 0.06]  # only its upper part shows over the rim
+    t = rng.uniform(-np.pi / 2, np.pi / 2, 800)  # a handle: a half ring out to 7 cm from the axis at +x
+    handle = np.column_stack([center[0] + 0.045 + 0.022 * np.cos(t), np.full(800, center[1]) + rng.normal(0, 0.004, 800), 0.05 + 0.03 * np.sin(t)])
+    got = revolution_profile(np.concatenate([outer, inner, handle]), 0.01, 0.05)
+    assert got is not None
+    axis, heights, radii = got
+    assert np.linalg.norm(axis - center) < 0.001
+    assert np.all(np.abs(radii - 0.04) < 0.0015), radii
+    assert heights.min() < 0.01 and heights.max() > 0.085
+
+    side = rng.uniform(-0.04, 0.04, 6000)
+    z = rng.uniform(0, 0.08, 6000)
+    face = rng.integers(0, 3, 6000)  # three faces of a 8 cm box that a camera sees
+    box = np.column_stack([np.where(face == 0, 0.04, side), np.where(face == 1, 0.04, np.where(face == 2, -0.04, side)), z])
+    box[face == 0, 1] = side[face == 0]
+    assert revolution_profile(box, 0.01, 0.05) is None

@@ -144,13 +144,50 @@ def _circle_fit(xy: np.ndarray) -> tuple[np.ndarray, float]:
     return center, float(np.sqrt(max(sol[2] + center @ center, 0.0)))
 
 
-def revolution_profile(points: np.ndarray, band_m: float, tolerance: float):
+def _sector_outer(r: np.ndarray, sector: np.ndarray, n_sectors: int, min_points: int = 5) -> np.ndarray:
+    """Each angular sector's outer radius (the 90th percentile of its points' radii; NaN with fewer
+    than ``min_points``)."""
+    outer = np.full(n_sectors, np.nan)
+    order = np.argsort(sector, kind="stable")
+    bounds = np.searchsorted(sector[order], np.arange(n_sectors + 1))
+    for k in range(n_sectors):
+        rr = r[order[bounds[k] : bounds[k + 1]]]
+        if len(rr) >= min_points:
+            outer[k] = np.percentile(rr, 90)
+    return outer
+
+
+def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n_sectors: int = 36):
     """(axis center (2,), heights, radii) when the points are a solid of revolution about a
-    vertical axis, else None."""
-    center, radius = _circle_fit(points[:, :2])
+    vertical axis, else None.
+
+    Looked at in 10 deg sectors around the axis: a solid of revolution has the same outer radius in
+    every sector of a height band, up to ``tolerance`` of the radius (the median over the band's
+    sectors); a few sectors may stand out (a mug's handle) and are left out of the axis fit and the
+    radii (the fit keeps sectors within 5 % of the median, the radii within 15 %). Points inside the wall (a mug's inner wall, seen over its rim) never set a sector's
+    outer radius."""
+    xy = points[:, :2]
+    center, radius = _circle_fit(xy)
+    for _ in range(3):  # refit the axis on the outer wall of the sectors that agree
+        d = xy - center
+        r = np.hypot(d[:, 0], d[:, 1])
+        sector = ((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
+        outer = _sector_outer(r, sector, n_sectors)
+        if np.count_nonzero(np.isfinite(outer)) < n_sectors // 3:
+            return None  # the angular coverage must be enough to trust the axis
+        typical = float(np.nanmedian(outer))
+        # sectors within 5 %: a handle stands out, and so does a far side seen only as the inner
+        # wall over the rim
+        agree = np.isfinite(outer) & (np.abs(outer - typical) <= 0.05 * typical)
+        wall = agree[sector] & (r >= 0.85 * np.where(np.isfinite(outer), outer, np.inf)[sector])
+        if wall.sum() < 30:
+            return None
+        center, radius = _circle_fit(xy[wall])
     if radius <= 0:
         return None
-    r = np.linalg.norm(points[:, :2] - center, axis=1)
+    d = xy - center
+    r = np.hypot(d[:, 0], d[:, 1])
+    sector = ((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
     z = points[:, 2]
     edges = np.arange(0.0, z.max() + band_m, band_m)
     heights, radii, spread = [], [], []
@@ -158,19 +195,18 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float):
         sel = (z >= lo) & (z < hi)
         if sel.sum() < 20:
             continue
-        rr = r[sel]
-        med = float(np.median(rr))
+        outer = _sector_outer(r[sel], sector[sel], n_sectors, min_points=3)
+        if np.count_nonzero(np.isfinite(outer)) < 3:
+            continue
+        typical = float(np.nanmedian(outer))
+        keep = np.isfinite(outer) & (np.abs(outer - typical) <= 0.15 * typical)  # a handle's sectors out
+        rr = r[sel][keep[sector[sel]]]
         # points on the outer wall: the rim of a band seen from above holds inner points too
-        wall = rr[rr > 0.8 * med]
+        wall = rr[rr > 0.8 * np.median(rr)]
         heights.append(0.5 * (lo + hi))
         radii.append(float(np.median(wall)))
-        spread.append(float(np.median(np.abs(wall - np.median(wall)))) / max(float(np.median(wall)), 1e-6))
+        spread.append(float(np.nanmedian(np.abs(outer[np.isfinite(outer)] - typical))) / max(typical, 1e-6))
     if len(heights) < 3 or np.median(spread) > tolerance:
-        return None
-    # the angular coverage must be enough to trust the axis
-    ang = np.degrees(np.arctan2(points[:, 1] - center[1], points[:, 0] - center[0]))
-    hist, _ = np.histogram(ang, bins=36, range=(-180, 180))
-    if np.count_nonzero(hist) < 12:
         return None
     return center, np.array(heights), np.array(radii)
 
