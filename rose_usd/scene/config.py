@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 
 class SceneBackend(enum.Enum):
-    TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, 3-NN colors, xatlas texture
+    TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, 3-NN vertex colors, xatlas texture from the frames
     ORACLE = "oracle"  # ground-truth scene parts, materials and lights from gt/ (benchmark cases)
 
 
@@ -31,5 +31,7 @@ class SceneConfig:
     """tsdf: the collider is solidified this far below the fused surface [m] (default 0.02)."""
     max_triangles: int = 60000
     """tsdf: triangle budget of the scene mesh (default 60000)."""
-    texture_size: int = 1024
-    """tsdf: baked texture width and height [px] (default 1024)."""
+    texture_size: int = 2048
+    """tsdf: baked texture width and height [px] (default 2048)."""
+    texture_frames: int = 24
+    """tsdf: texels take the median color of their projections into this many frames spread over the video; 0: the fused points' 3-NN colors (default 24)."""

@@ -13,14 +13,18 @@
 3. **Budget**: while the wrap has more than ``max_triangles`` triangles, wrap again with a 1.5x
    larger alpha (coarser, and still valid: decimating the wrap with manifold3d was measured to
    create self-intersections), re-checked.
-4. **Color**: each vertex, and each texel of a texture baked over xatlas UVs, gets the
-   distance-weighted mean color of its 3 nearest fused points (the paper's rule); the texture
-   lets viewers without vertex colors show it too. The colors hold the video's lighting, so the scene is lit by a unit ambient light.
+4. **Color**: each vertex gets the distance-weighted mean color of its 3 nearest fused points
+   (the paper's rule). Each texel of a texture baked over xatlas UVs takes the median color of
+   its projections into ``texture_frames`` frames that see it (static pixels, depth agreeing,
+   facing the camera; ``FrameColors``), or the 3-NN rule where no frame sees it: the TSDF's
+   colors are 8 mm voxel averages, the frames keep the surface's own detail. The colors hold the
+   video's lighting, so the scene is lit by a unit ambient light.
 """
 
 from __future__ import annotations
 
 import tempfile
+import warnings
 from pathlib import Path
 
 import cv2
@@ -222,10 +226,12 @@ def transfer_colors(vertices: np.ndarray, points: np.ndarray, colors: np.ndarray
     return (colors[idx] * w[..., None]).sum(axis=1) / w.sum(axis=1, keepdims=True)
 
 
-def bake_texture(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, colors: np.ndarray, size: int):
+def bake_texture(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, colors: np.ndarray, size: int, texel_colors=None):
     """xatlas UVs and a texture whose every texel takes the 3-NN color of the fused points at its
-    3D position (sharper than interpolating vertex colors). Returns the seam-split mesh's
-    (vertices, faces, uv, vertex colors) and the sRGB8 texture (size, size, 3)."""
+    3D position (sharper than interpolating vertex colors), or, with ``texel_colors`` (texel
+    positions (N, 3), normals (N, 3) -> linear colors (N, 3), seen (N,) bool), that color where
+    seen. Returns the seam-split mesh's (vertices, faces, uv, vertex colors) and the sRGB8
+    texture (size, size, 3)."""
     import xatlas
 
     vmap, new_faces, uv = xatlas.parametrize(vertices.astype(np.float32), faces.astype(np.uint32))
@@ -248,9 +254,80 @@ def bake_texture(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, co
     wa = np.clip(1.0 - wb - wc, 0, 1)
     s = (wa + wb + wc)[:, None]
     texel_xyz = (verts[f[:, 0]] * wa[:, None] + verts[f[:, 1]] * wb[:, None] + verts[f[:, 2]] * wc[:, None]) / s
+    texel_rgb = transfer_colors(texel_xyz, points, colors)
+    if texel_colors is not None:
+        normals = np.cross(verts[f[:, 1]] - verts[f[:, 0]], verts[f[:, 2]] - verts[f[:, 0]])
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        from_frames, seen = texel_colors(texel_xyz, normals)
+        texel_rgb[seen] = from_frames[seen]
     tex = np.zeros((size, size, 3), np.uint8)
-    tex[ys, xs] = linear_to_srgb8(transfer_colors(texel_xyz, points, colors))
+    tex[ys, xs] = linear_to_srgb8(texel_rgb)
     return verts, new_faces.astype(np.int64), uv.astype(float), transfer_colors(verts, points, colors), tex
+
+
+def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``image`` (H, W, C) at continuous pixel coordinates (pixel centers at integers), clamped."""
+    h, w = image.shape[:2]
+    u, v = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
+    u0, v0 = np.minimum(u.astype(int), w - 2), np.minimum(v.astype(int), h - 2)
+    a, b = (u - u0)[:, None], (v - v0)[:, None]
+    return (image[v0, u0] * (1 - a) + image[v0, u0 + 1] * a) * (1 - b) + (image[v0 + 1, u0] * (1 - a) + image[v0 + 1, u0 + 1] * a) * b
+
+
+class FrameColors:
+    """Texel colors from the video itself: each texel is projected into ``count`` frames spread
+    over the video and takes the median of its linear colors (bilinear) over the frames that see
+    it: the frame's depth there within ``tol_m`` (+ 2 % of the depth) of the texel, the surface
+    facing the camera (cos > ``min_cos``), and the pixel static (no object or interactor mask
+    within ``margin_px``, not nearer than the static world). The median leaves out what passed
+    through (a hand, its shadow). The TSDF's colors are averages over its voxels (``voxel_m``, 8 mm);
+    the frames hold the texture's own detail (a tablecloth's weave)."""
+
+    def __init__(self, ctx: StageContext, *, count: int, margin_px: int, tol_m: float = 0.01, min_cos: float = 0.15, chunk: int = 400_000):
+        case, n = ctx.case, ctx.time_info.n_frames
+        self.cameras = read_camera(ctx.stage, paths.CAMERA, n)
+        self.depth_of = metric_depth_reader(ctx.stage, case, cache=4)
+        self.frames = np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int)).tolist()
+        background = StaticBackground(self.depth_of, self.cameras.world_from_cv, self.cameras.K, case.width, case.height)
+        masks = _mask_files(ctx, n)
+        kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
+        self.static, self.rgb = {}, {}
+        for t in progress(self.frames, "scene texture: frames", total=len(self.frames)):
+            depth = self.depth_of(t)
+            moving = np.zeros(depth.shape, np.uint8)
+            for f in masks[t]:
+                moving |= read_mask(f).astype(np.uint8)
+            fg, _ = background.foreground(t, depth)
+            self.static[t] = ~(cv2.dilate(moving, kernel).astype(bool) | fg) & (depth > 0)
+            self.rgb[t] = srgb8_to_linear(case.rgb(t)).astype(np.float32)
+        self.tol_m, self.min_cos, self.chunk = tol_m, min_cos, chunk
+
+    def __call__(self, xyz: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        out = np.zeros((len(xyz), 3))
+        seen = np.zeros(len(xyz), bool)
+        for a in progress(range(0, len(xyz), self.chunk), "scene texture: texels", total=-(-len(xyz) // self.chunk)):
+            p, nrm = xyz[a : a + self.chunk], normals[a : a + self.chunk]
+            samples = np.full((len(self.frames), len(p), 3), np.nan, np.float32)
+            for k, t in enumerate(self.frames):
+                pose, K = self.cameras.world_from_cv[t], self.cameras.K[t]
+                depth = self.depth_of(t)
+                h, w = depth.shape
+                u, v, z = pixels_of(p, pose, K, w, h, min_z=0.05)
+                ok = (u >= 0) & sample_at(self.static[t], u, v, fill=False)
+                d = sample_at(depth, u, v).astype(float)
+                ok &= np.abs(d - z) <= self.tol_m + 0.02 * z
+                ray = pose[:3, 3] - p
+                ok &= np.einsum("ij,ij->i", nrm, ray) > self.min_cos * np.linalg.norm(ray, axis=1)
+                if not ok.any():
+                    continue
+                cam = se3.transform_points(se3.invert(pose), p[ok])
+                samples[k, ok] = _bilinear(self.rgb[t], K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2])
+            got = ~np.isnan(samples[..., 0]).all(axis=0)
+            with warnings.catch_warnings():  # texels no frame sees: all-NaN slices, left unseen
+                warnings.simplefilter("ignore", RuntimeWarning)
+                out[a : a + self.chunk][got] = np.nanmedian(samples[:, got], axis=0)
+            seen[a : a + self.chunk] = got
+        return out, seen
 
 
 def _dilate_ids(ids: np.ndarray, steps: int) -> np.ndarray:
@@ -325,7 +402,8 @@ def run(ctx: StageContext) -> None:
         raise MeshError(f"the wrapped scene mesh is {', '.join(problems)}", hint="try a larger scene.alpha_m")
     if self_intersects(vertices, faces):
         raise MeshError("the wrapped scene mesh intersects itself", hint="try a larger scene.alpha_m or max_triangles")
-    tv, tf, uv, tcols, tex = bake_texture(vertices, faces, points, colors, cfg.texture_size)
+    frame_colors = FrameColors(ctx, count=cfg.texture_frames, margin_px=cfg.mask_margin_px) if cfg.texture_frames > 0 else None
+    tv, tf, uv, tcols, tex = bake_texture(vertices, faces, points, colors, cfg.texture_size, frame_colors)
     with tempfile.TemporaryDirectory() as tmp:
         tex_path = Path(tmp) / "Reconstruction.png"
         cv2.imwrite(str(tex_path), cv2.cvtColor(tex, cv2.COLOR_RGB2BGR))
@@ -343,4 +421,5 @@ def run(ctx: StageContext) -> None:
         watertight=True,
         self_intersections=False,
         texture_px=cfg.texture_size,
+        texture_frames=len(frame_colors.frames) if frame_colors else 0,
     )
