@@ -70,6 +70,7 @@ def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str |
     monitor.stop()
     return {
         "stages": stages,
+        "stage_results": {name: (read_provenance(layer_file(out, registry.get(name).layer)) or {}).get("results") for name in stages},
         "score": score.to_json(),
         "depth_scale_error": _depth_scale_error(case, out),
         "evaluate_time_s": round(time.perf_counter() - t0, 2),
