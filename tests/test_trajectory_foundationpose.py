@@ -32,13 +32,14 @@ def test_gaps_are_interpolated_on_se3_and_held_at_the_ends():
     assert np.allclose(out[0], a) and np.allclose(out[6], b)
 
 
-def _write_truth(case, drop=()):
-    """FoundationPose files of the sample's true motion: T_cam<-object of the true box per frame."""
+def _write_truth(case, drop=(), mesh_frame=np.eye(4)):
+    """FoundationPose files of the sample's true motion: T_cam<-object of the true box per frame
+    (of the mesh frame ``mesh_frame``, given in the box's frame)."""
     gt = GroundTruth(case / "gt")
     cams, objs = gt.camera_poses(), gt.object_poses("Box")
     for t in range(gt.n_frames):
         if t not in drop:
-            foundationpose.write_pose(case / "perception" / "ob_in_cam" / f"{t:06d}.txt", se3.invert(cams[t]) @ objs[t])
+            foundationpose.write_pose(case / "perception" / "ob_in_cam" / f"{t:06d}.txt", se3.invert(cams[t]) @ objs[t] @ mesh_frame)
     return gt.n_frames
 
 
@@ -66,3 +67,17 @@ def test_a_pose_that_is_not_a_rotation_names_its_file(tmp_path, case_copy):
     with pytest.raises(InputError, match="000004.txt.*not a rotation"):
         Pipeline(case_copy, out, Options(backends=BACKENDS)).run("trajectory")
     assert not layer_file(out, "trajectory").exists()
+
+
+def test_a_mesh_frame_turned_from_the_object_stages_keeps_the_path(tmp_path, case_copy):
+    """FoundationPose's mesh frame need not be the object stage's (a can's yaw is arbitrary): the
+    poses are re-expressed in the object stage's frame (the correction is on the object side), so
+    the path in the world is FoundationPose's. Corrected on the world side instead, the whole path
+    would turn about the world origin by the frames' 70 deg difference."""
+    turn = se3.make_pose(se3.rotation_about([0, 0, 1], np.radians(70.0)), [0.01, -0.02, 0.0])
+    _write_truth(case_copy, mesh_frame=turn)
+    out = tmp_path / "out"
+    Pipeline(case_copy, out, Options(backends=BACKENDS)).run("trajectory")
+    score = evaluate(case_copy, out).objects[0]
+    assert score.ape_translation_m < 0.01 and score.ape_rotation_deg < 0.5
+    assert score.rpe_translation_m < 0.001 and score.rpe_rotation_deg < 0.1

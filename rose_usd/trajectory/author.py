@@ -39,11 +39,15 @@ def author_trajectory(ctx: StageContext, name: str, world_from_object: np.ndarra
 
 
 def from_default_pose(ctx: StageContext, name: str, world_from_object: np.ndarray) -> np.ndarray:
-    """The poses moved rigidly so that frame 0 is the object stage's default pose (which rested
-    the object on the scene, e.g. lifted it out of the table by a few millimeters)."""
+    """The poses re-expressed so that frame 0 is the object stage's default pose (which rested
+    the object on the scene, e.g. lifted it out of the table by a few millimeters): the motion
+    since frame 0 in the world, W_t W_0^-1, applied to the default pose. The correction is on the
+    object side, W_t (W_0^-1 D): the two may disagree on the object frame (a can's yaw is
+    arbitrary), and a world-side correction D W_0^-1 would turn the whole path about the world
+    origin by that disagreement."""
     prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
     if not prim:
         raise StageError(f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)")
     default = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T
-    offset = default @ np.linalg.inv(world_from_object[0])
-    return np.einsum("ij,njk->nik", offset, world_from_object)
+    offset = np.linalg.inv(world_from_object[0]) @ default
+    return np.einsum("nij,jk->nik", world_from_object, offset)
