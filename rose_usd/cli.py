@@ -175,7 +175,7 @@ def cmd_bench_run(args) -> int:
         tag += f"-until-{args.until}"
     out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"{args.suite}-{mode.value}-{tag}"
     command = "rose-usd " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("rose-usd") else f"rose-usd bench run --suite {args.suite} --mode {mode.value}"
-    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command, until=args.until, prompts=not args.no_prompts, start_from=Path(args.start_from) if args.start_from else None)
+    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command, until=args.until, prompts=not args.no_prompts, start_from=Path(args.start_from) if args.start_from else None, rerun=tuple(args.rerun or ()))
     report = build_report(out)
     failed = [c["case"] for c in summary["cases"] if "error" in c]
     print(f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed -> {out}/results.json, {report}")
@@ -306,6 +306,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--until", metavar="STAGE", help="run only this stage and what it needs (metrics of later stages are left out)")
     p.add_argument("--no-prompts", action="store_true", help="drop the object prompts from the cases' rose.toml (objects are named, never pointed at)")
     p.add_argument("--start-from", metavar="FOLDER", help="start each case from a copy of this earlier results folder's kept run (same suite and mode): its current layers are not run again, their times carried over")
+    p.add_argument("--rerun", action="append", metavar="STAGE", help="with --start-from: run this stage even when its layer is current (after a change of its code; what depends on it follows)")
     p.set_defaults(func=cmd_bench_run)
     p = bsub.add_parser("speed", help="time one stage on a long case (default 300 frames at 640x480)")
     p.add_argument("stage", help="stage to time (its prerequisites run first, untimed)")

@@ -50,7 +50,8 @@ def test_results_files_and_report(small_results):
     header = (out / "results.csv").read_text().splitlines()[0]
     assert "object_ape_translation_m" in header and "time_gate_s" in header
     report = build_report(out).read_text()
-    assert "Table 2" in report and "Table 3" in report and "Paper" in report
+    assert "Table 2" in report and "Table 3" in report and "Paper" in report and "## Trajectories" in report
+    assert set(data["cases"][0]["stage_results"]) == set(stages)  # what each stage recorded (None: nothing)
     assert (out / "plots" / "per_task.png").stat().st_size > 0 and (out / "plots" / "ape_over_time.png").stat().st_size > 0
 
 
@@ -77,16 +78,16 @@ def test_default_suite_meets_oracle_targets(tmp_path):
 
 def test_start_from_an_earlier_run_reruns_only_what_changed(small_results, tmp_path):
     """``--start-from``: a kept run's current layers are kept with their recorded times; a changed
-    setting re-runs its stage (and what depends on it), and the scores match."""
+    setting re-runs its stage (and what depends on it), ``--rerun`` a stage named, and the scores match."""
     earlier_dir, earlier = small_results
-    summary = run_suite("small", PerceptionMode.RGBD, tmp_path / "again", cases_dir=earlier_dir.parent / "cases", settings={"gate": {"frame_stride": 3}}, start_from=earlier_dir)
+    summary = run_suite("small", PerceptionMode.RGBD, tmp_path / "again", cases_dir=earlier_dir.parent / "cases", settings={"gate": {"frame_stride": 3}}, start_from=earlier_dir, rerun=("trajectory",))
     assert summary["started_from"]["folder"] == str(earlier_dir)
     for before, after in zip(earlier["cases"], summary["cases"], strict=True):
         assert "error" not in after, after
-        for name in ("capture", "segment", "scene", "object", "trajectory"):
+        for name in ("capture", "segment", "scene", "object"):
             assert after["stages"][name]["reused"] and after["stages"][name]["wall_time_s"] == pytest.approx(before["stages"][name]["wall_time_s"], abs=1e-3)
             assert after["stages"][name]["peak_rss_mb"] == before["stages"][name]["peak_rss_mb"]
-        assert "reused" not in after["stages"]["gate"]
+        assert "reused" not in after["stages"]["gate"] and "reused" not in after["stages"]["trajectory"]
         assert [o["ape_translation_m"] for o in after["score"]["objects"]] == [o["ape_translation_m"] for o in before["score"]["objects"]]
     gate = json.loads((tmp_path / "again" / "runs" / earlier["cases"][0]["case"] / "report" / "gate.json").read_text())
     assert gate["frames_rendered"] < earlier["cases"][0]["n_frames"]

@@ -85,12 +85,13 @@ def run_suite(
     until: str | None = None,
     prompts: bool = True,
     start_from: Path | None = None,
+    rerun: tuple[str, ...] = (),
 ) -> dict:
     """Run every case of ``suite`` in ``mode`` into ``out_dir``/runs and write the results. With
     ``start_from`` (an earlier results folder of the same suite, mode and prompts), each case starts
     from a copy of that folder's kept run: its layers that are still current are not run again
     (their recorded wall times and peak memory are carried over), so later stages can be added to
-    a kept benchmark."""
+    a kept benchmark. Stages in ``rerun`` run even when current (after a change of their code)."""
     specs = get_suite(suite)
     source = _start_from(start_from, suite, mode, prompts) if start_from else None
     commit = _git_commit()  # at the start: the code that runs
@@ -115,7 +116,8 @@ def run_suite(
         proc = subprocess.run(
             [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(run_out), "--result", str(result_file), "--backends", json.dumps(backends), "--settings", json.dumps(settings or {})]
             + (["--until", until] if until else [])
-            + (["--reuse"] if earlier is not None else []),
+            + (["--reuse"] if earlier is not None else [])
+            + (["--rerun", ",".join(rerun)] if rerun else []),
             env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
         )
         result = json.loads(result_file.read_text()) if result_file.is_file() else {"error": f"worker exited with {proc.returncode} and wrote no result"}
@@ -133,7 +135,7 @@ def run_suite(
         "settings": settings or {},
         "until": until,
         "prompts": prompts,
-        "started_from": {"folder": str(start_from), "commit": source["commit"]} if source else None,
+        "started_from": {"folder": str(start_from), "commit": source["commit"], "rerun": list(rerun)} if source else None,
         "command": command,
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},

@@ -46,9 +46,10 @@ class RssMonitor:
         self._stop.set()
 
 
-def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str | None = None, reuse: bool = False) -> dict:
+def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str | None = None, reuse: bool = False, rerun: tuple[str, ...] = ()) -> dict:
     """Run the stages into ``out`` and score them. With ``reuse``, a stage whose layer in ``out`` is
-    current (same config and inputs) is kept, with the wall time its provenance recorded."""
+    current (same config and inputs) is kept, with the wall time its provenance recorded, unless
+    it is in ``rerun`` (its code changed: staleness follows configs and inputs, not code)."""
     from rose_usd import registry
     from rose_usd.bench.evaluate import evaluate
     from rose_usd.pipeline import Options, Pipeline
@@ -58,7 +59,7 @@ def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str |
     pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True))
     stages = {}
     for stage_def in registry.closure(until) if until else registry.STAGES:
-        if reuse and pipe.is_current(stage_def):
+        if reuse and stage_def.name not in rerun and pipe.is_current(stage_def):
             prov = read_provenance(layer_file(out, stage_def.layer))
             stages[stage_def.name] = {"backend": prov["backend"], "wall_time_s": prov["wall_time_s"], "peak_rss_mb": None, "reused": True}
             continue
@@ -99,11 +100,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--settings", default="{}", help="JSON {stage: {field: value}}")
     parser.add_argument("--until", default=None, help="run only this stage and what it needs")
     parser.add_argument("--reuse", action="store_true", help="keep the layers in --out that are current")
+    parser.add_argument("--rerun", default="", help="comma-separated stages to run even when current")
     args = parser.parse_args(argv)
     from rose_usd.errors import RoseError
 
     try:
-        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings), args.until, args.reuse)
+        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings), args.until, args.reuse, tuple(filter(None, args.rerun.split(","))))
         code = 0
     except RoseError as exc:
         result = {"error": exc.one_line()}
