@@ -147,6 +147,19 @@ def test_trellis_glb_and_foundationpose_agree_with_truth(mono):
         in_cam = se3.transform_points(pose, mesh.vertices * info[obj.name]["scale_m_per_unit"])
         true_in_cam = se3.transform_points(se3.invert(gt.camera_poses()[t]) @ gt.object_poses(obj.name)[t], true_mesh.vertices)
         assert np.linalg.norm(in_cam.mean(axis=0) - true_in_cam.mean(axis=0)) < 0.015
+        # the jitter of the mesh's center over the frames where the object is in full view is the
+        # translation jitter (2 mm per axis), not the rotation jitter times the camera distance
+        # (~7 mm per axis at 0.6 deg and 0.7 m); the constant offset of the two meshes' centers is
+        # left out
+        area = np.array([read_mask(gt.mask_dir(obj.name) / f"{u:06d}.png").sum() for u in range(gt.n_frames)])
+        center = mesh.vertices.mean(axis=0) * info[obj.name]["scale_m_per_unit"]
+        errs = []
+        for u in np.flatnonzero(area > 0.8 * area.max()):
+            pose = foundationpose.read_pose(mono / "perception" / "ob_in_cam" / obj.name / f"{u:06d}.txt")
+            truth = se3.invert(gt.camera_poses()[u]) @ gt.object_poses(obj.name)[u]
+            errs.append(se3.transform_points(pose, center[None])[0] - se3.transform_points(truth, true_mesh.vertices).mean(axis=0))
+        jitter = np.asarray(errs) - np.mean(errs, axis=0)
+        assert np.sqrt(np.mean(np.sum(jitter**2, axis=1))) < 0.006, obj.name
 
 
 def test_foundationpose_rejects_a_non_rotation(tmp_path):

@@ -47,7 +47,7 @@ from rose_usd.io import foundationpose, geocalib, megasam, sam2, trellis, unidep
 from rose_usd.io.images import read_depth_m, read_mask, read_rgb
 
 PERCEPTION_DIR = "perception"
-PERCEPTION_VERSION = 2
+PERCEPTION_VERSION = 3
 """Bumped whenever a change here changes the files written (cached mode cases are then rebuilt)."""
 
 
@@ -227,11 +227,13 @@ def simulate_foundationpose(case_dir: Path, gt: GroundTruth, name: str, object_f
     folder = case_dir / PERCEPTION_DIR / "ob_in_cam" if one_object else case_dir / PERCEPTION_DIR / "ob_in_cam" / name
     for t in range(n):
         cam_from_trellis = se3.invert(cams[t]) @ objs[t] @ object_from_trellis
-        noise = se3.make_pose(
-            Rotation.from_rotvec(np.radians(errors.foundationpose_rot_sigma_deg) * gain[t] * rot[t]).as_matrix(),
-            errors.foundationpose_trans_sigma_m * gain[t] * trans[t],
-        )
-        foundationpose.write_pose(folder / f"{t:06d}.txt", noise @ cam_from_trellis)
+        # the rotation error turns the object about its own center (the TRELLIS frame's origin),
+        # the translation error moves it in the camera frame: a pose estimator given depth and a
+        # mask errs in the object's orientation and position, not by turning it about the camera
+        # (which would move it sideways by the angle times its distance)
+        noisy = cam_from_trellis @ se3.make_pose(Rotation.from_rotvec(np.radians(errors.foundationpose_rot_sigma_deg) * gain[t] * rot[t]).as_matrix(), np.zeros(3))
+        noisy[:3, 3] += errors.foundationpose_trans_sigma_m * gain[t] * trans[t]
+        foundationpose.write_pose(folder / f"{t:06d}.txt", noisy)
     return {"hidden_frames": int((hidden > 0.5).sum())}
 
 
