@@ -157,6 +157,13 @@ def _sector_outer(r: np.ndarray, sector: np.ndarray, n_sectors: int, min_points:
     return outer
 
 
+def _polar(xy: np.ndarray, center: np.ndarray, n_sectors: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's distance from ``center`` and the index of its angular sector."""
+    d = xy - center
+    sector = ((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
+    return np.hypot(d[:, 0], d[:, 1]), sector
+
+
 def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n_sectors: int = 36):
     """(axis center (2,), heights, radii) when the points are a solid of revolution about a
     vertical axis, else None.
@@ -169,9 +176,7 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
     xy = points[:, :2]
     center, radius = _circle_fit(xy)
     for _ in range(3):  # refit the axis on the outer wall of the sectors that agree
-        d = xy - center
-        r = np.hypot(d[:, 0], d[:, 1])
-        sector = ((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
+        r, sector = _polar(xy, center, n_sectors)
         outer = _sector_outer(r, sector, n_sectors)
         if np.count_nonzero(np.isfinite(outer)) < n_sectors // 3:
             return None  # the angular coverage must be enough to trust the axis
@@ -185,9 +190,7 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
         center, radius = _circle_fit(xy[wall])
     if radius <= 0:
         return None
-    d = xy - center
-    r = np.hypot(d[:, 0], d[:, 1])
-    sector = ((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
+    r, sector = _polar(xy, center, n_sectors)
     z = points[:, 2]
     edges = np.arange(0.0, z.max() + band_m, band_m)
     heights, radii, spread = [], [], []
