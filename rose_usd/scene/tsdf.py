@@ -58,6 +58,27 @@ def _mask_files(ctx: StageContext, n: int) -> list[list[Path]]:
     return [[track / f"{t:06d}.png" for track in tracks] for t in range(n)]
 
 
+def _read_frame_masks(files: list[Path], case) -> list[tuple[Path, np.ndarray]]:
+    """One frame's masks (objects and interactor), each checked to be the frames' size."""
+    out = []
+    for f in files:
+        m = read_mask(f)
+        if m.shape != (case.height, case.width):
+            raise InputError(f"mask is {m.shape[1]}x{m.shape[0]}, frames are {case.width}x{case.height}", path=f, hint="re-run the segment stage")
+        out.append((f, m))
+    return out
+
+
+def _static_pixels(t: int, depth: np.ndarray, frame_masks: list, background: StaticBackground, kernel: np.ndarray) -> np.ndarray:
+    """The static pixels of frame t: with depth, under no mask grown by ``kernel``, and not in
+    front of the static world (what the scene is fused and textured from)."""
+    moving = np.zeros(depth.shape, np.uint8)
+    for _, m in frame_masks:
+        moving |= m.astype(np.uint8)
+    fg, _ = background.foreground(t, depth)
+    return ~(cv2.dilate(moving, kernel).astype(bool) | fg) & (depth > 0)
+
+
 class Fusion:
     """A TSDF volume (Open3D's tensor voxel-block grid on the CPU; its legacy ScalableTSDFVolume
     returned no points on CPU in Open3D 0.20) of metric depth frames with colors."""
@@ -143,19 +164,13 @@ def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_
     object_points = []
     for t in progress(frames, "scene fuse", total=len(frames)):
         depth = depth_of(t).copy()
-        moving = np.zeros(depth.shape, bool)
-        for f in masks[t]:
-            m = read_mask(f)
-            if m.shape != depth.shape:
-                raise InputError(f"mask is {m.shape[1]}x{m.shape[0]}, frames are {case.width}x{case.height}", path=f, hint="re-run the segment stage")
-            moving |= m
+        frame_masks = _read_frame_masks(masks[t], case)
+        for f, m in frame_masks:
             if f.parent.name != INTERACTOR:
                 v, u = np.nonzero(m[::4, ::4] & (depth[::4, ::4] > 0))
                 cam = backproject(4 * u, 4 * v, depth[4 * v, 4 * u], cameras.K[t])
                 object_points.append(se3.transform_points(cameras.world_from_cv[t], cam))
-        moving = cv2.dilate(moving.astype(np.uint8), kernel).astype(bool)
-        fg, _ = background.foreground(t, depth)
-        depth[moving | fg] = 0.0
+        depth[~_static_pixels(t, depth, frame_masks, background, kernel)] = 0.0
         used += volume.add(depth, case.rgb(t), cameras.K[t], cameras.world_from_cv[t])
     points, colors01 = volume.points()
     # carve: fused surface above the support and within carve_m of where an object was seen is
@@ -254,12 +269,13 @@ def bake_texture(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, co
     wa = np.clip(1.0 - wb - wc, 0, 1)
     s = (wa + wb + wc)[:, None]
     texel_xyz = (verts[f[:, 0]] * wa[:, None] + verts[f[:, 1]] * wb[:, None] + verts[f[:, 2]] * wc[:, None]) / s
-    texel_rgb = transfer_colors(texel_xyz, points, colors)
+    texel_rgb, seen = np.zeros((len(texel_xyz), 3)), np.zeros(len(texel_xyz), bool)
     if texel_colors is not None:
         normals = np.cross(verts[f[:, 1]] - verts[f[:, 0]], verts[f[:, 2]] - verts[f[:, 0]])
         normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-        from_frames, seen = texel_colors(texel_xyz, normals)
-        texel_rgb[seen] = from_frames[seen]
+        texel_rgb, seen = texel_colors(texel_xyz, normals)
+    if not seen.all():  # the 3-NN rule only where no frame saw the texel
+        texel_rgb[~seen] = transfer_colors(texel_xyz[~seen], points, colors)
     tex = np.zeros((size, size, 3), np.uint8)
     tex[ys, xs] = linear_to_srgb8(texel_rgb)
     return verts, new_faces.astype(np.int64), uv.astype(float), transfer_colors(verts, points, colors), tex
@@ -293,12 +309,7 @@ class FrameColors:
         kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
         self.static, self.rgb = {}, {}
         for t in progress(self.frames, "scene texture: frames", total=len(self.frames)):
-            depth = self.depth_of(t)
-            moving = np.zeros(depth.shape, np.uint8)
-            for f in masks[t]:
-                moving |= read_mask(f).astype(np.uint8)
-            fg, _ = background.foreground(t, depth)
-            self.static[t] = ~(cv2.dilate(moving, kernel).astype(bool) | fg) & (depth > 0)
+            self.static[t] = _static_pixels(t, self.depth_of(t), _read_frame_masks(masks[t], case), background, kernel)
             self.rgb[t] = srgb8_to_linear(case.rgb(t)).astype(np.float32)
         self.tol_m, self.min_cos, self.chunk = tol_m, min_cos, chunk
 
