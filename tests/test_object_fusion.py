@@ -115,3 +115,30 @@ def test_a_mug_seen_from_one_side_is_a_solid_of_revolution():
     box = np.column_stack([np.where(face == 0, 0.04, side), np.where(face == 1, 0.04, np.where(face == 2, -0.04, side)), z])
     box[face == 0, 1] = side[face == 0]
     assert revolution_profile(box, 0.01, 0.05) is None
+
+
+def test_flying_pixels_above_a_top_face_are_carved_and_the_face_is_kept():
+    """A top face at z = 5 cm seen from several cameras, with a strip of points 4-10 mm above its
+    edge (a sensor's flying pixels fused over a rest): views see past the strip, not past the face."""
+    from rose_usd.core import se3
+    from rose_usd.core.pinhole import backproject
+    from rose_usd.object.fusion import seen_through
+
+    K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
+    views = []
+    for yaw in np.radians([0, 40, 80, 120]):
+        eye = np.array([0.5 * np.cos(yaw), 0.5 * np.sin(yaw), 0.45])
+        pose = se3.look_at(eye, np.zeros(3))
+        u, v = np.meshgrid(np.arange(320.0), np.arange(240.0))
+        rays = backproject(u, v, np.ones_like(u), K) @ pose[:3, :3].T  # world direction per unit depth
+        depth = (0.05 - eye[2]) / rays[..., 2]  # where each pixel's ray meets the plane z = 5 cm
+        views.append((depth.astype(np.float32), K, pose))
+    rng = np.random.default_rng(0)
+    face = np.column_stack([rng.uniform(-0.05, 0.05, (2000, 2)), np.full(2000, 0.05)])
+    strip = np.column_stack([np.full(300, 0.05), rng.uniform(-0.05, 0.05, 300), 0.05 + rng.uniform(0.004, 0.01, 300)])
+    points = np.vstack([face, strip])
+    kept, colors = seen_through(points, np.zeros((len(points), 3), np.uint8), views)
+    assert len(kept) == len(colors)
+    kept_face = np.count_nonzero(np.isclose(kept[:, 2], 0.05))
+    assert kept_face == len(face)
+    assert len(kept) - kept_face < 0.1 * len(strip), len(kept) - kept_face

@@ -183,3 +183,63 @@ def test_scene_texture_from_the_frames_is_closer_to_the_video(classical_out, sam
     assert read_provenance(layer_file(classical_out, "scene"))["results"]["texture_frames"] > 0
     from_frames, from_points = _static_ssim(classical_out, sample_case), _static_ssim(points_out, sample_case)
     assert from_frames > from_points + 0.02, (from_frames, from_points)
+
+
+def _stack_image(seed: int = 0):
+    """A teal box with a pink can standing on it (color index image), the two prompt-box regions
+    (the box's runs up into the can, as the depth-connected region of a stack does) and the truth."""
+    from rose_usd.segment.classical import color_index
+
+    rng = np.random.default_rng(seed)
+    rgb = np.full((120, 160, 3), (200, 200, 200), np.uint8)
+    base = np.zeros((120, 160), bool)
+    base[60:100, 40:120] = True
+    top = np.zeros((120, 160), bool)
+    top[20:62, 60:100] = True
+    rgb[base] = (30, 140, 150)
+    rgb[top] = (220, 60, 110)
+    rgb = np.clip(rgb.astype(int) + rng.integers(-12, 13, rgb.shape), 0, 255).astype(np.uint8)
+    base_box = np.zeros_like(base)
+    base_box[45:100, 40:120] = True  # an axis-aligned box around the base holds the can's bottom
+    return color_index(rgb), base_box & (base | top), top, base, top
+
+
+def test_stacked_objects_prompt_regions_share_no_pixel():
+    from rose_usd.segment.classical import separate
+
+    cidx, base_region, top_region, base, top = _stack_image()
+    assert np.count_nonzero(base_region & top_region) > 500  # the overlap this is about
+    got_base, got_top = separate([base_region, top_region], cidx)
+    assert not np.any(got_base & got_top)
+    for got, truth in ((got_base, base), (got_top, top)):
+        iou = np.count_nonzero(got & truth) / np.count_nonzero(got | truth)
+        assert iou > 0.97, iou
+
+
+def test_separate_falls_back_to_the_nearest_region_for_objects_of_one_color():
+    from rose_usd.segment.classical import separate
+
+    cidx, base_region, top_region, base, top = _stack_image()
+    same = np.full_like(cidx, cidx[80, 80])  # every pixel one color: color cannot decide
+    got_base, got_top = separate([base_region, top_region], same)
+    assert not np.any(got_base & got_top)
+    assert np.count_nonzero(got_base | got_top) == np.count_nonzero(base_region | top_region)
+    # the contested band (rows 45-61) is split at its middle, not given whole to one region
+    assert 0.3 < np.count_nonzero(got_base[45:62] & top_region[45:62]) / np.count_nonzero(top_region[45:62]) < 0.7
+
+
+def test_a_still_box_whose_top_a_hand_covers_has_not_moved():
+    """The track's motion is read from matched points, not from the mean of what is seen: a hand
+    covering the top half of a box that stands still moves that mean down by half its height."""
+    import trimesh
+
+    from rose_usd.segment.classical import _shift
+
+    box = np.asarray(trimesh.sample.sample_surface_even(trimesh.creation.box([0.1, 0.1, 0.08]), 4000, seed=0)[0])
+    rng = np.random.default_rng(1)
+    seen = box[box[:, 2] < 0.0]
+    seen = seen + rng.normal(0, 0.0005, seen.shape)
+    assert np.linalg.norm(_shift(box, seen)) < 0.002
+    assert abs(seen.mean(axis=0)[2] - box.mean(axis=0)[2]) > 0.015  # what the mean said
+    moved = box + np.array([0.01, -0.006, 0.004])
+    assert np.allclose(_shift(box, moved), [0.01, -0.006, 0.004], atol=0.001)

@@ -339,10 +339,38 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
         pts = np.concatenate([p for p, _ in per_frame])
         cols = np.concatenate([c for _, c in per_frame])
         pts, cols = _clean(pts, cols, cfg.voxel_m, ground + cfg.support_gap_m)
+        views = [rests[i] for i in np.unique(np.linspace(0, len(rests) - 1, min(16, len(rests))).astype(int))]
+        pts, cols = seen_through(pts, cols, [(depth_of(t) * np.float32(typical / r), cameras.K[t], cameras.world_from_cv[t]) for t, r in views])
         if len(pts) < 200:
             raise InputError(f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames", path=folder, hint="check its masks and the depth")
         clouds[spec.name] = RestingCloud(pts, cols, frames, masks, ground)
     return clouds
+
+
+def seen_through(points: np.ndarray, colors: np.ndarray, views: list, *, tolerance_m: float = 0.004, fraction: float = 0.3, min_views: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The points that no view sees through (and their colors): free-space carving.
+
+    A sensor's flying pixels at a silhouette land a few mm off the surface, a few per frame, and
+    fused over a rest they make a dense wall that outlier removal keeps (a strip 5-30 mm above a
+    box's top edge: the can stacked on it was then lifted that high). A point is dropped when, in
+    at least ``min_views`` views and ``fraction`` of the views it falls in, even the nearest depth
+    of the 3x3 pixels around it lies beyond it by ``tolerance_m``: that view saw past it. Things
+    in front (a hand) only make depth nearer. ``views``: (depth, K, world_from_cv) of frames in
+    which the object rests."""
+    if not len(points) or not views:
+        return points, colors
+    through = np.zeros(len(points), int)
+    seen = np.zeros(len(points), int)
+    for depth, K, world_from_cv in views:
+        nearest = cv2.erode(np.where(depth > 0, depth, np.inf).astype(np.float32), np.ones((3, 3), np.uint8))
+        u, v, z = pixels_of(points, world_from_cv, K, depth.shape[1], depth.shape[0], min_z=0.05)
+        idx = np.flatnonzero(u >= 0)
+        d = nearest[v[idx], u[idx]]
+        valid = np.isfinite(d)
+        seen[idx[valid]] += 1
+        through[idx[valid]] += d[valid] > z[idx[valid]] + tolerance_m
+    keep = ~((through >= min_views) & (through >= fraction * seen))
+    return points[keep], colors[keep]
 
 
 def _ground_height(ctx: StageContext, name: str, rests: list, masks: list, depth_of, cameras, typical: float, *, count: int = 8) -> float:

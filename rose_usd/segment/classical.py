@@ -135,6 +135,39 @@ def _diameter(points: np.ndarray) -> float:
     return float(np.linalg.norm(hi - lo))
 
 
+def separate(regions: list[np.ndarray], cidx: np.ndarray, *, sure: float = 2.0) -> list[np.ndarray]:
+    """Regions that share no pixel: an object hides what is behind it, so a pixel shows one object.
+
+    Prompt boxes of stacked objects overlap, and the depth-connected region inside the lower
+    object's box runs up into the upper object. A pixel claimed by several regions goes to the
+    one whose colors (of the pixels it alone claims) make it more likely, by a factor ``sure``;
+    where no color model is that sure, to the nearest pixel claimed by one region alone. Each
+    region then keeps its largest 4-connected part."""
+    claims = np.sum(regions, axis=0) if regions else np.zeros(cidx.shape, int)
+    if not np.any(claims > 1):
+        return [r.copy() for r in regions]
+    alone = [r & (claims == 1) for r in regions]
+    hists = [histogram(cidx[a] if a.sum() >= 50 else cidx[r]) for a, r in zip(alone, regions)]
+    contested = claims > 1
+    cy, cx = np.nonzero(contested)
+    c = cidx[cy, cx]
+    k = len(regions)
+    likely = np.stack([np.where(regions[i][cy, cx], np.log(hists[i][c]), -np.inf) for i in range(k)])
+    ranked = np.sort(likely, axis=0)
+    by_color = np.argmax(likely, axis=0)
+    distance = np.stack(
+        [np.where(regions[i][cy, cx], cv2.distanceTransform((~alone[i]).astype(np.uint8), cv2.DIST_L2, 5)[cy, cx], np.inf) for i in range(k)]
+    )
+    winner = np.where(ranked[-1] - ranked[-2] >= np.log(sure), by_color, np.argmin(distance, axis=0))
+    out = []
+    for i, region in enumerate(regions):
+        mine = region & ~contested
+        mine[cy[winner == i], cx[winner == i]] = True
+        n, labels, areas = components(mine)
+        out.append(labels == 1 + int(np.argmax(areas[1:])) if n > 1 else mine)
+    return out
+
+
 # ----------------------------------------------------------------------------- the segmenter
 MIN_REGION_PX = 150
 """The smallest region taken for an object or the interactor, at 640x480 (scaled with the image area)."""
@@ -154,7 +187,19 @@ class Segmenter:
         return rgb, depth, pts, depth_edges(depth), color_index(rgb)
 
     # ----------------------------------------------------------------- start
-    def start_from_prompt(self, name: str, prompt, where) -> ObjectTrack:
+    def start_from_prompts(self, specs, where) -> list[tuple[int, ObjectTrack]]:
+        """(prompt frame, track) of every prompted object; objects prompted on the same frame get
+        regions that share no pixel (``separate``)."""
+        regions = {s.name: self.prompt_region(s.name, s.prompt, where) for s in specs}
+        for frame in sorted({s.prompt.frame for s in specs}):
+            names = [s.name for s in specs if s.prompt.frame == frame]
+            for name, region in zip(names, separate([regions[m] for m in names], self.frame(frame)[4])):
+                regions[name] = region
+        return [(s.prompt.frame, self._new_track(s.name, s.prompt.frame, regions[s.name])) for s in specs]
+
+    def prompt_region(self, name: str, prompt, where) -> np.ndarray:
+        """The object's pixels on its prompt frame: the depth-connected region standing on the
+        support inside the prompt box (or the one nearest the prompt point)."""
         t = prompt.frame
         rgb, depth, pts, edges, cidx = self.frame(t)
         height = pts[..., 2]
@@ -178,8 +223,7 @@ class Segmenter:
             ys, xs = np.nonzero(labels > 0)
             nearest = int(np.argmin((xs - x) ** 2 + (ys - y) ** 2))
             label = int(labels[ys[nearest], xs[nearest]])
-        mask = labels == label
-        return self._new_track(name, t, mask)
+        return labels == label
 
     def _new_track(self, name: str, t: int, mask: np.ndarray) -> ObjectTrack:
         rgb, depth, pts, edges, cidx = self.frame(t)
@@ -305,8 +349,16 @@ class Segmenter:
             mask = np.isin(labels, keep) if len(keep) else np.zeros_like(grow)
             mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
             mask = self._color_border(mask, cidx, track, hand_hist, owner, k)
-            mask = fill_holes(mask, max_hole)
-            masks.append(mask)
+            masks.append(fill_holes(mask, max_hole))
+        # closing, color borders and filled holes may reach into another object's pixels: each
+        # pixel stays with the track that owns it (the nearest), or the first that claims it
+        claims = np.sum(masks, axis=0) if masks else None
+        for k, (track, mask) in enumerate(zip(tracks, masks)):
+            shared = mask & (claims > 1)
+            if shared.any():
+                others_own = (owner != k) & (owner >= 0)
+                earlier = np.any(masks[:k], axis=0) if k else np.zeros_like(mask)
+                mask &= ~(shared & (others_own | ((owner < 0) & earlier)))
             self._update(track, t, mask)
         return masks
 
@@ -354,10 +406,36 @@ class Segmenter:
         if len(new) < 20:
             track.hidden += 1
             return
-        track.velocity = 0.5 * track.velocity + 0.5 * (new.mean(axis=0) - track.points.mean(axis=0)) if track.hidden == 0 else np.zeros(3)
-        track.points = new
+        shift = _shift(track.points, new)
+        track.velocity = 0.5 * track.velocity + 0.5 * shift if track.hidden == 0 else np.zeros(3)
+        # the part hidden now (something in front of it: a hand) is still there, moved with the
+        # part seen; keeping only the seen part lost a box whose seen face the hand then covered
+        moved = track.points + shift
+        u, v, z = pixels_of(moved, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
+        d = sample_at(depth, u, v)
+        behind = (u >= 0) & (d > 0) & (d < z - 0.01)
+        track.points = _subsample(np.concatenate([new, moved[behind]]), 4000, seed=t)
         track.hidden = 0
         track.color = 0.5 * track.first_color + 0.5 * (0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask]))
+
+
+def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """How far the points moved from ``old`` to ``new``: translation-only ICP (the median offset
+    of each new point to its nearest old one), started from no motion and from the difference of
+    the means, whichever ends nearer. The means alone are wrong under occlusion: a hand covering
+    the top of a box that stands still moves the mean of what is seen down, and a velocity read
+    from that carried the box's track into the table (it was then lost, and the scene fused the
+    box as a ghost)."""
+    tree = cKDTree(old)
+    best, best_gap = np.zeros(3), np.inf
+    for shift in (np.zeros(3), new.mean(axis=0) - old.mean(axis=0)):
+        for _ in range(iterations):
+            _, nearest = tree.query(new - shift)
+            shift = np.median(new - old[nearest], axis=0)
+        gap = float(np.median(tree.query(new - shift)[0]))
+        if gap < best_gap:
+            best, best_gap = shift, gap
+    return best
 
 
 def _interactor(seg: Segmenter, t: int, objects: list[np.ndarray], hand_hist: np.ndarray | None = None) -> np.ndarray:
@@ -400,7 +478,7 @@ def run(ctx: StageContext) -> None:
     if not specs:  # a static scene (rose.toml: objects = []): only the interactor
         starts, how = [], "static-scene"
     elif prompted:
-        starts = [(s.prompt.frame, seg.start_from_prompt(s.name, s.prompt, where)) for s in specs]
+        starts = seg.start_from_prompts(specs, where)
         how = "prompt"
     else:
         found = seg.discover([s.name for s in specs], lambda t: _interactor(seg, t, []), n, where)
