@@ -122,7 +122,7 @@ def test_flying_pixels_above_a_top_face_are_carved_and_the_face_is_kept():
     edge (a sensor's flying pixels fused over a rest): views see past the strip, not past the face."""
     from rose_usd.core import se3
     from rose_usd.core.pinhole import backproject
-    from rose_usd.object.fusion import seen_through
+    from rose_usd.object.fusion import free_space_carve
 
     K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
     views = []
@@ -137,7 +137,7 @@ def test_flying_pixels_above_a_top_face_are_carved_and_the_face_is_kept():
     face = np.column_stack([rng.uniform(-0.05, 0.05, (2000, 2)), np.full(2000, 0.05)])
     strip = np.column_stack([np.full(300, 0.05), rng.uniform(-0.05, 0.05, 300), 0.05 + rng.uniform(0.004, 0.01, 300)])
     points = np.vstack([face, strip])
-    kept, colors = seen_through(points, np.zeros((len(points), 3), np.uint8), views)
+    kept, colors = free_space_carve(points, np.zeros((len(points), 3), np.uint8), views)
     assert len(kept) == len(colors)
     kept_face = np.count_nonzero(np.isclose(kept[:, 2], 0.05))
     assert kept_face == len(face)

@@ -6,7 +6,9 @@ with no imported mesh. No learned model.
    long as its points of that view, projected into later frames, still meet the depth there
    (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are fused (the world frame is the object's frame
    while it rests). The trajectory stage will add the frames after.
-2. **Clean.** Voxel-downsampled to ``voxel_m``, statistical outliers dropped, and points within
+2. **Clean.** Voxel-downsampled to ``voxel_m``, statistical outliers dropped, points that a
+   resting frame sees past dropped (flying pixels at the silhouette, fused over many frames,
+   form a dense wall that outlier removal keeps), and points within
    ``support_gap_m`` of the surface around the object dropped (the table at the mask's border;
    that surface's height is measured in a ring of pixels around the mask, since the world's
    z = 0 is one plane for the whole scene and may be off under this object).
@@ -340,14 +342,14 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
         cols = np.concatenate([c for _, c in per_frame])
         pts, cols = _clean(pts, cols, cfg.voxel_m, ground + cfg.support_gap_m)
         views = [rests[i] for i in np.unique(np.linspace(0, len(rests) - 1, min(16, len(rests))).astype(int))]
-        pts, cols = seen_through(pts, cols, [(depth_of(t) * np.float32(typical / r), cameras.K[t], cameras.world_from_cv[t]) for t, r in views])
+        pts, cols = free_space_carve(pts, cols, [(depth_of(t) * np.float32(typical / r), cameras.K[t], cameras.world_from_cv[t]) for t, r in views])
         if len(pts) < 200:
             raise InputError(f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames", path=folder, hint="check its masks and the depth")
         clouds[spec.name] = RestingCloud(pts, cols, frames, masks, ground)
     return clouds
 
 
-def seen_through(points: np.ndarray, colors: np.ndarray, views: list, *, tolerance_m: float = 0.004, fraction: float = 0.3, min_views: int = 2) -> tuple[np.ndarray, np.ndarray]:
+def free_space_carve(points: np.ndarray, colors: np.ndarray, views: list, *, tolerance_m: float = 0.004, fraction: float = 0.3, min_views: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """The points that no view sees through (and their colors): free-space carving.
 
     A sensor's flying pixels at a silhouette land a few mm off the surface, a few per frame, and

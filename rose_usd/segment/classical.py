@@ -10,14 +10,18 @@ support plane, so every pixel has a world point and a height above the support.
    interactor comes nearest to over the video ("what the hand moves"); with several objects
    named, that region is first split into the part that later leaves its place (seen past in a
    later frame) and the part that stays, for objects stacked on each other. Names of rose.toml
-   go to regions in that order (unprompted, nothing else tells which object is which).
+   go to regions in that order (unprompted, nothing else tells which object is which). Prompt
+   regions of one frame that overlap (a stack's boxes) are separated: a shared pixel goes to the
+   object whose colors make it likelier, else to the nearest pixel only one region claims.
 2. **Propagate** (forward from the prompt frame, then backward). In each frame, a pixel belongs to
    the object when its world point lies within ``max(diameter, 3 cm)`` of the object's previous
    points (shifted by its last velocity), its color is more likely under the object's color model
    than under the model of its surroundings and the hand, and it is depth-connected to a core of
-   pixels within ``core_m`` of the previous points. Color models are updated as the object turns.
-   When the object is hidden (the hand covers it), its last points are kept and the search
-   widens until it reappears.
+   pixels within ``core_m`` of the previous points. A pixel belongs to one object at most.
+   Color models are updated as the object turns. The motion between frames is translation-only
+   ICP of the seen points (not the shift of their mean, which occlusion moves), and points that
+   something now stands in front of are kept, moved along. When the object is hidden (the hand
+   covers it), its last points are kept and the search widens until it reappears.
 3. **Interactor.** Pixels nearer than the static world (segment.background) by more than
    ``foreground_m``, minus the objects, in regions of at least ``min_region_px`` pixels.
 """
