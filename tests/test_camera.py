@@ -127,3 +127,24 @@ def test_check_K_rejects_intrinsics_that_cannot_fit(K, message):
     """Intrinsics that cannot belong to a 320x240 image get a one-line error."""
     with pytest.raises(InputError, match=message):
         cam.check_K(K, W, H, path="cam_K.txt")
+
+
+def test_view_counts_sort_points_in_front_on_and_behind_a_seen_wall():
+    """A wall at 1 m filling a camera at the origin: a point 0.5 m away was seen through, one on
+    the wall was seen, one behind it was hidden (neither); with a 3x3 window a point whose
+    neighbour pixel saw something nearer is not seen through, and a one-pixel hole is filled."""
+    from rose_usd.core.pinhole import view_counts
+
+    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+    depth = np.full((48, 64), 1.0, np.float32)
+    depth[0, 0] = 0.0  # a hole: no evidence there
+    points = np.array([[0, 0, 0.5], [0, 0, 1.005], [0, 0, 1.5], [-0.16, -0.12, 0.5], [0.05, 0, 0.5], [0.5, 0, 0.5]])
+    views = [(depth, K, np.eye(4))] * 3
+    through, near, observed = view_counts(points, views, tol_m=0.01)
+    assert through.tolist() == [3, 0, 0, 0, 3, 0]  # the 4th falls in the hole, the 6th outside
+    assert near.tolist() == [0, 3, 0, 0, 0, 0]
+    assert observed.tolist() == [3, 3, 3, 0, 3, 0]
+    edge = depth.copy()
+    edge[25, 43] = 0.4  # beside the 5th point's pixel (42, 24): u = 32 + 100 x 0.05 / 0.5
+    assert view_counts(points, [(edge, K, np.eye(4))], tol_m=0.01)[0].tolist() == [1, 0, 0, 0, 1, 0]
+    assert view_counts(points, [(edge, K, np.eye(4))], tol_m=0.01, window=3)[0].tolist() == [1, 0, 0, 1, 0, 0]  # the hole takes its neighbours' depth

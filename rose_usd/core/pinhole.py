@@ -48,6 +48,31 @@ def sample_at(image: np.ndarray, u: np.ndarray, v: np.ndarray, fill=0):
     return out
 
 
+def view_counts(points_world: np.ndarray, views, *, tol_m: float, rel: float = 0.0, window: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Free-space evidence for world points (N, 3) from ``views``, an iterable of (depth, K,
+    world_from_cv). Returns per point how many views (through, near, observed): observed, the views
+    whose depth at its pixel is valid; through, those whose depth lies beyond it by more than
+    ``tol_m`` + ``rel`` x its depth (the view saw past it); near, those within that of it. With
+    ``window`` > 1 a view's depth at a pixel is the nearest valid one of the ``window`` x ``window``
+    pixels around it, so that a point at a silhouette counts as seen through only when all its
+    neighbours are beyond it."""
+    through = np.zeros(len(points_world), np.int32)
+    near = np.zeros(len(points_world), np.int32)
+    observed = np.zeros(len(points_world), np.int32)
+    for depth, K, world_from_cv in views:
+        d_img = np.where(depth > 0, depth, np.inf).astype(np.float32)
+        if window > 1:
+            d_img = cv2.erode(d_img, np.ones((window, window), np.uint8))
+        u, v, z = pixels_of(points_world, world_from_cv, K, depth.shape[1], depth.shape[0], min_z=0.05)
+        d = sample_at(d_img, u, v, fill=np.inf).astype(float)
+        ok = np.isfinite(d)
+        tol = tol_m + rel * z
+        observed += ok
+        through += ok & (d > z + tol)
+        near += ok & (np.abs(d - z) <= tol)
+    return through, near, observed
+
+
 def silhouette(vertices_world: np.ndarray, faces: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 1e-3) -> np.ndarray:
     """The mesh's silhouette in a camera: a (height, width) bool image of the pixels whose
     centers some triangle covers. Triangles with a vertex not in front of ``min_z`` are left out

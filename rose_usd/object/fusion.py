@@ -40,7 +40,7 @@ from rose_usd.capture.depth import depth_is_sensor, metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.inertia import mass_properties, shell_mass_properties
-from rose_usd.core.pinhole import backproject, pixels_of
+from rose_usd.core.pinhole import backproject, pixels_of, view_counts
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io.images import read_mask
@@ -335,14 +335,18 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
             raise InputError(f"object {spec.name!r} is never clearly visible", path=folder, hint="check its masks (segment stage) or its prompt")
         frames = [t for t, _ in rests]
         typical = float(np.median([r for _, r in rests]))
+        carve_at = {rests[i][0] for i in np.unique(np.linspace(0, len(rests) - 1, min(16, len(rests))).astype(int))}
+        views = []  # the resting views that carve the fused points (their depth read once)
         for t, ratio in rests:  # every frame's depth brought to the rest's typical scale
-            per_frame.append(masked_points(depth_of(t) * np.float32(typical / ratio), masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t]))
+            depth = depth_of(t) * np.float32(typical / ratio)
+            per_frame.append(masked_points(depth, masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t]))
+            if t in carve_at:
+                views.append((depth, cameras.K[t], cameras.world_from_cv[t]))
         ground = _ground_height(ctx, spec.name, rests, masks, depth_of, cameras, typical)
         pts = np.concatenate([p for p, _ in per_frame])
         cols = np.concatenate([c for _, c in per_frame])
         pts, cols = _clean(pts, cols, cfg.voxel_m, ground + cfg.support_gap_m)
-        views = [rests[i] for i in np.unique(np.linspace(0, len(rests) - 1, min(16, len(rests))).astype(int))]
-        pts, cols = free_space_carve(pts, cols, [(depth_of(t) * np.float32(typical / r), cameras.K[t], cameras.world_from_cv[t]) for t, r in views])
+        pts, cols = free_space_carve(pts, cols, views)
         if len(pts) < 200:
             raise InputError(f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames", path=folder, hint="check its masks and the depth")
         clouds[spec.name] = RestingCloud(pts, cols, frames, masks, ground)
@@ -361,17 +365,8 @@ def free_space_carve(points: np.ndarray, colors: np.ndarray, views: list, *, tol
     which the object rests."""
     if not len(points) or not views:
         return points, colors
-    through = np.zeros(len(points), int)
-    seen = np.zeros(len(points), int)
-    for depth, K, world_from_cv in views:
-        nearest = cv2.erode(np.where(depth > 0, depth, np.inf).astype(np.float32), np.ones((3, 3), np.uint8))
-        u, v, z = pixels_of(points, world_from_cv, K, depth.shape[1], depth.shape[0], min_z=0.05)
-        idx = np.flatnonzero(u >= 0)
-        d = nearest[v[idx], u[idx]]
-        valid = np.isfinite(d)
-        seen[idx[valid]] += 1
-        through[idx[valid]] += d[valid] > z[idx[valid]] + tolerance_m
-    keep = ~((through >= min_views) & (through >= fraction * seen))
+    through, _, observed = view_counts(points, views, tol_m=tolerance_m, window=3)
+    keep = ~((through >= min_views) & (through >= fraction * observed))
     return points[keep], colors[keep]
 
 

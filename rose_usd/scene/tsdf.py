@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import linear_to_srgb8, srgb8_to_linear
-from rose_usd.core.pinhole import backproject, pixels_of, sample_at
+from rose_usd.core.pinhole import backproject, pixels_of, sample_at, view_counts
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io.images import read_mask
@@ -131,17 +131,8 @@ class Fusion:
 def seen_through(points: np.ndarray, depth_of, cameras, frames, *, tol_m: float = 0.02, rel: float = 0.03) -> np.ndarray:
     """Points (N, 3) that more of ``frames`` see through (the depth at their pixel lies beyond
     them by more than ``tol_m`` + ``rel`` x depth) than see (depth within that of them)."""
-    through = np.zeros(len(points), np.int32)
-    seen = np.zeros(len(points), np.int32)
-    for t in frames:
-        depth = depth_of(t)
-        u, v, z = pixels_of(points, cameras.world_from_cv[t], cameras.K[t], depth.shape[1], depth.shape[0], min_z=0.05)
-        d = sample_at(depth, u, v).astype(float)
-        ok = d > 0
-        tol = tol_m + rel * z
-        through += ok & (d > z + tol)
-        seen += ok & (np.abs(d - z) <= tol)
-    return through > seen
+    through, near, _ = view_counts(points, ((depth_of(t), cameras.K[t], cameras.world_from_cv[t]) for t in frames), tol_m=tol_m, rel=rel)
+    return through > near
 
 
 CARVE_ABOVE_M = 0.015
