@@ -16,12 +16,20 @@ with no imported mesh. No learned model.
    seen footprint (the surface around it, or the top of the object it stands on: the top of a stack's lower
    object seen around the upper one). A solid of revolution (a can, a mug's body: the radial distance of the points to a
    fitted vertical axis varies by under ``revolution_tolerance`` of the radius within each height
-   band) is completed by revolving its median profile. Anything else is completed as a height
-   field standing on the support: walls go straight down from the seen rim to the table.
-4. **Close**: the completed solid is a voxel grid (``voxel_m``); marching cubes gives its surface
-   (watertight by construction), smoothed (Taubin) and decimated to ``max_triangles``, then
-   checked watertight, 2-manifold, oriented and free of self-intersections. (An alpha wrap of
-   the completed points was tried first: it entered the solid and returned a thin shell.)
+   band) is completed by revolving its median profile up to its top. The axis is fitted to the
+   side's points only (the top face's points near its rim are not wall), finally by geometric
+   least squares (Kasa's algebraic fit of an arc seen from one side is pulled toward the camera
+   and shrunk). Anything else is completed as a height field standing on the support: walls go
+   straight down from the seen rim to the table. Heights (a column's, the top of a solid of
+   revolution) are upper medians of the points (``cell_upper_median``, ``top_height``): the
+   highest point is raised by the depth noise (a box 3-4 mm, a can 7 mm too tall before).
+4. **Close**: the completed solid is a voxel grid (``voxel_m``) whose occupancy ramps from 1 to 0
+   over two voxels across a completed surface, so marching cubes puts the surface where it is,
+   not on a voxel face; seen points outside it count only in parts of a dozen voxels or more
+   (a mug's handle, not the noise). Its surface is watertight by construction, smoothed (Taubin)
+   and decimated to ``max_triangles``, then checked watertight, 2-manifold, oriented and free of
+   self-intersections. (An alpha wrap of the completed points was tried first: it entered the
+   solid and returned a thin shell.)
 5. **Priors**: density, friction and restitution from the category table (rose.toml may fix any
    of them, or mass_kg); mass = density x volume, or x the wall's volume for hollow categories;
    center of mass and inertia from the mesh.
@@ -137,13 +145,46 @@ def _extent_m(mask: np.ndarray, depth: np.ndarray) -> float:
     return float(np.percentile(d, 95) - np.percentile(d, 5)) if len(d) else 0.0
 
 
-def _circle_fit(xy: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares circle (Kasa): center (2,), radius."""
+def _circle_fit(xy: np.ndarray, *, geometric: bool = False, scale_m: float = 0.002) -> tuple[np.ndarray, float]:
+    """Least-squares circle: center (2,), radius. Algebraic (Kasa) by default; with ``geometric``,
+    refined on the points' distances to the circle (robust, soft L1 beyond ``scale_m``): Kasa's fit
+    of an arc seen from one side is pulled toward the arc and shrunk by the noise."""
     a = np.column_stack([2 * xy, np.ones(len(xy))])
     b = (xy**2).sum(axis=1)
     sol, *_ = np.linalg.lstsq(a, b, rcond=None)
     center = sol[:2]
-    return center, float(np.sqrt(max(sol[2] + center @ center, 0.0)))
+    radius = float(np.sqrt(max(sol[2] + center @ center, 0.0)))
+    if geometric and radius > 0:
+        from scipy.optimize import least_squares
+
+        fit = least_squares(lambda q: np.hypot(xy[:, 0] - q[0], xy[:, 1] - q[1]) - q[2], [*center, radius], loss="soft_l1", f_scale=scale_m)
+        center, radius = fit.x[:2], float(fit.x[2])
+    return center, radius
+
+
+def cell_upper_median(cells: np.ndarray, z: np.ndarray, band_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell (``cells``: one integer id per point) the median height of its points within
+    ``band_m`` of its highest: a top face's height with its noise averaged (the highest point is
+    biased up by it), and a wall's points below the rim left out. Returns (cell ids, heights)."""
+    order = np.lexsort((z, cells))
+    c, zs = cells[order], z[order]
+    starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
+    ends = np.r_[starts[1:], len(c)]
+    owner = np.repeat(np.arange(len(starts)), ends - starts)
+    k = np.add.reduceat((zs >= zs[ends - 1][owner] - band_m).astype(int), starts)  # the last k of each cell
+    lo = ends - k
+    return c[starts], 0.5 * (zs[lo + (k - 1) // 2] + zs[lo + k // 2])
+
+
+def top_height(points: np.ndarray, step_m: float, band_m: float = 0.005) -> float:
+    """The height of an object's top: the median, over the columns (``step_m`` cells) whose upper
+    median (``cell_upper_median``) lies within ``band_m`` of the highest columns' (98th percentile),
+    of those upper medians. Unbiased by the depth noise that makes the highest point centimeters'
+    fractions too high."""
+    ij = np.floor(points[:, :2] / step_m).astype(np.int64)
+    ids = (ij[:, 0] - ij[:, 0].min()) * (int(ij[:, 1].max() - ij[:, 1].min()) + 1) + (ij[:, 1] - ij[:, 1].min())
+    _, h = cell_upper_median(ids, points[:, 2], band_m)
+    return float(np.median(h[h >= np.percentile(h, 98) - band_m]))
 
 
 def _sector_outer(r: np.ndarray, sector: np.ndarray, n_sectors: int, min_points: int = 5) -> np.ndarray:
@@ -175,9 +216,12 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
     sectors); a few sectors may stand out (a mug's handle) and are left out of the axis fit and the
     radii (the fit keeps sectors within 5 % of the median, the radii within 15 %). Points inside the wall (a mug's inner wall, seen over its rim) never set a sector's
     outer radius."""
-    xy = points[:, :2]
+    # the axis is fitted on the side: the top face's points near its rim are not on the wall
+    ztop = top_height(points, 0.5 * band_m)
+    side = points[:, 2] < ztop - 2 * band_m
+    xy = points[side, :2] if side.sum() >= 100 else points[:, :2]
     center, radius = _circle_fit(xy)
-    for _ in range(3):  # refit the axis on the outer wall of the sectors that agree
+    for k in range(3):  # refit the axis on the outer wall of the sectors that agree
         r, sector = _polar(xy, center, n_sectors)
         outer = _sector_outer(r, sector, n_sectors)
         if np.count_nonzero(np.isfinite(outer)) < n_sectors // 3:
@@ -189,12 +233,13 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
         wall = agree[sector] & (r >= 0.85 * np.where(np.isfinite(outer), outer, np.inf)[sector])
         if wall.sum() < 30:
             return None
-        center, radius = _circle_fit(xy[wall])
+        center, radius = _circle_fit(xy[wall], geometric=k == 2)
     if radius <= 0:
         return None
+    xy = points[:, :2]
     r, sector = _polar(xy, center, n_sectors)
-    z = points[:, 2]
-    edges = np.arange(0.0, z.max() + band_m, band_m)
+    z = np.where(points[:, 2] < ztop - 0.5 * band_m, points[:, 2], np.inf)  # the top face's points are not wall
+    edges = np.arange(0.0, ztop, band_m)
     heights, radii, spread = [], [], []
     for lo, hi in zip(edges[:-1], edges[1:]):
         sel = (z >= lo) & (z < hi)
@@ -218,9 +263,11 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
 
 def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """The object's solid as a voxel grid built from the seen points and what completes them:
-    (occupancy (X, Y, Z) bool, grid origin (3,) = the corner of voxel 0, step, how).
+    (occupancy (X, Y, Z) float in [0, 1], grid origin (3,) = the corner of voxel 0, step, how).
 
-    Voxel k spans z in [k, k+1) * step, so the solid's bottom face is the support, z = 0."""
+    Voxel k spans z in [k, k+1) * step, so the solid's bottom face is the support, z = 0. Near a
+    completed surface (the revolved wall, a top at its height) the occupancy ramps linearly from 1
+    to 0 over two voxels, so that its 0.5 level lies where the surface is, not on a voxel face."""
     from scipy import ndimage
 
     top = float(points[:, 2].max())
@@ -231,18 +278,27 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
     x, y = np.meshgrid(centers[0], centers[1], indexing="ij")
     z = centers[2]
     rev = revolution_profile(points, band_m, tolerance)
+    idx = np.clip(np.floor((points - lo) / step_m).astype(int), 0, np.array(shape) - 1)
     if rev is not None:
         center, heights, radii = rev
         rz = np.interp(z, heights, radii)
         r = np.hypot(x - center[0], y - center[1])
-        solid = (r[..., None] <= rz[None, None, :]) & (z <= top)[None, None, :]
+        top = top_height(points, step_m)
+        solid = np.minimum(_ramp(rz[None, None, :] - r[..., None], step_m), _ramp(top - z, step_m)[None, None, :])
+        # seen points well outside the revolved solid are solid too (a mug's handle); the depth
+        # noise's few points a little outside its wall or above its top are not
+        pr = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1])
+        out = (pr > np.interp(points[:, 2], heights, radii) + 2 * step_m) & (points[:, 2] < top)
+        solid[_large_parts(idx[out], shape, min_voxels=12)] = 1.0
         how = "revolution"
     else:
         # a height field standing on the support: under every seen point the object is solid
-        # down to the table; the footprint is the seen one, closed and made convex-hull-tight
-        cells = np.floor((points[:, :2] - lo[:2]) / step_m).astype(int)
+        # down to the table; the footprint is the seen one, closed and made convex-hull-tight.
+        # A cell's height is its points' upper median: the highest is biased up by the noise
+        cells = idx[:, :2]
+        ids, upper = cell_upper_median(cells[:, 0] * shape[1] + cells[:, 1], points[:, 2], 0.006)
         height = np.zeros(shape[:2])
-        np.maximum.at(height, (cells[:, 0], cells[:, 1]), points[:, 2])
+        height[ids // shape[1], ids % shape[1]] = upper
         foot = cv2.morphologyEx((height > 0).astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
         hull = ConvexHull(points[:, :2])
         poly = np.round((points[hull.vertices, :2] - lo[:2]) / step_m - 0.5).astype(np.int32)[:, ::-1]
@@ -259,28 +315,50 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
             missing = np.argwhere(foot & (height <= 0))
             _, nearest = cKDTree(seen_idx).query(missing)
             height[missing[:, 0], missing[:, 1]] = height[seen_idx[nearest, 0], seen_idx[nearest, 1]]
-        solid = foot[..., None] & (z[None, None, :] <= height[..., None])
+        solid = np.where(foot[..., None], _ramp(height[..., None] - z[None, None, :], step_m), 0.0)
         how = "height-field"
-    # every seen point's voxel is solid too (a mug's handle beside its body of revolution)
-    idx = np.clip(np.floor((points - lo) / step_m).astype(int), 0, np.array(shape) - 1)
-    solid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
-    solid[..., 0] |= solid[..., 1]  # the bottom layer under anything standing
-    return solid, lo, step_m, how
+    solid[..., 0] = np.maximum(solid[..., 0], solid[..., 1])  # the bottom layer under anything standing
+    return solid.astype(np.float32), lo, step_m, how
+
+
+def _ramp(distance_m: np.ndarray, step_m: float) -> np.ndarray:
+    """Occupancy of a voxel whose center lies ``distance_m`` inside a surface (negative: outside):
+    linear over two voxels around it, 0.5 on it."""
+    return np.clip(distance_m / (2 * step_m) + 0.5, 0.0, 1.0)
+
+
+def _large_parts(idx: np.ndarray, shape: tuple, *, min_voxels: int) -> np.ndarray:
+    """The voxels ``idx`` (N, 3) as an occupancy grid, keeping only the 26-connected parts of at
+    least ``min_voxels`` voxels."""
+    from scipy import ndimage
+
+    grid = np.zeros(shape, bool)
+    grid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    labels, count = ndimage.label(grid, np.ones((3, 3, 3)))
+    if not count:
+        return grid
+    sizes = np.bincount(labels.ravel())
+    return (sizes >= min_voxels)[labels] & grid
 
 
 def mesh_from_solid(solid: np.ndarray, lo: np.ndarray, step_m: float, max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
-    """Marching cubes of the closed (morphologically) solid, smoothed and decimated, checked."""
+    """Marching cubes of the closed (morphologically) solid at its 0.5 level, smoothed and
+    decimated, checked. ``solid``: occupancy (bool, or float in [0, 1] from ``solid_from_points``);
+    voxels that closing adds are full, parts other than the largest empty."""
     from scipy import ndimage
     from skimage.measure import marching_cubes
 
-    solid = ndimage.binary_closing(solid, np.ones((3, 3, 3)), iterations=1, border_value=0) | solid
-    solid = ndimage.binary_fill_holes(solid)
-    labels, count = ndimage.label(solid)
+    field = solid.astype(np.float32)
+    inside = field >= 0.5
+    closed = ndimage.binary_closing(inside, np.ones((3, 3, 3)), iterations=1, border_value=0) | inside
+    closed = ndimage.binary_fill_holes(closed)
+    labels, count = ndimage.label(closed)
     if count > 1:  # one object: its largest part
-        solid = labels == 1 + int(np.argmax(ndimage.sum(solid, labels, range(1, count + 1))))
-    padded = np.pad(solid, 1).astype(np.float32)
+        closed = labels == 1 + int(np.argmax(ndimage.sum(closed, labels, range(1, count + 1))))
+    field = np.where(closed & ~inside, 1.0, np.where(~closed & inside, 0.0, field)).astype(np.float32)
+    padded = np.pad(field, 1)
     verts, faces, _, _ = marching_cubes(padded, level=0.5, spacing=(step_m,) * 3)
-    # padded voxel i has its center at lo + (i - 1 + 0.5) * step: the 0.5 level is a voxel face
+    # padded voxel i has its center at lo + (i - 1 + 0.5) * step; a 0/1 step's 0.5 level is a voxel face
     verts = verts + lo - 0.5 * step_m
     import trimesh
 

@@ -7,7 +7,9 @@
 2. **Wrap** the fused surface with CGAL's 3D alpha wrapping (``alpha_m``, ``offset_m``): a
    closed, 2-manifold, consistently oriented, self-intersection-free shell around it and around
    a copy of it ``thickness_m`` lower (against gravity), so an open table top becomes a solid
-   slab that a resting object cannot be pushed through. Validity is then checked, never
+   slab that a resting object cannot be pushed through. The wrap lies ``offset_m`` outside what
+   it wraps, so it wraps the surface moved ``offset_m`` into the material (along the TSDF's
+   normals): the table's collider top is the fused table, and a resting object is not lifted. Validity is then checked, never
    assumed: trimesh must find it watertight and consistently wound with positive volume, and
    CGAL must find no self-intersection.
 3. **Budget**: while the wrap has more than ``max_triangles`` triangles, wrap again with a 1.5x
@@ -117,10 +119,18 @@ class Fusion:
 
     def points(self) -> tuple[np.ndarray, np.ndarray]:
         """The fused surface as points (V, 3) and colors in [0, 1] (V, 3)."""
+        points, colors, _ = self.oriented_points()
+        return points, colors
+
+    def oriented_points(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The fused surface as points (V, 3), colors in [0, 1] (V, 3) and unit normals (V, 3)
+        pointing out of the material (the TSDF's gradient: toward the cameras that saw it)."""
         if not self.frames:
-            return np.zeros((0, 3)), np.zeros((0, 3))
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
         cloud = self.grid.extract_point_cloud()
-        return cloud.point.positions.numpy().astype(float), cloud.point.colors.numpy().astype(float)
+        normals = cloud.point.normals.numpy().astype(float)
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        return cloud.point.positions.numpy().astype(float), cloud.point.colors.numpy().astype(float), normals
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray]:
         """The fused surface as a triangle mesh (marching cubes): vertices (V, 3), faces (F, 3)."""
@@ -141,7 +151,8 @@ CARVE_ABOVE_M = 0.015
 
 def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_px: int, depth_max_m: float, carve_m: float):
     """TSDF-fuse the static pixels. Returns the fused surface's points (V, 3), their linear colors
-    (V, 3), the number of frames fused and the number of points carved away."""
+    (V, 3), their outward normals (V, 3), the number of frames fused and the number of points
+    carved away."""
     case = ctx.case
     n = ctx.time_info.n_frames
     cameras = read_camera(ctx.stage, paths.CAMERA, n)
@@ -163,7 +174,7 @@ def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_
                 object_points.append(se3.transform_points(cameras.world_from_cv[t], cam))
         depth[~_static_pixels(t, depth, frame_masks, background, kernel)] = 0.0
         used += volume.add(depth, case.rgb(t), cameras.K[t], cameras.world_from_cv[t])
-    points, colors01 = volume.points()
+    points, colors01, normals = volume.oriented_points()
     # carve: fused surface above the support and within carve_m of where an object was seen is
     # a piece of an object its masks missed (the top of a can that never moves), not scene
     carved = 0
@@ -173,12 +184,12 @@ def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_
         near = cKDTree(objs).query(points, distance_upper_bound=carve_m)[0] < carve_m
         near &= points[:, 2] > CARVE_ABOVE_M
         carved = int(near.sum())
-        points, colors01 = points[~near], colors01[~near]
+        points, colors01, normals = points[~near], colors01[~near], normals[~near]
     # free space: a fused point that more frames see through (their depth lies well behind it)
     # than see it was there only for a while (a moving part its masks missed in a few frames)
     transient = seen_through(points, depth_of, cameras, range(0, n, max(1, n // 60)))
     carved += int(transient.sum())
-    points, colors01 = points[~transient], colors01[~transient]
+    points, colors01, normals = points[~transient], colors01[~transient], normals[~transient]
     if len(points) < 100:
         raise InputError(
             f"the fused static volume is empty ({len(points)} points from {used} frames)",
@@ -186,7 +197,7 @@ def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_
             hint="check the depth and the masks: every pixel may have been masked as moving",
         )
     colors = srgb8_to_linear(np.clip(colors01 * 255.0 + 0.5, 0, 255).astype(np.uint8))
-    return points, colors, used, carved
+    return points, colors, normals, used, carved
 
 
 def alpha_wrap(points: np.ndarray, alpha_m: float, offset_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -382,16 +393,20 @@ def fill_support_holes(points: np.ndarray, *, cell_m: float = 0.01, max_area_m2:
 
 def run(ctx: StageContext) -> None:
     cfg = ctx.config
-    points, colors, used, carved = fuse_static(
+    points, colors, normals, used, carved = fuse_static(
         ctx, voxel_m=cfg.voxel_m, frame_stride=cfg.frame_stride, margin_px=cfg.mask_margin_px, depth_max_m=cfg.depth_max_m, carve_m=cfg.carve_m
     )
     filled = fill_support_holes(points)
     if len(filled):  # colored by their nearest fused neighbors, like any other point
         colors = np.concatenate([colors, transfer_colors(filled, points, colors)])
         points = np.concatenate([points, filled])
+        normals = np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(filled), 1))])
+    # the wrap lies offset_m outside what it wraps: it wraps the surface moved offset_m into the
+    # material, so that its outside lands on the fused surface (a resting object is not lifted)
+    inset = points - cfg.offset_m * normals
     # solidify: a copy of the surface thickness_m lower makes supports (table tops, floors) solid
     # slabs instead of a thin shell that a resting object could be pushed through
-    slab = np.concatenate([points, points - np.array([0.0, 0.0, cfg.thickness_m])])
+    slab = np.concatenate([inset, inset - np.array([0.0, 0.0, cfg.thickness_m])])
     alpha = cfg.alpha_m
     vertices, faces = alpha_wrap(slab, alpha, cfg.offset_m)
     first_triangles = len(faces)
