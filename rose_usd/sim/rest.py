@@ -22,6 +22,10 @@ class RestResult:
     final_displacement_m: float
 
 
+RIGID_CONTACT_MAX = 16384
+"""Contacts the rest simulation has room for (objects of a few dozen convex parts on a scene mesh)."""
+
+
 def simulate_rest(stage: Usd.Stage, object_paths: dict[str, str], *, duration_s: float = 1.0, dt_s: float = 1.0 / 600.0, iterations: int = 10) -> list[RestResult]:
     """Simulate ``duration_s`` with Newton's XPBD solver from the stage's default (frame-0) state.
 
@@ -43,7 +47,9 @@ def simulate_rest(stage: Usd.Stage, object_paths: dict[str, str], *, duration_s:
     solver = newton.solvers.SolverXPBD(model, iterations=iterations)
     state_0, state_1 = model.state(), model.state()
     control = model.control()
-    pipeline = newton.CollisionPipeline(model)
+    # room for every contact: Newton's estimate (1000 here) overflowed on stacks of convex parts
+    # (1827 found) and dropped the rest, with a warning per step
+    pipeline = newton.CollisionPipeline(model, rigid_contact_max=RIGID_CONTACT_MAX)
     contacts = pipeline.contacts()
     # object corners in the body frame (the prim frame: Newton bodies are the rigid-body prims)
     corners = {}
