@@ -184,7 +184,9 @@ def test_imported_trellis_box_gets_its_scale_and_pose(imported_out):
     Runs differ: Open3D's RGB-D odometry sums in parallel, so camera poses move by up to ~1 mm
     between runs, and at 320x240 the box spans ~40 px (a pixel of mask is ~2.5 % of scale) while
     its silhouette IoU stays within 0.005 over 6 % of scale. Nine runs (one in CI) gave scale
-    errors of -1.1 to -3.5 % and Chamfer 3.07-3.77 mm. The issue's 3 % target is the
+    errors of -1.1 to -3.5 % and Chamfer 3.07-3.77 mm; a tenth -8.0 % (the scale then picked
+    within 0.01 of the best IoU, under the IoU's own noise): with 0.02, three captures that gave
+    -4.9, -1.1 and -2.1 % give -2.1, -1.1 and -2.1 %. The issue's 3 % target is the
     benchmark's, at 640x480."""
     case, out, info = imported_out
     facts = read_provenance(layer_file(out, "object"))["results"]["objects"]["Box"]

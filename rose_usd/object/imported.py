@@ -306,11 +306,16 @@ def fit_scale_and_pose(
     steps: int,
     search: bool,
     plateau: float = 0.01,
+    scale_plateau: float = 0.02,
     extra_starts: tuple = (),
 ) -> tuple[Fit, list[Fit]]:
     """The paper's discrete scale search (module step 3): the best fit and every fit tried.
     ``vertices_up`` are the mesh's vertices, up-aligned, in file units; ``extra_starts`` are
-    (yaw, xy) poses to start ICP from besides the yaw grid."""
+    (yaw, xy) poses to start ICP from besides the yaw grid. Poses at one scale are picked within
+    ``plateau`` of the best IoU, scales within ``scale_plateau``: the same scale fitted from
+    other starts was measured to differ by up to 0.016 in IoU (the sample at 320x240), so a
+    narrower plateau picked the scale by that noise (-1 % to -8 % over runs, the IoU's peak lying
+    5 % under the true scale), where the depth fit's minimum stays within 2 % of it."""
     rng = np.random.default_rng(0)
     model = np.asarray(trimesh.Trimesh(vertices_up, faces, process=False).sample(3000, seed=0))
     tree = cKDTree(model)
@@ -345,11 +350,11 @@ def fit_scale_and_pose(
     grid = rho0 * alpha ** np.linspace(-1.0, 1.0, steps)
     for rho in grid:
         tried.append(evaluate(float(rho), [(first.yaw, first.translation[:2])] + starts_at(rho)[: len(extra_starts)]))
-    best = _pick(tried, plateau)
+    best = _pick(tried, scale_plateau)
     step = alpha ** (2.0 / (steps - 1))
     for rho in best.rho * step ** np.linspace(-1.0, 1.0, 9):
         tried.append(evaluate(float(rho), [(best.yaw, best.translation[:2])]))
-    return _pick(tried, plateau), tried
+    return _pick(tried, scale_plateau), tried
 
 
 def _pick(fits: list[Fit], plateau: float) -> Fit:
