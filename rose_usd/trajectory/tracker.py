@@ -28,7 +28,9 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    interpolated on SE(3) (confidence 0.5); lost at the end they hold (confidence 0).
 5. **Rest.** Objects move only when touched: while the interactor's mask has not come near the
    object's (``object.fusion.touches``) for ``release_frames`` frames and the last pose still fits
-   the depth, the pose holds. (A can standing beside a stack it is not part of would otherwise
+   the depth, the pose holds. When it first holds after a touch, the pose is moved along gravity
+   to where fitness plus silhouette IoU is best (``settle_along_gravity``): a can's wall fits its
+   depth at any height, and a hand on its top hid the face that fixes it. (A can standing beside a stack it is not part of would otherwise
    follow depth noise and masks that grow onto a neighbor.) A case with no interactor masks has
    no gate. A fit that moves an untouched object is counted (``moved_untouched``).
 6. **Smoothing.** A centered (zero-lag) binomial window of ``smooth_window`` frames on SE(3) over
@@ -229,6 +231,30 @@ def _reacquire(model: Model, observed: np.ndarray, camera: np.ndarray, last: np.
     return best
 
 
+def settle_along_gravity(model: Model, observed: np.ndarray, motion: np.ndarray, score, *, span_m: float = 0.08, step_m: float = 0.004, margin: float = 0.02) -> Fit:
+    """The fit at ``motion`` moved along gravity by the offset (within +-``span_m``, ``step_m``
+    steps, then 1 mm steps around the best) that ``score`` (fitness + silhouette IoU) rates best,
+    by at least ``margin``; else the fit at ``motion``. Depth cannot tell where along its axis a
+    can seen from the side is: its wall matches the model at any height, and a hand on its top
+    hides the one face that could. Put down, the can was held 4 cm above the table. Its
+    silhouette's bottom edge can tell."""
+    here = evaluate(model, observed, motion)
+    best, best_score = here, score(here) + margin
+
+    def at(dz: float) -> Fit:
+        return evaluate(model, observed, se3.make_pose(np.eye(3), np.array([0.0, 0.0, dz])) @ motion)
+
+    coarse = [(score(f), f) for f in (at(dz) for dz in np.arange(-span_m, span_m + 1e-9, step_m))]
+    top_score, top = max(coarse, key=lambda c: c[0])
+    dz0 = float(top.motion[2, 3] - motion[2, 3])
+    for dz in dz0 + np.arange(-step_m, step_m + 1e-9, 0.001):
+        f = at(float(dz))
+        sc = score(f)
+        if sc > top_score:
+            top_score, top = sc, f
+    return top if top_score > best_score else best
+
+
 def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tuple[np.ndarray, np.ndarray, dict]:
     """Motions D_t (N, 4, 4), confidence (N,) and facts of object ``name``."""
     cfg, n = ctx.config, ctx.time_info.n_frames
@@ -239,7 +265,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
 
     hands = ctx.out_dir / "masks" / INTERACTOR
     motions, tracked, fitness = [np.eye(4)], np.zeros(n, bool), np.zeros(n)
-    lost_since, reacquired, iou0, last_touch, moved_untouched = None, 0, float("nan"), -n, 0
+    lost_since, reacquired, iou0, last_touch, moved_untouched, settled = None, 0, float("nan"), -n, 0, 0
     for t in progress(range(n), f"trajectory {name}: tracking", total=n):
         mask = read_mask(folder / f"{t:06d}.png")
         if mask.shape != (ctx.case.height, ctx.case.width):
@@ -258,6 +284,12 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
         if t and t - last_touch > cfg.release_frames and hold.fitness >= cfg.min_fitness:
             # untouched and still where it was: it rests (objects move only when touched)
             fit = hold
+            if last_touch >= 0 and t - last_touch == cfg.release_frames + 1:
+                # just let go: where it rests along gravity, by its silhouette (module step 5)
+                ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
+                fit = settle_along_gravity(model, observed, prev, lambda f, t=t, mask=mask, ignore=ignore: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t]))
+                settled += fit is not hold
+                hold = fit
         elif lost_since is not None and lost_since < t:
 
             def score(fit, t=t, mask=mask):
@@ -294,6 +326,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
         "frames_lost": int(n - tracked.sum()),
         "reacquired": reacquired,
         "moved_untouched": moved_untouched,
+        "settled_along_gravity": settled,
         "fitness_mean": round(float(fitness[tracked].mean()), 3),
         "silhouette_iou_frame0": round(iou0, 3),
     }
