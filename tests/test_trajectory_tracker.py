@@ -121,6 +121,6 @@ def test_a_can_seen_only_by_its_wall_is_set_down_by_its_silhouette():
     from rose_usd.trajectory.tracker import evaluate as fit_at
 
     assert fit_at(model, pts[wall], floating).fitness > 0.6  # depth alone cannot tell
-    fit = settle_along_gravity(model, pts[wall], floating, score)
+    fit = settle_along_gravity(model, pts[wall], fit_at(model, pts[wall], floating), score)
     assert abs(fit.motion[2, 3]) < 0.002, fit.motion[2, 3]
-    assert settle_along_gravity(model, pts[wall], np.eye(4), score).motion[2, 3] == 0.0  # where it is: left alone
+    assert settle_along_gravity(model, pts[wall], fit_at(model, pts[wall], np.eye(4)), score).motion[2, 3] == 0.0  # where it is: left alone

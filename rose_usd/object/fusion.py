@@ -283,12 +283,12 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
         center, heights, radii = rev
         rz = np.interp(z, heights, radii)
         r = np.hypot(x - center[0], y - center[1])
-        top = top_height(points, step_m)
-        solid = np.minimum(_ramp(rz[None, None, :] - r[..., None], step_m), _ramp(top - z, step_m)[None, None, :])
+        top_face = top_height(points, step_m)  # the grid's ``top`` is the highest point, noise and all
+        solid = np.minimum(_ramp(rz[None, None, :] - r[..., None], step_m), _ramp(top_face - z, step_m)[None, None, :])
         # seen points well outside the revolved solid are solid too (a mug's handle); the depth
         # noise's few points a little outside its wall or above its top are not
         pr = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1])
-        out = (pr > np.interp(points[:, 2], heights, radii) + 2 * step_m) & (points[:, 2] < top)
+        out = (pr > np.interp(points[:, 2], heights, radii) + 2 * step_m) & (points[:, 2] < top_face)
         solid[_large_parts(idx[out], shape, min_voxels=12)] = 1.0
         how = "revolution"
     else:

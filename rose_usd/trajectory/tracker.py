@@ -231,28 +231,25 @@ def _reacquire(model: Model, observed: np.ndarray, camera: np.ndarray, last: np.
     return best
 
 
-def settle_along_gravity(model: Model, observed: np.ndarray, motion: np.ndarray, score, *, span_m: float = 0.08, step_m: float = 0.004, margin: float = 0.02) -> Fit:
-    """The fit at ``motion`` moved along gravity by the offset (within +-``span_m``, ``step_m``
-    steps, then 1 mm steps around the best) that ``score`` (fitness + silhouette IoU) rates best,
-    by at least ``margin``; else the fit at ``motion``. Depth cannot tell where along its axis a
-    can seen from the side is: its wall matches the model at any height, and a hand on its top
-    hides the one face that could. Put down, the can was held 4 cm above the table. Its
-    silhouette's bottom edge can tell."""
-    here = evaluate(model, observed, motion)
-    best, best_score = here, score(here) + margin
+def settle_along_gravity(model: Model, observed: np.ndarray, here: Fit, score, *, span_m: float = 0.08, step_m: float = 0.004, margin: float = 0.02) -> Fit:
+    """``here`` (a fit of ``observed``) moved along gravity by the offset (within +-``span_m``,
+    ``step_m`` steps, then 1 mm steps around the best) that ``score`` (fitness + silhouette IoU)
+    rates best, when it beats ``here`` by at least ``margin``; else ``here``. Depth cannot tell
+    where along its axis a can seen from the side is: its wall matches the model at any height,
+    and a hand on its top hides the one face that could. Put down, the can was held 4 cm above
+    the table. Its silhouette's bottom edge can tell."""
 
     def at(dz: float) -> Fit:
-        return evaluate(model, observed, se3.make_pose(np.eye(3), np.array([0.0, 0.0, dz])) @ motion)
+        return evaluate(model, observed, se3.make_pose(np.eye(3), np.array([0.0, 0.0, dz])) @ here.motion)
 
-    coarse = [(score(f), f) for f in (at(dz) for dz in np.arange(-span_m, span_m + 1e-9, step_m))]
-    top_score, top = max(coarse, key=lambda c: c[0])
-    dz0 = float(top.motion[2, 3] - motion[2, 3])
+    top_score, top = max(((score(f), f) for f in (at(dz) for dz in np.arange(-span_m, span_m + 1e-9, step_m))), key=lambda c: c[0])
+    dz0 = float(top.motion[2, 3] - here.motion[2, 3])
     for dz in dz0 + np.arange(-step_m, step_m + 1e-9, 0.001):
         f = at(float(dz))
         sc = score(f)
         if sc > top_score:
             top_score, top = sc, f
-    return top if top_score > best_score else best
+    return top if top_score > score(here) + margin else here
 
 
 def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -287,7 +284,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
             if last_touch >= 0 and t - last_touch == cfg.release_frames + 1:
                 # just let go: where it rests along gravity, by its silhouette (module step 5)
                 ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
-                fit = settle_along_gravity(model, observed, prev, lambda f, t=t, mask=mask, ignore=ignore: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t]))
+                fit = settle_along_gravity(model, observed, hold, lambda f, t=t, mask=mask, ignore=ignore: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t]))
                 settled += fit is not hold
                 hold = fit
         elif lost_since is not None and lost_since < t:
