@@ -36,6 +36,18 @@ def test_silhouette_of_a_square_facing_the_camera_has_its_projected_area():
     assert sil[240, 320] and not sil[240, 200]
 
 
+def test_a_closed_mesh_has_the_same_silhouette_from_its_camera_facing_triangles():
+    """Back faces culled (``closed=True``): the same pixels as every triangle, from several sides."""
+    mesh = trimesh.creation.annulus(r_min=0.03, r_max=0.05, height=0.08)  # a hole to see through
+    assert mesh.is_watertight and mesh.volume > 0
+    for eye in ((0.4, -0.3, 0.25), (-0.1, 0.0, 0.5), (0.0, -0.45, 0.02)):
+        cam = se3.look_at(eye, (0.0, 0.0, 0.0))
+        full = silhouette(mesh.vertices, mesh.faces, cam, K, 640, 480)
+        culled = silhouette(mesh.vertices, mesh.faces, cam, K, 640, 480, closed=True)
+        assert full.sum() > 2000
+        assert np.count_nonzero(full != culled) <= 0.002 * full.sum()  # pixel centers on an edge seen edge-on
+
+
 def test_scale_and_pose_search_recovers_a_known_box():
     """A TRELLIS-like unit box (Y-up, longest side 1) seen as a 12 cm box, yawed 40 degrees, from
     three cameras: starting 25 % off, the search finds the scale within 2 % and the pose."""
@@ -61,6 +73,34 @@ def test_scale_and_pose_search_recovers_a_known_box():
     assert abs(np.degrees(dyaw)) < 2.0
     assert np.linalg.norm(best.translation[:2] - xy) < 0.003
     assert len(tried) > 15
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_search_from_one_viewpoint_with_a_noisy_mesh_finds_the_box(seed):
+    """What the benchmark's resting frames give: four cameras a centimeter apart, 1 mm depth noise
+    on the side they see, and a mesh with TRELLIS-like noise (0.4 % of its size) of a box 2 %
+    longer than wide, its scale searched from 20 % under. The joint cost finds scale, yaw and
+    position (measured over seeds 0-4: -0.6 %, <= 0.3 degrees, <= 0.7 mm). Standing the mesh on
+    its lowest vertex instead lifted it 1.4 mm and the scale came out 2 % small; choosing the mode
+    only at rho_0 turned seeds 1 and 3 by 90 degrees."""
+    rng = np.random.default_rng(seed)
+    box = trimesh.creation.box(extents=(1.0, 0.7, 0.98)).subdivide().subdivide().subdivide()  # Y up
+    noisy = trimesh.Trimesh(box.vertices + rng.normal(0.0, 0.004, box.vertices.shape), box.faces)
+    up_rot = world_from_up(np.array([0.0, 1.0, 0.0]))
+    rho, yaw, xy = 0.12, np.radians(40.0), np.array([0.03, -0.02])
+    world = se3.transform_points(se3.make_pose(se3.rotation_about([0, 0, 1], yaw), np.array([*xy, 0.35 * rho])), rho * (box.vertices @ up_rot.T))
+    cams = [se3.look_at(np.array([0.45, -0.35, 0.35]) + 0.01 * i, (0.0, 0.0, 0.04)) for i in range(4)]
+    views = [View(silhouette(world, box.faces, c, K, 640, 480), np.zeros((480, 640), bool), K, c) for c in cams]
+    pts, face = trimesh.sample.sample_surface(trimesh.Trimesh(world, box.faces), 6000, seed=1)
+    normals = trimesh.Trimesh(world, box.faces).face_normals[face]
+    seen = (np.einsum("ij,ij->i", normals, cams[0][:3, 3] - pts) > 0) & (pts[:, 2] > 0.003)
+    observed = pts[seen] + rng.normal(0.0, 0.001, (int(seen.sum()), 3))
+    best, _ = fit_scale_and_pose(noisy.vertices @ up_rot.T, noisy.faces, observed, 0.0, views, rho0=0.8 * rho, alpha=1.5, steps=15, search=True)
+    assert best.rho == pytest.approx(rho, rel=0.015)
+    dyaw = (best.yaw - yaw + np.pi / 2) % np.pi - np.pi / 2
+    assert abs(np.degrees(dyaw)) < 1.0
+    assert np.linalg.norm(best.translation[:2] - xy) < 0.0015
+    assert best.iou > 0.97
 
 
 def test_choose_unit_recognizes_millimeters_and_refuses_a_guess():
@@ -178,23 +218,23 @@ def imported_out(tmp_path_factory, sample_case):
 
 
 def test_imported_trellis_box_gets_its_scale_and_pose(imported_out):
-    """On the 320x240 sample: scale within 5 % of the simulated TRELLIS scale, Chamfer to the true
-    box under 4.5 mm, the stage valid and loading in Newton.
+    """On the 320x240 sample: scale within 3 % of the simulated TRELLIS scale, the mesh over the
+    masks, Chamfer to the true box under 3.5 mm, the stage valid and loading in Newton.
 
     Runs differ: Open3D's RGB-D odometry sums in parallel, so camera poses move by up to ~1 mm
-    between runs, and at 320x240 the box spans ~40 px (a pixel of mask is ~2.5 % of scale) while
-    its silhouette IoU stays within 0.005 over 6 % of scale. Nine runs (one in CI) gave scale
-    errors of -1.1 to -3.5 % and Chamfer 3.07-3.77 mm; a tenth -8.0 % (the scale then picked
-    within 0.01 of the best IoU, under the IoU's own noise): with 0.02, three captures that gave
-    -4.9, -1.1 and -2.1 % give -2.1, -1.1 and -2.1 %. The issue's 3 % target is the
-    benchmark's, at 640x480."""
+    between runs, and at 320x240 the box spans ~40 px. With the IoU as the only loss (ties to the
+    depth fit) ten runs gave scale errors of -0.7 to -8.0 %, Chamfer 3.07-3.77 mm and IoU
+    0.869-0.888 here, 0.814 in one CI run (a pose a few degrees off, which the depth fit alone
+    allowed). With the joint cost and the mesh on its bottom face, four runs gave -0.7 to -1.1 %,
+    IoU 0.913-0.931 and Chamfer 2.47-2.57 mm (the true box in the recovered world meets these
+    masks at IoU 0.932-0.934)."""
     case, out, info = imported_out
     facts = read_provenance(layer_file(out, "object"))["results"]["objects"]["Box"]
-    assert facts["rho"] == pytest.approx(info["scale_m_per_unit"], rel=0.05)
-    assert facts["silhouette_iou"] > 0.85  # 0.87 measured: classical masks at 320x240 are a pixel or two off
+    assert facts["rho"] == pytest.approx(info["scale_m_per_unit"], rel=0.03)
+    assert facts["silhouette_iou"] > 0.87
     score = evaluate(case, out)
-    assert score.objects[0].chamfer_m < 0.0045
-    assert abs(score.objects[0].size_error) < 0.05
+    assert score.objects[0].chamfer_m < 0.0035
+    assert abs(score.objects[0].size_error) < 0.03
     report = validate(out / "rose.usda")
     assert report.errors == []
     assert report.newton["bodies"] == 1

@@ -73,13 +73,18 @@ def view_counts(points_world: np.ndarray, views, *, tol_m: float, rel: float = 0
     return through, near, observed
 
 
-def silhouette(vertices_world: np.ndarray, faces: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 1e-3) -> np.ndarray:
+def silhouette(vertices_world: np.ndarray, faces: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 1e-3, closed: bool = False) -> np.ndarray:
     """The mesh's silhouette in a camera: a (height, width) bool image of the pixels whose
     centers some triangle covers. Triangles with a vertex not in front of ``min_z`` are left out
-    (an object is never that close to the camera)."""
+    (an object is never that close to the camera). A ``closed`` mesh (watertight, faces wound
+    outward) is drawn by its camera-facing triangles only: the first surface a pixel's ray meets
+    faces the camera, so the silhouette is the same at half the triangles."""
     cam = se3.transform_points(se3.invert(world_from_cv), vertices_world)
     u, v = project(np.where(cam[:, 2:3] > min_z, cam, 1.0), K)
     tri = faces[np.all(cam[faces, 2] > min_z, axis=1)]
+    if closed:
+        a, b, c = cam[tri[:, 0]], cam[tri[:, 1]], cam[tri[:, 2]]
+        tri = tri[np.einsum("ij,ij->i", np.cross(b - a, c - a), a) < 0.0]  # normal toward the camera
     # fixed point with 4 fractional bits: cv2 rasterizes pixel centers at integers
     pts = np.round(np.stack([u, v], axis=-1) * 16).astype(np.int32)[tri]
     lo, hi = pts.min(axis=1), pts.max(axis=1)

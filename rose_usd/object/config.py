@@ -28,6 +28,9 @@ class ObjectConfig:
     """imported: rho is searched in [rho_0 / alpha, rho_0 * alpha] (the paper's Eq. 3) [-] (default 1.5)."""
     scale_search_steps: int = 15
     """imported: log-spaced scales tried over that range before refining around the best (default 15)."""
+    scale_depth_weight: float = 0.1
+    """imported: scale and pose minimize (1 - silhouette IoU) + this x the depth fit's RMS in mm
+    (default 0.1: a millimeter of RMS weighs as much as 0.1 of IoU)."""
     convex_tolerance: float = 0.02
     """A mesh whose volume is within this fraction of its convex hull's collides as its hull;
     otherwise by convex decomposition [-] (default 0.02)."""
