@@ -193,3 +193,23 @@ def test_a_box_top_face_seen_with_noise_is_not_raised_by_it():
     height, v, how = _mesh_top_and_radius(np.concatenate([top, walls]))
     assert how == "height-field"
     assert abs(height - 0.077) < 0.001, height
+
+
+def test_a_hand_a_few_pixels_off_the_mask_touches_and_one_farther_does_not():
+    """Classical masks leave a pixel or two claimed by neither where hand meets object
+    (``TOUCH_REACH_PX``): a gap of 3 px touches; 12 px does not; a hand 30 cm behind does not."""
+    from rose_usd.object.fusion import touches
+
+    depth = np.full((120, 160), 0.5)
+    obj = np.zeros((120, 160), bool)
+    obj[40:80, 40:80] = True
+    hand = np.zeros_like(obj)
+    hand[40:80, 84:120] = True  # columns 80-83 claimed by neither
+    assert touches(hand, obj, depth)
+    assert not touches(hand, obj, depth, reach_px=3)  # the old reach
+    far = np.zeros_like(obj)
+    far[40:80, 92:130] = True
+    assert not touches(far, obj, depth)
+    behind = depth.copy()
+    behind[hand] = 0.8
+    assert not touches(hand, obj, behind)

@@ -124,3 +124,29 @@ def test_a_can_seen_only_by_its_wall_is_set_down_by_its_silhouette():
     fit = settle_along_gravity(model, pts[wall], fit_at(model, pts[wall], floating), score)
     assert abs(fit.motion[2, 3]) < 0.002, fit.motion[2, 3]
     assert settle_along_gravity(model, pts[wall], fit_at(model, pts[wall], np.eye(4)), score).motion[2, 3] == 0.0  # where it is: left alone
+
+
+def test_a_direction_depth_leaves_free_is_found_and_the_silhouette_fixes_it():
+    """The same can carried by its top: its wall's normals leave its axis free (``weak_axis`` finds
+    it), seen with its top they do not; slid along that axis it comes down to within 2 mm."""
+    can = trimesh.creation.cylinder(radius=0.033, height=0.11, sections=48)
+    can.apply_translation([0.0, 0.0, 0.055])
+    model = Model.from_mesh(can.vertices, can.faces, 3000)
+    eye = np.array([0.45, -0.35, 0.35])
+    pose = se3.look_at(eye, np.array([0.0, 0.0, 0.05]))
+    K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
+    pts, tri = trimesh.sample.sample_surface_even(can, 4000, seed=2)
+    normals = can.face_normals[tri]
+    facing = np.einsum("ij,ij->i", normals, pts - eye) < 0
+    wall = facing & (np.abs(normals[:, 2]) < 0.5)
+    from rose_usd.trajectory.tracker import evaluate as fit_at
+    from rose_usd.trajectory.tracker import slide, weak_axis
+
+    axis = weak_axis(model, pts[wall], np.eye(4), eye)
+    assert axis is not None and abs(axis[2]) > 0.99
+    assert weak_axis(model, pts[facing], np.eye(4), eye) is None  # the top face holds it
+    mask = silhouette(can.vertices, can.faces, pose, K, 320, 240)
+    ignore = np.zeros_like(mask)
+    lifted = fit_at(model, pts[wall], se3.make_pose(np.eye(3), np.array([0.0, 0.0, 0.02])))
+    fit = slide(model, pts[wall], lifted, axis, lambda f: f.fitness + silhouette_iou(model, f.motion, mask, ignore, pose, K), span_m=0.03, step_m=0.004, margin=0.005)
+    assert abs(fit.motion[2, 3]) < 0.002, fit.motion[2, 3]

@@ -19,7 +19,9 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    coordinates, a fraction of the depth's mean stiffness: weak on position, strong on the turn
    of a small object (its rotation terms are ~size^2 smaller), a filter on the turn rate.
    Damping each coordinate by its own stiffness was measured worse (RPE rotation of lift-mug
-   1.6-2.1 deg against 0.84 deg).
+   1.6-2.1 deg against 0.84 deg). Where the matched normals leave a direction free (``weak_axis``:
+   a can seen only by its wall, a hand on its top), the pose is slid along it to where fitness
+   plus silhouette IoU is best (``slide``, within ``slide_span_m``).
 4. **Confidence.** The fraction of observed points within 5 mm of the model after ICP. A frame
    with fewer than ``min_points`` observed points, or a fit under ``min_fitness``, is lost: the pose
    holds, confidence 0. When the object shows again it is re-acquired: ICP from the last pose
@@ -27,7 +29,7 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    fitness and silhouette IoU against the mask. Frames lost between two tracked ones are then
    interpolated on SE(3) (confidence 0.5); lost at the end they hold (confidence 0).
 5. **Rest.** Objects move only when touched: while the interactor's mask has not come near the
-   object's (``object.fusion.touches``) for ``release_frames`` frames and the last pose still fits
+   object's (``object.fusion.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames and the last pose still fits
    the depth, the pose holds. When it first holds after a touch, the pose is moved along gravity
    to where fitness plus silhouette IoU is best (``settle_along_gravity``): a can's wall fits its
    depth at any height, and a hand on its top hid the face that fixes it. (A can standing beside a stack it is not part of would otherwise
@@ -78,6 +80,8 @@ class Model:
     tree: cKDTree
     vertices: np.ndarray
     faces: np.ndarray
+    closed: bool = False
+    """Watertight and wound outward: silhouettes are drawn from camera-facing triangles only."""
 
     @classmethod
     def from_mesh(cls, vertices: np.ndarray, faces: np.ndarray, count: int) -> Model:
@@ -86,7 +90,8 @@ class Model:
         mesh = trimesh.Trimesh(vertices, faces, process=False)
         points, tri = trimesh.sample.sample_surface_even(mesh, count, seed=0)
         normals = mesh.face_normals[tri]
-        return cls(points, normals, points.mean(axis=0), cKDTree(points), vertices, faces)
+        closed = bool(mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0)
+        return cls(points, normals, points.mean(axis=0), cKDTree(points), vertices, faces, closed)
 
 
 @dataclass
@@ -156,7 +161,7 @@ def silhouette_iou(model: Model, motion: np.ndarray, mask: np.ndarray, ignore: n
     """IoU of the model's silhouette at ``motion`` with ``mask``, pixels of ``ignore`` (hand and
     other objects: they may hide the object) left out."""
     h, w = mask.shape
-    sil = silhouette(se3.transform_points(motion, model.vertices), model.faces, world_from_cv, K, w, h)
+    sil = silhouette(se3.transform_points(motion, model.vertices), model.faces, world_from_cv, K, w, h, closed=model.closed)
     keep = ~ignore
     inter = np.sum(sil & mask & keep)
     union = np.sum((sil | mask) & keep)
@@ -231,25 +236,46 @@ def _reacquire(model: Model, observed: np.ndarray, camera: np.ndarray, last: np.
     return best
 
 
-def settle_along_gravity(model: Model, observed: np.ndarray, here: Fit, score, *, span_m: float = 0.08, step_m: float = 0.004, margin: float = 0.02) -> Fit:
-    """``here`` (a fit of ``observed``) moved along gravity by the offset (within +-``span_m``,
-    ``step_m`` steps, then 1 mm steps around the best) that ``score`` (fitness + silhouette IoU)
-    rates best, when it beats ``here`` by at least ``margin``; else ``here``. Depth cannot tell
-    where along its axis a can seen from the side is: its wall matches the model at any height,
-    and a hand on its top hides the one face that could. Put down, the can was held 4 cm above
-    the table. Its silhouette's bottom edge can tell."""
+def weak_axis(model: Model, observed: np.ndarray, motion: np.ndarray, camera: np.ndarray, *, radius_m: float = 0.008, ratio: float = 0.05) -> np.ndarray | None:
+    """The world direction along which moving the model barely changes its point-to-plane fit
+    to ``observed`` (the smallest eigenvector of the matched camera-facing normals' scatter),
+    when its stiffness is under ``ratio`` of the largest; else None. A can seen only by its
+    wall (a hand on its top) has no normal along its axis: its wall fits at any height."""
+    d, idx = model.tree.query(se3.transform_points(se3.invert(motion), observed), distance_upper_bound=radius_m)
+    ok = np.isfinite(d)
+    if ok.sum() < 12:
+        return None
+    n = model.normals[idx[ok]] @ motion[:3, :3].T
+    n = n[np.einsum("ij,ij->i", n, observed[ok] - camera) < 0]
+    if len(n) < 12:
+        return None
+    values, vectors = np.linalg.eigh(n.T @ n / len(n))
+    return vectors[:, 0] if values[0] < ratio * values[-1] else None
 
-    def at(dz: float) -> Fit:
-        return evaluate(model, observed, se3.make_pose(np.eye(3), np.array([0.0, 0.0, dz])) @ here.motion)
 
-    top_score, top = max(((score(f), f) for f in (at(dz) for dz in np.arange(-span_m, span_m + 1e-9, step_m))), key=lambda c: c[0])
-    dz0 = float(top.motion[2, 3] - here.motion[2, 3])
-    for dz in dz0 + np.arange(-step_m, step_m + 1e-9, 0.001):
-        f = at(float(dz))
+def slide(model: Model, observed: np.ndarray, here: Fit, axis: np.ndarray, score, *, span_m: float, step_m: float, margin: float) -> Fit:
+    """``here`` (a fit of ``observed``) moved along ``axis`` by the offset (within +-``span_m``,
+    ``step_m`` steps, then 1 mm steps around the best) that ``score`` rates best, when it beats
+    ``here`` by at least ``margin``; else ``here``."""
+
+    def at(offset: float) -> Fit:
+        return evaluate(model, observed, se3.make_pose(np.eye(3), offset * axis) @ here.motion)
+
+    top_score, top, best_offset = max(((score(f), f, o) for o in np.arange(-span_m, span_m + 1e-9, step_m) for f in (at(float(o)),)), key=lambda c: c[0])
+    for offset in best_offset + np.arange(-step_m + 0.001, step_m - 1e-9, 0.001):
+        f = at(float(offset))
         sc = score(f)
         if sc > top_score:
             top_score, top = sc, f
     return top if top_score > score(here) + margin else here
+
+
+def settle_along_gravity(model: Model, observed: np.ndarray, here: Fit, score, *, span_m: float = 0.08, step_m: float = 0.004, margin: float = 0.02) -> Fit:
+    """``here`` slid along gravity to where ``score`` (fitness + silhouette IoU) is best. Depth
+    cannot tell where along its axis a can seen from the side is: its wall matches the model at
+    any height, and a hand on its top hides the one face that could. Put down, the can was held
+    4 cm above the table. Its silhouette's bottom edge can tell."""
+    return slide(model, observed, here, np.array([0.0, 0.0, 1.0]), score, span_m=span_m, step_m=step_m, margin=margin)
 
 
 def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -262,7 +288,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
 
     hands = ctx.out_dir / "masks" / INTERACTOR
     motions, tracked, fitness = [np.eye(4)], np.zeros(n, bool), np.zeros(n)
-    lost_since, reacquired, iou0, last_touch, moved_untouched, settled = None, 0, float("nan"), -n, 0, 0
+    lost_since, reacquired, iou0, last_touch, moved_untouched, settled, slid = None, 0, float("nan"), -n, 0, 0, 0
     for t in progress(range(n), f"trajectory {name}: tracking", total=n):
         mask = read_mask(folder / f"{t:06d}.png")
         if mask.shape != (ctx.case.height, ctx.case.width):
@@ -298,6 +324,12 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
         else:
             start = _predict(motions) if t else np.eye(4)
             fit = register(model, observed, cam[:3, 3], start, prior_weight=cfg.prior_weight)
+            axis = weak_axis(model, observed, fit.motion, cam[:3, 3]) if t and cfg.slide_span_m > 0 else None
+            if axis is not None:  # depth leaves a direction free: the silhouette decides (step 3)
+                ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
+                registered = fit
+                fit = slide(model, observed, fit, axis, lambda f, t=t, mask=mask, ignore=ignore: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t]), span_m=cfg.slide_span_m, step_m=0.004, margin=0.005)
+                slid += fit is not registered
         if t == 0:
             iou0 = silhouette_iou(model, fit.motion, mask, occluders(ctx, name, 0, mask.shape, grow_px=2), cam, K)
         if fit.fitness < cfg.min_fitness:
@@ -324,6 +356,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
         "reacquired": reacquired,
         "moved_untouched": moved_untouched,
         "settled_along_gravity": settled,
+        "slid_along_weak_axis": slid,
         "fitness_mean": round(float(fitness[tracked].mean()), 3),
         "silhouette_iou_frame0": round(iou0, 3),
     }
