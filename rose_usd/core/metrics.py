@@ -137,6 +137,14 @@ class SurfaceDistance:
         return self.scene.compute_distance(pts).numpy().astype(np.float64)
 
 
+    def drop(self, points: np.ndarray) -> np.ndarray:
+        """How far each point falls straight down (-z) before it meets the mesh; inf if never [m]."""
+        if len(points) == 0:
+            return np.zeros(0)
+        rays = np.hstack([points, np.tile([0.0, 0.0, -1.0], (len(points), 1))]).astype(np.float32)
+        return self.scene.cast_rays(self._o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+
+
 class SignedDistance(SurfaceDistance):
     """Signed distance from points to a closed triangle mesh (negative inside)."""
 

@@ -1,7 +1,9 @@
 """Resting objects on what supports them: a reconstructed object at its frame-0 pose may sit a few
 millimeters inside the scene's collider (the wrap's offset, the support plane's error), and a
-simulator then ejects it. Each object is lifted straight up (against gravity) until it no longer
-penetrates the scene or the objects already settled under it, lowest objects first."""
+simulator then ejects it; or a few millimeters above it (the support measured around its mask
+higher than the wrapped surface under it: up to 7 mm with MegaSaM depth), and it then falls and
+rocks. Each object is moved straight along gravity until it touches the scene or the objects
+already settled under it, lowest objects first."""
 
 from __future__ import annotations
 
@@ -26,12 +28,15 @@ def scene_collider(stage) -> tuple[np.ndarray, np.ndarray] | None:
     return mesh.vertices, mesh.faces
 
 
-def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lift_m: float = 0.03) -> dict[str, float]:
-    """Lift each model's ``world_from_object_0`` out of penetration; returns the lift per object [m].
+def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lift_m: float = 0.03, max_drop_m: float = 0.015) -> dict[str, float]:
+    """Move each model's ``world_from_object_0`` along gravity into contact; returns the move per
+    object [m] (positive up).
 
     Objects are settled from the lowest up, each against the scene and the objects settled before
-    it. A penetration deeper than ``max_lift_m`` is left alone (it is not a contact error but a
-    wrong pose or scene, and lifting would hide it): the caller warns."""
+    it. A penetration deeper than ``max_lift_m``, or a gap wider than ``max_drop_m`` (an object
+    held, not resting), is left alone (it is not a contact error but a wrong pose or scene, or no
+    contact at all; moving it would hide that): the caller warns about the first. A gap under
+    ``TOUCHING_M`` is contact."""
     lifts: dict[str, float] = {}
     supports = [] if scene is None else [metrics.SignedDistance(*scene)]
     order = sorted(models, key=lambda m: float(se3.transform_points(m.world_from_object_0, m.mesh.vertices)[:, 2].min()))
@@ -45,6 +50,11 @@ def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lif
         if lift > max_lift_m:
             lifts[model.name] = float("nan")
             continue
+        if lift == 0.0 and depth == 0.0 and supports:
+            gap = min(float(np.min(support.drop(world))) for support in supports)
+            lowered = world - np.array([0.0, 0.0, gap - CLEARANCE_M])
+            if TOUCHING_M < gap <= max_drop_m and all(float(np.min(support(lowered))) >= -TOUCHING_M for support in supports):
+                lift = -(gap - CLEARANCE_M)  # (a vertex-only test: lowering must not sink it)
         model.world_from_object_0[2, 3] += lift
         lifts[model.name] = lift
         supports.append(metrics.SignedDistance(world + np.array([0.0, 0.0, lift]), model.mesh.faces))
