@@ -98,18 +98,22 @@ def test_an_object_never_seen_is_a_clear_error(out_copy, sample_case):
     assert layer_file(out_copy, "trajectory").read_bytes() == before  # nothing half-written
 
 
+def _standing_can():
+    """A can (r 3.3 cm, 11 cm) on z = 0, its model, a camera looking down at it (eye, pose, K)
+    and surface samples with their normals."""
+    can = trimesh.creation.cylinder(radius=0.033, height=0.11, sections=48)
+    can.apply_translation([0.0, 0.0, 0.055])
+    eye = np.array([0.45, -0.35, 0.35])
+    pts, tri = trimesh.sample.sample_surface_even(can, 4000, seed=2)
+    K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
+    return can, Model.from_mesh(can.vertices, can.faces, 3000), eye, se3.look_at(eye, np.array([0.0, 0.0, 0.05])), K, pts, can.face_normals[tri]
+
+
 def test_a_can_seen_only_by_its_wall_is_set_down_by_its_silhouette():
     """A can (r 3.3 cm, 11 cm) standing on the table, its wall seen and its top not (a hand left
     it): held 4 cm too high, its wall still fits the depth, and its silhouette puts it down to
     within 2 mm."""
-    can = trimesh.creation.cylinder(radius=0.033, height=0.11, sections=48)
-    can.apply_translation([0.0, 0.0, 0.055])
-    model = Model.from_mesh(can.vertices, can.faces, 3000)
-    eye = np.array([0.45, -0.35, 0.35])
-    pose = se3.look_at(eye, np.array([0.0, 0.0, 0.05]))
-    K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
-    pts, tri = trimesh.sample.sample_surface_even(can, 4000, seed=2)
-    normals = can.face_normals[tri]
+    can, model, eye, pose, K, pts, normals = _standing_can()
     wall = (np.abs(normals[:, 2]) < 0.5) & (np.einsum("ij,ij->i", normals, pts - eye) < 0)
     mask = silhouette(can.vertices, can.faces, pose, K, 320, 240)
     ignore = np.zeros_like(mask)
@@ -129,14 +133,7 @@ def test_a_can_seen_only_by_its_wall_is_set_down_by_its_silhouette():
 def test_a_direction_depth_leaves_free_is_found_and_the_silhouette_fixes_it():
     """The same can carried by its top: its wall's normals leave its axis free (``weak_axis`` finds
     it), seen with its top they do not; slid along that axis it comes down to within 2 mm."""
-    can = trimesh.creation.cylinder(radius=0.033, height=0.11, sections=48)
-    can.apply_translation([0.0, 0.0, 0.055])
-    model = Model.from_mesh(can.vertices, can.faces, 3000)
-    eye = np.array([0.45, -0.35, 0.35])
-    pose = se3.look_at(eye, np.array([0.0, 0.0, 0.05]))
-    K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
-    pts, tri = trimesh.sample.sample_surface_even(can, 4000, seed=2)
-    normals = can.face_normals[tri]
+    can, model, eye, pose, K, pts, normals = _standing_can()
     facing = np.einsum("ij,ij->i", normals, pts - eye) < 0
     wall = facing & (np.abs(normals[:, 2]) < 0.5)
     from rose_usd.trajectory.tracker import evaluate as fit_at
