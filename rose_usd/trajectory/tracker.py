@@ -21,7 +21,7 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    Damping each coordinate by its own stiffness was measured worse (RPE rotation of lift-mug
    1.6-2.1 deg against 0.84 deg). Where the matched normals leave a direction free (``weak_axis``:
    a can seen only by its wall, a hand on its top), the pose is slid along it to where fitness
-   plus silhouette IoU is best (``slide``, within ``slide_span_m``).
+   plus silhouette IoU is best (``slide``, within ``slide_span_m``; off by default, see it).
 4. **Confidence.** The fraction of observed points within 5 mm of the model after ICP. A frame
    with fewer than ``min_points`` observed points, or a fit under ``min_fitness``, is lost: the pose
    holds, confidence 0. When the object shows again it is re-acquired: ICP from the last pose
