@@ -136,7 +136,6 @@ class SurfaceDistance:
         pts = self._o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
         return self.scene.compute_distance(pts).numpy().astype(np.float64)
 
-
     def drop(self, points: np.ndarray) -> np.ndarray:
         """How far each point falls straight down (-z) before it meets the mesh; inf if never [m]."""
         if len(points) == 0:

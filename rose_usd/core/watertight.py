@@ -19,6 +19,12 @@ def manifold_of(vertices: np.ndarray, faces: np.ndarray):
     )
 
 
+def is_closed(tm: trimesh.Trimesh) -> bool:
+    """Watertight, consistently wound and enclosing positive volume (faces wound outward), by
+    trimesh alone: enough to draw a silhouette from the camera-facing triangles."""
+    return bool(tm.is_watertight and tm.is_winding_consistent and tm.volume > 0)
+
+
 def collider_problems(vertices: np.ndarray, faces: np.ndarray) -> list[str]:
     """What keeps the mesh from being a closed, consistently oriented solid (empty when valid)."""
     tm = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)

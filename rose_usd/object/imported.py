@@ -40,7 +40,7 @@ from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.pinhole import silhouette
-from rose_usd.core.watertight import collider_problems
+from rose_usd.core.watertight import collider_problems, is_closed
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io import foundationpose, trellis
 from rose_usd.io.meshfile import read_mesh_file
@@ -258,12 +258,12 @@ def resting_bottom(points: np.ndarray, band: float = 0.02) -> float:
     return float(np.median(low))
 
 
-def fit_yaw_xy(model: np.ndarray, tree: cKDTree, observed: np.ndarray, rho: float, support_z: float, yaw: float, xy: np.ndarray, *, iters: int = 25, bottom: float | None = None) -> Fit:
+def fit_yaw_xy(model: np.ndarray, tree: cKDTree, observed: np.ndarray, rho: float, support_z: float, yaw: float, xy: np.ndarray, *, bottom: float, iters: int = 25) -> Fit:
     """ICP over yaw and horizontal position of the up-aligned model points (unit scale, scaled
-    by ``rho``) standing on z = ``support_z`` (by their lowest point, or ``bottom``), against the
-    observed world points. Each observed point pairs with its nearest model point (observed
+    by ``rho``) standing by height ``bottom`` (``resting_bottom``) on z = ``support_z``, against
+    the observed world points. Each observed point pairs with its nearest model point (observed
     points see one side; the model is whole); the worst 10 % of pairs are left out."""
-    tz = support_z - rho * (float(model[:, 2].min()) if bottom is None else bottom)
+    tz = support_z - rho * bottom
     xy = np.asarray(xy, float).copy()
     rms = float("inf")
     for _ in range(iters):
@@ -332,9 +332,8 @@ class PoseCost:
         if len(faces) > 1500:  # the silhouette needs no finer detail (a 4 cm cylinder of 1500 faces is within 0.2 mm)
             mesh = decimate(mesh, 1500, check=False)
         self.vertices, self.faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-        self.closed = bool(mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0)
+        self.closed = is_closed(mesh)
         self.support_z, self.views, self.depth_weight = support_z, views, depth_weight
-        self.evaluations = 0
 
     def icp(self, rho: float, yaw: float, xy: np.ndarray) -> Fit:
         return self(fit_yaw_xy(self.model, self.tree, self.observed, rho, self.support_z, yaw, xy, bottom=self.bottom))
@@ -348,7 +347,6 @@ class PoseCost:
         fit.rms_m = float(np.sqrt(np.mean(d[d <= np.percentile(d, 90)] ** 2)))
         fit.iou = silhouette_iou(se3.transform_points(fit.world_from_up_frame(), fit.rho * self.vertices), self.faces, self.views, closed=self.closed)
         fit.cost = (1.0 - fit.iou) + self.depth_weight * 1e3 * fit.rms_m
-        self.evaluations += 1
         return fit
 
     def refine(self, fit: Fit, *, step_rad: float = np.radians(2.0), step_m: float = 0.002, finest: float = 1 / 8, max_evaluations: int = 150) -> Fit:

@@ -50,7 +50,7 @@ def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lif
         if lift > max_lift_m:
             lifts[model.name] = float("nan")
             continue
-        if lift == 0.0 and depth == 0.0 and supports:
+        if depth == 0.0 and supports:  # not touching: lowered onto what is under it
             gap = min(float(np.min(support.drop(world))) for support in supports)
             lowered = world - np.array([0.0, 0.0, gap - CLEARANCE_M])
             if TOUCHING_M < gap <= max_drop_m and all(float(np.min(support(lowered))) >= -TOUCHING_M for support in supports):

@@ -29,10 +29,11 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    fitness and silhouette IoU against the mask. Frames lost between two tracked ones are then
    interpolated on SE(3) (confidence 0.5); lost at the end they hold (confidence 0).
 5. **Rest.** Objects move only when touched: while the interactor's mask has not come near the
-   object's (``object.fusion.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames and the last pose still fits
-   the depth, the pose holds. When it first holds after a touch, the pose is moved along gravity
-   to where fitness plus silhouette IoU is best (``settle_along_gravity``): a can's wall fits its
-   depth at any height, and a hand on its top hid the face that fixes it. (A can standing beside a stack it is not part of would otherwise
+   object's (``object.fusion.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames
+   and the last pose still fits the depth, the pose holds. When it first holds after a touch, the
+   pose is moved along gravity to where fitness plus silhouette IoU is best
+   (``settle_along_gravity``): a can's wall fits its depth at any height, and a hand on its top
+   hid the face that fixes it. (A can standing beside a stack it is not part of would otherwise
    follow depth noise and masks that grow onto a neighbor.) A case with no interactor masks has
    no gate. A fit that moves an untouched object is counted (``moved_untouched``).
 6. **Smoothing.** A centered (zero-lag) binomial window of ``smooth_window`` frames on SE(3) over
@@ -53,6 +54,7 @@ from scipy.spatial.transform import Rotation
 from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.pinhole import backproject, silhouette
+from rose_usd.core.watertight import is_closed
 from rose_usd.errors import InputError, StageError
 from rose_usd.io.images import read_mask
 from rose_usd.progress import progress
@@ -90,8 +92,7 @@ class Model:
         mesh = trimesh.Trimesh(vertices, faces, process=False)
         points, tri = trimesh.sample.sample_surface_even(mesh, count, seed=0)
         normals = mesh.face_normals[tri]
-        closed = bool(mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0)
-        return cls(points, normals, points.mean(axis=0), cKDTree(points), vertices, faces, closed)
+        return cls(points, normals, points.mean(axis=0), cKDTree(points), vertices, faces, is_closed(mesh))
 
 
 @dataclass
@@ -287,6 +288,12 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
     from rose_usd.object.fusion import occluders, touches
 
     hands = ctx.out_dir / "masks" / INTERACTOR
+
+    def silhouette_score(t: int, mask: np.ndarray):
+        """Fitness plus silhouette IoU at frame t, the hand and other objects left out (read once)."""
+        ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
+        return lambda f: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t])
+
     motions, tracked, fitness = [np.eye(4)], np.zeros(n, bool), np.zeros(n)
     lost_since, reacquired, iou0, last_touch, moved_untouched, settled, slid = None, 0, float("nan"), -n, 0, 0, 0
     for t in progress(range(n), f"trajectory {name}: tracking", total=n):
@@ -309,26 +316,19 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
             fit = hold
             if last_touch >= 0 and t - last_touch == cfg.release_frames + 1:
                 # just let go: where it rests along gravity, by its silhouette (module step 5)
-                ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
-                fit = settle_along_gravity(model, observed, hold, lambda f, t=t, mask=mask, ignore=ignore: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t]))
+                fit = settle_along_gravity(model, observed, hold, silhouette_score(t, mask))
                 settled += fit is not hold
                 hold = fit
         elif lost_since is not None and lost_since < t:
-
-            def score(fit, t=t, mask=mask):
-                ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
-                return fit.fitness + silhouette_iou(model, fit.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t])
-
-            fit = _reacquire(model, observed, cam[:3, 3], prev, score)
+            fit = _reacquire(model, observed, cam[:3, 3], prev, silhouette_score(t, mask))
             reacquired += 1
         else:
             start = _predict(motions) if t else np.eye(4)
             fit = register(model, observed, cam[:3, 3], start, prior_weight=cfg.prior_weight)
             axis = weak_axis(model, observed, fit.motion, cam[:3, 3]) if t and cfg.slide_span_m > 0 else None
             if axis is not None:  # depth leaves a direction free: the silhouette decides (step 3)
-                ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
                 registered = fit
-                fit = slide(model, observed, fit, axis, lambda f, t=t, mask=mask, ignore=ignore: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t]), span_m=cfg.slide_span_m, step_m=0.004, margin=0.005)
+                fit = slide(model, observed, fit, axis, silhouette_score(t, mask), span_m=cfg.slide_span_m, step_m=0.004, margin=0.005)
                 slid += fit is not registered
         if t == 0:
             iou0 = silhouette_iou(model, fit.motion, mask, occluders(ctx, name, 0, mask.shape, grow_px=2), cam, K)
