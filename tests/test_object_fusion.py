@@ -198,7 +198,7 @@ def test_a_box_top_face_seen_with_noise_is_not_raised_by_it():
 def test_a_hand_a_few_pixels_off_the_mask_touches_and_one_farther_does_not():
     """Classical masks leave a pixel or two claimed by neither where hand meets object
     (``TOUCH_REACH_PX``): a gap of 3 px touches; 12 px does not; a hand 30 cm behind does not."""
-    from rose_usd.object.fusion import touches
+    from rose_usd.segment.contact import touches
 
     depth = np.full((120, 160), 0.5)
     obj = np.zeros((120, 160), bool)

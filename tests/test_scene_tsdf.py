@@ -38,3 +38,31 @@ def test_an_open_border_or_an_uneven_rim_is_left_alone():
     pts[ramp, 2] += 0.2 * (pts[ramp, 0] - 0.5)  # the rim climbs 2-4 cm across the gap
     assert len(fill_support_holes(pts)) == 0
     assert len(fill_support_holes(_table(hole=(0.1, 0.9, 0.1, 0.9)))) == 0  # 64 dm^2: a real opening
+
+
+def test_a_pad_lays_the_support_flat_under_an_object_and_leaves_the_rest():
+    """Bumps of 5-11 mm under a resting object (MegaSaM's table under push-box) are replaced by a
+    flat pad at the surface's height over its footprint grown by the margin; the table around it,
+    and what stands above the band, keep their points."""
+    from rose_usd.scene.tsdf import SupportPad, _footprint, lay_pads
+
+    pts = _table(z=0.0, hole=(0, 0, 0, 0))
+    rng = np.random.default_rng(0)
+    under = np.linalg.norm(pts[:, :2] - 0.5, axis=1) < 0.06
+    pts[under, 2] += rng.uniform(0.005, 0.011, under.sum())
+    wall = np.column_stack([np.full(20, 0.5), np.full(20, 0.5), np.linspace(0.05, 0.1, 20)])  # above the band
+    pts = np.concatenate([pts, wall])
+    seen = 0.5 + 0.04 * np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 90)), np.sin(np.linspace(0, 2 * np.pi, 90))])
+    pad = SupportPad("Can", 0.0, _footprint(seen, 0.02, 0.004))
+    # the footprint: the seen disc (r 4 cm) grown by 2 cm, on a 4 mm grid
+    r = np.linalg.norm(pad.xy - 0.5, axis=1)
+    assert r.max() < 0.06 + 0.006 and len(pad.xy) * 0.004**2 > 0.9 * np.pi * 0.06**2
+    colors, normals = np.full((len(pts), 3), 0.5), np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    out, out_colors, out_normals, replaced = lay_pads(pts, colors, normals, [pad])
+    assert replaced > 0 and len(out) == len(out_colors) == len(out_normals)
+    inside = np.linalg.norm(out[:, :2] - 0.5, axis=1) < 0.055
+    low = inside & (out[:, 2] < 0.03)
+    assert np.abs(out[low, 2]).max() < 1e-9  # flat where the bumps were
+    assert (out[:, 2] >= 0.05).sum() == 20  # the wall above the band stays
+    far = np.linalg.norm(pts[:, :2] - 0.5, axis=1) > 0.1
+    assert len(np.intersect1d(pts[far].view([("", float)] * 3), out.view([("", float)] * 3))) == far.sum()

@@ -10,6 +10,7 @@ from PIL import Image
 
 from rose_usd.bench.evaluate import evaluate
 from rose_usd.case.gt import GroundTruth
+from rose_usd.core.metrics import SurfaceDistance
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, RoseError
 from rose_usd.io.images import read_mask, write_mask
@@ -87,6 +88,17 @@ def test_scene_mesh_is_a_valid_collider_without_ghosts(classical_out, sample_cas
     z = collision.vertices[:, 2]
     top = float(np.median(z[np.abs(z) < 0.006]))
     assert -0.0015 < top < 0.0005, top
+    # the box rests on the table before the arm touches it: the collider under it is a flat pad
+    # at the table's height around it (within its wrap's offset of that height everywhere)
+    pads = read_provenance(layer_file(classical_out, "scene"))["results"]["support_pads"]
+    assert set(pads) == {"Box"} and abs(pads["Box"]["height_m"]) < 0.003
+    footprint = gt.object_mesh("Box").vertices @ pose[:3, :3].T + pose[:3, 3]
+    lo, hi = footprint[:, :2].min(axis=0) + 0.005, footprint[:, :2].max(axis=0) - 0.005
+    grid = np.stack(np.meshgrid(np.linspace(lo[0], hi[0], 7), np.linspace(lo[1], hi[1], 7)), axis=-1).reshape(-1, 2)
+    from_true = np.linalg.inv(to_true)
+    probe = np.column_stack([grid, np.full(len(grid), 0.3)]) @ from_true[:3, :3].T + from_true[:3, 3]
+    under = probe[:, 2] - SurfaceDistance(collision.vertices, collision.faces).drop(probe)
+    assert np.ptp(under) < 0.002 and abs(np.median(under) - pads["Box"]["height_m"]) < 0.0025, under
 
 
 def test_sam2_import_round_trip_paletted_and_per_object(tmp_path, case_copy, sample_case):

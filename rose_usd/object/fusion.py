@@ -56,6 +56,7 @@ from rose_usd.object.author import ObjectModel, PhysicsValues, author_objects
 from rose_usd.object.priors import lookup
 from rose_usd.progress import progress
 from rose_usd.scene.tsdf import self_intersects, transfer_colors
+from rose_usd.segment.contact import first_contact, ring_height
 from rose_usd.segment.tracks import INTERACTOR
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
@@ -72,14 +73,6 @@ def masked_points(depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.nd
     v, u = np.nonzero(mask & (depth > 0))
     pts = se3.transform_points(world_from_cv, backproject(u, v, depth[v, u], K))
     return pts, rgb[v, u]
-
-
-TOUCH_REACH_PX = 5
-"""The tracker's touch: the interactor touches an object whose mask it comes this near [px].
-Classical masks leave a pixel or two claimed by neither where hand meets object; with 3 px the
-hand carrying place-can by its top reached it on 8-41 pixels (20 needed) and the tracker held
-the can 4 cm over the table while it was set down (APE 16.2 mm; 3.6 mm with 5 px). The rest
-that fusion uses ends at 3 px (``first_contact``)."""
 
 
 def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float, *, scale_drift: bool = False) -> list[tuple[int, float]]:
@@ -122,38 +115,6 @@ def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float, *, scale_dri
         if on_mask >= 0.93 and agree >= 0.6:
             frames.append((t, ratio))
     return frames
-
-
-def first_contact(masks: list, hand_folder, depth_of, n: int, *, reach_px: int = 3, depth_m: float = 0.02, min_px: int = 20) -> int:
-    """The first frame in which the interactor touches the object: its mask comes within
-    ``reach_px`` of the object's with depths within ``depth_m`` over ``min_px`` pixels (n if never).
-    Nothing moves an object before that. Closer than the tracker's ``TOUCH_REACH_PX``: here a
-    touch seen too early ends the rest and loses views (with 5 px the hand reaching for
-    unstack-can's Top touched its Base at frame 38, not 86, and Base's Chamfer went 2.96 ->
-    5.46 mm), where for the tracker it only means registering instead of holding."""
-    for t in range(n):
-        if masks[t] is None or not (hand_folder / f"{t:06d}.png").is_file():
-            continue
-        if touches(read_mask(hand_folder / f"{t:06d}.png"), masks[t], depth_of(t), reach_px=reach_px, depth_m=depth_m, min_px=min_px):
-            return t
-    return n
-
-
-def touches(hand: np.ndarray, mask: np.ndarray, depth: np.ndarray, *, reach_px: int = TOUCH_REACH_PX, depth_m: float = 0.02, min_px: int = 20) -> bool:
-    """Whether the interactor's mask ``hand`` comes within ``reach_px`` of the object's ``mask``
-    with depths within ``depth_m`` (plus half the object's extent) over ``min_px`` pixels."""
-    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    near = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool) & hand
-    if near.sum() < min_px:
-        return False
-    obj_depth = np.median(depth[mask & (depth > 0)]) if np.any(mask & (depth > 0)) else 0.0
-    return bool(np.count_nonzero(near & (depth > 0) & (np.abs(depth - obj_depth) < depth_m + 0.5 * _extent_m(mask, depth))) >= min_px)
-
-
-def _extent_m(mask: np.ndarray, depth: np.ndarray) -> float:
-    """The object's depth extent along the view (its far and near sides differ by this) [m]."""
-    d = depth[mask & (depth > 0)]
-    return float(np.percentile(d, 95) - np.percentile(d, 5)) if len(d) else 0.0
 
 
 def _circle_fit(xy: np.ndarray, *, geometric: bool = False, scale_m: float = 0.002) -> tuple[np.ndarray, float]:
@@ -431,7 +392,7 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
             per_frame.append(masked_points(depth, masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t]))
             if t in carve_at:
                 views.append((depth, cameras.K[t], cameras.world_from_cv[t]))
-        ground = _ground_height(ctx, spec.name, rests, masks, depth_of, cameras, typical)
+        ground = ring_height(ctx, spec.name, [(t, typical / ratio) for t, ratio in rests], masks, depth_of, cameras)
         pts = np.concatenate([p for p, _ in per_frame])
         cols = np.concatenate([c for _, c in per_frame])
         pts, cols = _clean(pts, cols, cfg.voxel_m, ground + cfg.support_gap_m)
@@ -457,33 +418,6 @@ def free_space_carve(points: np.ndarray, colors: np.ndarray, views: list, *, tol
     through, _, observed = view_counts(points, views, tol_m=tolerance_m, window=3)
     keep = ~((through >= min_views) & (through >= fraction * observed))
     return points[keep], colors[keep]
-
-
-def _ground_height(ctx: StageContext, name: str, rests: list, masks: list, depth_of, cameras, typical: float, *, count: int = 8) -> float:
-    """The height of the surface around the object: the median z of a ring of pixels 3-12 px
-    outside its mask (other objects and the interactor left out) in up to ``count`` resting frames.
-    The world's z = 0 is one plane fitted for the whole scene; under a given object the table may
-    sit a few mm (or, with MegaSaM depth, centimeters) off it."""
-    zs = []
-    for t, ratio in [rests[i] for i in np.unique(np.linspace(0, len(rests) - 1, min(count, len(rests))).astype(int))]:
-        mask = masks[t].astype(np.uint8)
-        ring = cv2.dilate(mask, np.ones((25, 25), np.uint8)).astype(bool) & ~cv2.dilate(mask, np.ones((7, 7), np.uint8)).astype(bool)
-        ring &= ~occluders(ctx, name, t, mask.shape, grow_px=3)
-        pts, _ = masked_points(depth_of(t) * np.float32(typical / ratio), ring, np.zeros((*mask.shape, 3), np.uint8), cameras.K[t], cameras.world_from_cv[t], erode_px=0)
-        zs.append(pts[:, 2])
-    z = np.concatenate(zs) if zs else np.zeros(0)
-    return float(np.median(z)) if len(z) >= 50 else 0.0
-
-
-def occluders(ctx: StageContext, name: str, t: int, shape: tuple[int, int], *, grow_px: int) -> np.ndarray:
-    """What may stand in front of object ``name`` or beside it in frame t: the masks of the other
-    objects and of the interactor, grown by ``grow_px`` (bool, ``shape``)."""
-    out = np.zeros(shape, np.uint8)
-    for other in [o.name for o in ctx.case.config.objects if o.name != name] + [INTERACTOR]:
-        f = ctx.out_dir / "masks" / other / f"{t:06d}.png"
-        if f.is_file():
-            out |= read_mask(f).astype(np.uint8)
-    return cv2.dilate(out, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8)).astype(bool)
 
 
 def decimate(mesh, max_triangles: int, *, check: bool = True):

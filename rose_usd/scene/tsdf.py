@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import tempfile
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -391,11 +392,108 @@ def fill_support_holes(points: np.ndarray, *, cell_m: float = 0.01, max_area_m2:
     return np.concatenate(new) if new else np.zeros((0, 3))
 
 
+@dataclass(frozen=True)
+class SupportPad:
+    """A flat patch of the support under a resting object: the grid points ``xy`` (N, 2) of its
+    footprint, grown by a margin, at ``height_m``."""
+
+    name: str
+    height_m: float
+    xy: np.ndarray
+
+
+def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, max_gap_m: float = 0.015, count: int = 8) -> tuple[list[SupportPad], dict[str, str]]:
+    """Where each object rests before the interactor first touches it, the support under it as a
+    flat pad at the height the object stage stands it on (``segment.contact.ring_height``).
+
+    The table under a resting object is never seen while it rests, and what is fused there from
+    other frames is what MegaSaM's depth makes of it: bumps of 5-11 mm under push-box, a 4.8 mm
+    slope under place-can, on which Newton's object rocks or slides (push-mug tipped 17 deg and
+    moved 56 mm in 1 s; flattened by hand, 6.5 mm). The footprint is the convex hull of the
+    object's seen points (its top seen from above covers it), grown by ``margin_m``. An object
+    whose lowest seen points lie more than ``max_gap_m`` above the surface around it does not
+    stand on it (held, or on another object) and gets no pad. Returns the pads and, per object
+    without one, why."""
+    from rose_usd.segment.contact import first_contact, ring_height
+
+    case, n = ctx.case, ctx.time_info.n_frames
+    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    depth_of = metric_depth_reader(ctx.stage, case, cache=8)
+    pads, skipped = [], {}
+    for spec in case.config.objects:
+        folder = ctx.out_dir / "masks" / spec.name
+        masks = [read_mask(folder / f"{t:06d}.png") if (folder / f"{t:06d}.png").is_file() else None for t in range(n)]
+        area = np.array([0 if m is None else int(m.sum()) for m in masks])
+        masks = [m if a >= 50 else None for m, a in zip(masks, area, strict=True)]
+        if not np.any(area >= 50):
+            skipped[spec.name] = "never visible"
+            continue
+        touched = first_contact(masks, ctx.out_dir / "masks" / INTERACTOR, depth_of, n)
+        clear = np.flatnonzero(area >= max(50, 0.5 * np.percentile(area[area >= 50], 90)))
+        frames = [int(t) for t in clear if t < touched]
+        if not frames:
+            skipped[spec.name] = "touched before it is clearly seen"
+            continue
+        height = ring_height(ctx, spec.name, [(t, 1.0) for t in frames], masks, depth_of, cameras, count=count)
+        seen = []
+        for t in [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]:
+            depth = depth_of(t)
+            mask = cv2.erode(masks[t].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+            v, u = np.nonzero(mask & (depth > 0))
+            seen.append(se3.transform_points(cameras.world_from_cv[t], backproject(u, v, depth[v, u], cameras.K[t])))
+        pts = np.concatenate(seen)
+        pts = pts[pts[:, 2] > height + 0.005]
+        if len(pts) < 50:
+            skipped[spec.name] = "too few points above the surface around it"
+            continue
+        gap = float(np.percentile(pts[:, 2], 2)) - height
+        if gap > max_gap_m:
+            skipped[spec.name] = f"its lowest points are {1000 * gap:.0f} mm above the surface around it (held, or on another object)"
+            continue
+        pads.append(SupportPad(spec.name, height, _footprint(pts[:, :2], margin_m, cell_m)))
+    return pads, skipped
+
+
+def _footprint(xy: np.ndarray, margin_m: float, cell_m: float) -> np.ndarray:
+    """Grid points (spacing ``cell_m``) within ``margin_m`` of the convex hull of ``xy``."""
+    grow = int(np.ceil(margin_m / cell_m))
+    lo = xy.min(axis=0) - (grow + 1) * cell_m
+    size = np.ceil((xy.max(axis=0) - lo) / cell_m).astype(int) + grow + 2
+    grid = np.zeros((size[1], size[0]), np.uint8)
+    hull = cv2.convexHull(np.round((xy - lo) / cell_m).astype(np.int32))
+    cv2.fillConvexPoly(grid, hull, 1)
+    if grow:
+        grid = cv2.dilate(grid, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
+    rows, cols = np.nonzero(grid)
+    return np.column_stack([cols, rows]) * cell_m + lo
+
+
+def lay_pads(points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: list[SupportPad], *, band_m: float = 0.03, cell_m: float = 0.004):
+    """The fused surface with each pad laid in: fused points over a pad's footprint within
+    ``band_m`` of its height replaced by its grid points (normals up, colors of their 3 nearest
+    remaining fused points). Returns points, colors, normals and the number of points replaced."""
+    replaced, new = 0, []
+    for pad in pads:
+        near = cKDTree(pad.xy).query(points[:, :2], distance_upper_bound=0.75 * cell_m)[0] < np.inf
+        drop = near & (np.abs(points[:, 2] - pad.height_m) < band_m)
+        replaced += int(drop.sum())
+        points, colors, normals = points[~drop], colors[~drop], normals[~drop]
+        new.append(np.column_stack([pad.xy, np.full(len(pad.xy), pad.height_m)]))
+    if new:
+        added = np.concatenate(new)
+        colors = np.concatenate([colors, transfer_colors(added, points, colors)])
+        points = np.concatenate([points, added])
+        normals = np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(added), 1))])
+    return points, colors, normals, replaced
+
+
 def run(ctx: StageContext) -> None:
     cfg = ctx.config
     points, colors, normals, used, carved = fuse_static(
         ctx, voxel_m=cfg.voxel_m, frame_stride=cfg.frame_stride, margin_px=cfg.mask_margin_px, depth_max_m=cfg.depth_max_m, carve_m=cfg.carve_m
     )
+    pads, no_pad = support_pads(ctx, margin_m=cfg.pad_margin_m) if cfg.pad_margin_m > 0 else ([], {})
+    points, colors, normals, padded = lay_pads(points, colors, normals, pads)
     filled = fill_support_holes(points)
     if len(filled):  # colored by their nearest fused neighbors, like any other point
         colors = np.concatenate([colors, transfer_colors(filled, points, colors)])
@@ -431,6 +529,9 @@ def run(ctx: StageContext) -> None:
         fused_frames=used,
         fused_points=int(len(points)),
         support_hole_points=int(len(filled)),
+        support_pads={p.name: {"height_m": round(p.height_m, 4), "area_cm2": round(len(p.xy) * 0.4**2, 1)} for p in pads},
+        no_support_pad=no_pad,
+        pad_replaced_points=padded,
         carved_points=carved,
         wrap_triangles=first_triangles,
         alpha_m=round(alpha, 4),

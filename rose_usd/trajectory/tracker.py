@@ -29,7 +29,7 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    fitness and silhouette IoU against the mask. Frames lost between two tracked ones are then
    interpolated on SE(3) (confidence 0.5); lost at the end they hold (confidence 0).
 5. **Rest.** Objects move only when touched: while the interactor's mask has not come near the
-   object's (``object.fusion.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames
+   object's (``segment.contact.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames
    and the last pose still fits the depth, the pose holds. When it first holds after a touch, the
    pose is moved along gravity to where fitness plus silhouette IoU is best
    (``settle_along_gravity``): a can's wall fits its depth at any height, and a hand on its top
@@ -285,7 +285,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
     folder = ctx.out_dir / "masks" / name
     if not folder.is_dir():
         raise InputError(f"no masks of object {name!r}", path=folder, hint="run the segment stage")
-    from rose_usd.object.fusion import occluders, touches
+    from rose_usd.segment.contact import occluders, touches
 
     hands = ctx.out_dir / "masks" / INTERACTOR
 
