@@ -66,3 +66,21 @@ def test_a_pad_lays_the_support_flat_under_an_object_and_leaves_the_rest():
     assert (out[:, 2] >= 0.05).sum() == 20  # the wall above the band stays
     far = np.linalg.norm(pts[:, :2] - 0.5, axis=1) > 0.1
     assert len(np.intersect1d(pts[far].view([("", float)] * 3), out.view([("", float)] * 3))) == far.sum()
+
+
+def test_only_triangles_facing_a_camera_are_textured_and_the_rest_keep_their_vertices():
+    """A slab seen from above and one side: its top and that side face the cameras; its underside
+    and the far sides do not (a closed mesh hides them from every camera)."""
+    import trimesh
+
+    from rose_usd.scene.tsdf import faces_facing, submesh
+
+    slab = trimesh.creation.box(extents=[1.0, 1.0, 0.02])
+    centers = np.array([[0.0, -1.0, 1.0], [1.0, -1.2, 0.8]])  # above, in front (-y), the second right of it (+x)
+    facing = faces_facing(slab.vertices, slab.faces, centers)
+    normals = slab.face_normals
+    assert facing[normals[:, 2] > 0.9].all() and facing[normals[:, 1] < -0.9].all() and facing[normals[:, 0] > 0.9].all()
+    assert not facing[normals[:, 2] < -0.9].any() and not facing[normals[:, 1] > 0.9].any() and not facing[normals[:, 0] < -0.9].any()
+    v, f = submesh(slab.vertices, slab.faces, facing)
+    assert len(f) == facing.sum() and f.max() == len(v) - 1
+    assert np.allclose(v[f], slab.vertices[slab.faces[facing]])

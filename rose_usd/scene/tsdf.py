@@ -284,6 +284,27 @@ def bake_texture(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, co
     return verts, new_faces.astype(np.int64), uv.astype(float), transfer_colors(verts, points, colors), tex
 
 
+def faces_facing(vertices: np.ndarray, faces: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """Triangles (bool (F,)) whose front faces at least one of the camera ``centers`` (N, 3).
+    A closed mesh's other triangles are hidden from every one of them by the mesh itself."""
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    centroid = tri.mean(axis=1)
+    out = np.zeros(len(faces), bool)
+    for c in centers:
+        out |= np.einsum("ij,ij->i", normal, c - centroid) > 0
+        if out.all():
+            break
+    return out
+
+
+def submesh(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles ``keep`` (bool (F,)) with only the vertices they use, renumbered."""
+    kept = faces[keep]
+    used, inverse = np.unique(kept, return_inverse=True)
+    return vertices[used], inverse.reshape(kept.shape).astype(np.int64)
+
+
 def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``image`` (H, W, C) at continuous pixel coordinates (pixel centers at integers), clamped."""
     h, w = image.shape[:2]
@@ -518,13 +539,22 @@ def run(ctx: StageContext) -> None:
     if self_intersects(vertices, faces):
         raise MeshError("the wrapped scene mesh intersects itself", hint="try a larger scene.alpha_m or max_triangles")
     frame_colors = FrameColors(ctx, count=cfg.texture_frames, margin_px=cfg.mask_margin_px) if cfg.texture_frames > 0 else None
-    tv, tf, uv, tcols, tex = bake_texture(vertices, faces, points, colors, cfg.texture_size, frame_colors)
+    # only the triangles that face one of the video's cameras take texels: the slab's underside
+    # and the wrap's far sides (about a third of its area) are never seen, and textured with the
+    # rest they left the seen surface 62-72 % of a texture whose packing varied between runs
+    # (place-can's SSIM 0.862 -> 0.838 with 0.688 -> 0.617 of the texture used)
+    facing = faces_facing(vertices, faces, read_camera(ctx.stage, paths.CAMERA, ctx.time_info.n_frames).world_from_cv[:, :3, 3])
+    seen_v, seen_f = submesh(vertices, faces, facing)
+    tv, tf, uv, tcols, tex = bake_texture(seen_v, seen_f, points, colors, cfg.texture_size, frame_colors)
     with tempfile.TemporaryDirectory() as tmp:
         tex_path = Path(tmp) / "Reconstruction.png"
         cv2.imwrite(str(tex_path), cv2.cvtColor(tex, cv2.COLOR_RGB2BGR))
-        visual = MeshData(vertices=tv, faces=tf, vertex_colors=tcols, uv=uv, texture=tex_path)
+        parts = [ScenePart("Reconstruction", MeshData(vertices=tv, faces=tf, vertex_colors=tcols, uv=uv, texture=tex_path))]
+        if not facing.all():  # what no camera faces: colored per vertex (3-NN), in its own part
+            unseen_v, unseen_f = submesh(vertices, faces, ~facing)
+            parts.append(ScenePart("Unseen", MeshData(vertices=unseen_v, faces=unseen_f, vertex_colors=transfer_colors(unseen_v, points, colors))))
         collision = MeshData(vertices=vertices, faces=faces)
-        author_scene(ctx, [ScenePart("Reconstruction", visual)], collision, Lighting.unlit())
+        author_scene(ctx, parts, collision, Lighting.unlit())
     ctx.record(
         fused_frames=used,
         fused_points=int(len(points)),
@@ -539,5 +569,6 @@ def run(ctx: StageContext) -> None:
         watertight=True,
         self_intersections=False,
         texture_px=cfg.texture_size,
+        textured_triangles=int(facing.sum()),
         texture_frames=len(frame_colors.frames) if frame_colors else 0,
     )
