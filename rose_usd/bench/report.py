@@ -105,7 +105,7 @@ def build_report(results_dir: Path) -> Path:
         "## Table 2: reconstruction accuracy (mean over each task's seeds)",
         "",
         "Scene Chamfer: point-to-surface, true surface seen by the camera vs the reconstructed scene (cropped to what was seen); "
-        "visible: per-frame Chamfer of what both show through the same pixels. Object Chamfer: at frame 0, in the true object frame. "
+        "visible: per-frame Chamfer of what both show through the same pixels. Object Chamfer: at frame 0, in the true world registered by the cameras (placement counts). "
         "APE/RPE: RMSE as evo defines them (no alignment; RPE over 1 frame), object frames matched by mesh registration. "
         "The true depth images that define what was seen are stored in whole millimeters, so even a perfect scene scores about 0.1 mm.",
         "",
