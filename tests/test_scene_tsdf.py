@@ -53,10 +53,10 @@ def test_a_pad_lays_the_support_flat_under_an_object_and_leaves_the_rest():
     wall = np.column_stack([np.full(20, 0.5), np.full(20, 0.5), np.linspace(0.05, 0.1, 20)])  # above the band
     pts = np.concatenate([pts, wall])
     seen = 0.5 + 0.04 * np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 90)), np.sin(np.linspace(0, 2 * np.pi, 90))])
-    pad = SupportPad("Can", 0.0, _footprint(seen, 0.02, 0.004))
+    pad = SupportPad("Can", 0.0, _footprint(seen, 0.02, 0.004), 0.004)
     # the footprint: the seen disc (r 4 cm) grown by 2 cm, on a 4 mm grid
     r = np.linalg.norm(pad.xy - 0.5, axis=1)
-    assert r.max() < 0.06 + 0.006 and len(pad.xy) * 0.004**2 > 0.9 * np.pi * 0.06**2
+    assert r.max() < 0.06 + 0.006 and pad.area_m2 > 0.9 * np.pi * 0.06**2
     colors, normals = np.full((len(pts), 3), 0.5), np.tile([0.0, 0.0, 1.0], (len(pts), 1))
     out, out_colors, out_normals, replaced = lay_pads(pts, colors, normals, [pad])
     assert replaced > 0 and len(out) == len(out_colors) == len(out_normals)

@@ -17,6 +17,15 @@ def backproject(u, v, z, K: np.ndarray) -> np.ndarray:
     return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
 
 
+def masked_world_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, *, erode_px: int = 0) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """World points (N, 3) of the pixels of ``mask`` (eroded by ``erode_px``) with depth, and
+    those pixels' (rows, columns)."""
+    if erode_px:
+        mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)).astype(bool)
+    v, u = np.nonzero(mask & (depth > 0))
+    return se3.transform_points(world_from_cv, backproject(u, v, depth[v, u], K)), (v, u)
+
+
 def project(points_cam: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates (u, v), as floats with pixel centers at integers, of camera points
     (..., 3) in OpenCV axes in front of the camera: the inverse of ``backproject``."""

@@ -48,7 +48,7 @@ from rose_usd.capture.depth import depth_is_sensor, metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.inertia import mass_properties, shell_mass_properties
-from rose_usd.core.pinhole import backproject, pixels_of, view_counts
+from rose_usd.core.pinhole import masked_world_points, pixels_of, view_counts
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io.images import read_mask
@@ -68,10 +68,7 @@ def masked_points(depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.nd
     """World points and sRGB colors of the mask's pixels with depth (mask eroded by ``erode_px``:
     its border pixels mix the object's depth with what is behind it). Leaving out every pixel at a
     depth discontinuity as well was measured to shrink the object more than it helps."""
-    if erode_px:
-        mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)).astype(bool)
-    v, u = np.nonzero(mask & (depth > 0))
-    pts = se3.transform_points(world_from_cv, backproject(u, v, depth[v, u], K))
+    pts, (v, u) = masked_world_points(depth, mask, K, world_from_cv, erode_px=erode_px)
     return pts, rgb[v, u]
 
 

@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import linear_to_srgb8, srgb8_to_linear
-from rose_usd.core.pinhole import backproject, pixels_of, sample_at, view_counts
+from rose_usd.core.pinhole import backproject, masked_world_points, pixels_of, sample_at, view_counts
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io.images import read_mask
@@ -421,6 +421,12 @@ class SupportPad:
     name: str
     height_m: float
     xy: np.ndarray
+    cell_m: float
+    """The grid's spacing [m]."""
+
+    @property
+    def area_m2(self) -> float:
+        return len(self.xy) * self.cell_m**2
 
 
 def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, max_gap_m: float = 0.015, count: int = 8) -> tuple[list[SupportPad], dict[str, str]]:
@@ -458,10 +464,7 @@ def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, m
         height = ring_height(ctx, spec.name, [(t, 1.0) for t in frames], masks, depth_of, cameras, count=count)
         seen = []
         for t in [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]:
-            depth = depth_of(t)
-            mask = cv2.erode(masks[t].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-            v, u = np.nonzero(mask & (depth > 0))
-            seen.append(se3.transform_points(cameras.world_from_cv[t], backproject(u, v, depth[v, u], cameras.K[t])))
+            seen.append(masked_world_points(depth_of(t), masks[t], cameras.K[t], cameras.world_from_cv[t], erode_px=2)[0])
         pts = np.concatenate(seen)
         pts = pts[pts[:, 2] > height + 0.005]
         if len(pts) < 50:
@@ -471,7 +474,7 @@ def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, m
         if gap > max_gap_m:
             skipped[spec.name] = f"its lowest points are {1000 * gap:.0f} mm above the surface around it (held, or on another object)"
             continue
-        pads.append(SupportPad(spec.name, height, _footprint(pts[:, :2], margin_m, cell_m)))
+        pads.append(SupportPad(spec.name, height, _footprint(pts[:, :2], margin_m, cell_m), cell_m))
     return pads, skipped
 
 
@@ -489,13 +492,13 @@ def _footprint(xy: np.ndarray, margin_m: float, cell_m: float) -> np.ndarray:
     return np.column_stack([cols, rows]) * cell_m + lo
 
 
-def lay_pads(points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: list[SupportPad], *, band_m: float = 0.03, cell_m: float = 0.004):
+def lay_pads(points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: list[SupportPad], *, band_m: float = 0.03):
     """The fused surface with each pad laid in: fused points over a pad's footprint within
     ``band_m`` of its height replaced by its grid points (normals up, colors of their 3 nearest
     remaining fused points). Returns points, colors, normals and the number of points replaced."""
     replaced, new = 0, []
     for pad in pads:
-        near = cKDTree(pad.xy).query(points[:, :2], distance_upper_bound=0.75 * cell_m)[0] < np.inf
+        near = cKDTree(pad.xy).query(points[:, :2], distance_upper_bound=0.75 * pad.cell_m)[0] < np.inf
         drop = near & (np.abs(points[:, 2] - pad.height_m) < band_m)
         replaced += int(drop.sum())
         points, colors, normals = points[~drop], colors[~drop], normals[~drop]
@@ -559,7 +562,7 @@ def run(ctx: StageContext) -> None:
         fused_frames=used,
         fused_points=int(len(points)),
         support_hole_points=int(len(filled)),
-        support_pads={p.name: {"height_m": round(p.height_m, 4), "area_cm2": round(len(p.xy) * 0.4**2, 1)} for p in pads},
+        support_pads={p.name: {"height_m": round(p.height_m, 4), "area_cm2": round(1e4 * p.area_m2, 1)} for p in pads},
         no_support_pad=no_pad,
         pad_replaced_points=padded,
         carved_points=carved,

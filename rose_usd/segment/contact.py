@@ -8,8 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from rose_usd.core import se3
-from rose_usd.core.pinhole import backproject
+from rose_usd.core.pinhole import masked_world_points
 from rose_usd.io.images import read_mask
 from rose_usd.segment.tracks import INTERACTOR
 from rose_usd.stage_api import StageContext
@@ -78,8 +77,7 @@ def ring_height(ctx: StageContext, name: str, views: list[tuple[int, float]], ma
         mask = masks[t].astype(np.uint8)
         ring = cv2.dilate(mask, np.ones((25, 25), np.uint8)).astype(bool) & ~cv2.dilate(mask, np.ones((7, 7), np.uint8)).astype(bool)
         ring &= ~occluders(ctx, name, t, mask.shape, grow_px=3)
-        depth = depth_of(t) * np.float32(scale)
-        v, u = np.nonzero(ring & (depth > 0))
-        zs.append(se3.transform_points(cameras.world_from_cv[t], backproject(u, v, depth[v, u], cameras.K[t]))[:, 2])
+        pts, _ = masked_world_points(depth_of(t) * np.float32(scale), ring, cameras.K[t], cameras.world_from_cv[t])
+        zs.append(pts[:, 2])
     z = np.concatenate(zs) if zs else np.zeros(0)
     return float(np.median(z)) if len(z) >= 50 else 0.0
