@@ -137,19 +137,18 @@ def test_flying_pixels_above_a_top_face_are_carved_and_the_face_is_kept():
     face = np.column_stack([rng.uniform(-0.05, 0.05, (2000, 2)), np.full(2000, 0.05)])
     strip = np.column_stack([np.full(300, 0.05), rng.uniform(-0.05, 0.05, 300), 0.05 + rng.uniform(0.004, 0.01, 300)])
     points = np.vstack([face, strip])
-    kept, colors = free_space_carve(points, np.zeros((len(points), 3), np.uint8), views)
-    assert len(kept) == len(colors)
+    kept = points[free_space_carve(points, views)]
     kept_face = np.count_nonzero(np.isclose(kept[:, 2], 0.05))
     assert kept_face == len(face)
     assert len(kept) - kept_face < 0.1 * len(strip), len(kept) - kept_face
 
 
-def _mesh_top_and_radius(points, step=0.002):
+def _mesh_top_and_radius(points, step=0.002, outline=None):
     """solid_from_points + mesh_from_solid of ``points``: the mesh's top (median z of its top-face
     vertices), its height extent and how it was completed."""
     from rose_usd.object.fusion import mesh_from_solid, solid_from_points
 
-    solid, lo, step, how = solid_from_points(points, step_m=step, band_m=4 * step, tolerance=0.05)
+    solid, lo, step, how = solid_from_points(points, step_m=step, band_m=4 * step, tolerance=0.05, outline=outline)
     v, _ = mesh_from_solid(solid, lo, step, 40_000)
     upper = v[v[:, 2] > v[:, 2].max() - 0.004]
     return float(np.median(upper[:, 2])), v, how
@@ -213,3 +212,40 @@ def test_a_hand_a_few_pixels_off_the_mask_touches_and_one_farther_does_not():
     behind = depth.copy()
     behind[hand] = 0.8
     assert not touches(hand, obj, behind)
+
+
+def test_walls_fused_over_many_frames_lie_where_the_frames_put_them():
+    """A 10 x 14 x 6 cm box fused over 120 frames, each seeing its top and two walls with 1.5 mm
+    noise along their normals. Down to one point per voxel, every voxel the noise reached counts
+    as much as the wall's own, and the footprint drawn around them all lies on the noise's
+    extremes; a seen cell near the grid's edge also grew a spike to it in the footprint's
+    closing, and the hull's cells were taken whole: the mesh's walls were 7 mm out (unstack-box:
+    size +5.4 %). Drawn around the voxels seen often compared with their neighbors, with sub-voxel
+    walls, they lie within 3.5 mm, at least 1 mm nearer than around every voxel; the sides seen
+    only as the top face's edges stay where they are (within 1 mm), and one frame's points (each
+    voxel seen at most 3 times) all count as often seen."""
+    from rose_usd.object.fusion import _clean, seen_voxels
+
+    rng = np.random.default_rng(5)
+    frames = []
+    for _ in range(120):
+        top = np.column_stack([rng.uniform(-0.05, 0.05, 1500), rng.uniform(-0.07, 0.07, 1500), np.full(1500, 0.06)])
+        wall_x = np.column_stack([np.full(600, -0.05), rng.uniform(-0.07, 0.07, 600), rng.uniform(0.0, 0.06, 600)])
+        wall_y = np.column_stack([rng.uniform(-0.05, 0.05, 400), np.full(400, -0.07), rng.uniform(0.0, 0.06, 400)])
+        top[:, 2] += rng.normal(0, 0.0015, len(top))
+        wall_x[:, 0] += rng.normal(0, 0.0015, len(wall_x))
+        wall_y[:, 1] += rng.normal(0, 0.0015, len(wall_y))
+        frames.append(np.concatenate([top, wall_x, wall_y]))
+    points = np.concatenate(frames)
+    colors = np.full((len(points), 3), 128, np.uint8)
+    kept, _, often = _clean(points, colors, 0.002, 0.003)
+    _, v, how = _mesh_top_and_radius(kept, outline=often)
+    _, v_all, _ = _mesh_top_and_radius(kept)
+    assert how == "height-field"
+    out = np.array([-0.05 - v[:, 0].min(), -0.07 - v[:, 1].min()])
+    out_all = np.array([-0.05 - v_all[:, 0].min(), -0.07 - v_all[:, 1].min()])
+    assert np.all(np.abs(out) < 0.0035) and np.all(out_all - out > 0.001), (out, out_all)
+    assert abs(v[:, 0].max() - 0.05) < 0.001 and abs(v[:, 1].max() - 0.07) < 0.001, v.max(axis=0)
+    # a single frame: nothing to compare, every voxel counts
+    _, _, often = seen_voxels(frames[0], colors[: len(frames[0])], 0.002)
+    assert often.all()
