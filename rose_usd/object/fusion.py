@@ -6,7 +6,9 @@ with no imported mesh. No learned model.
    long as its points of that view, projected into later frames, still meet the depth there
    (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are fused (the world frame is the object's frame
    while it rests). The trajectory stage will add the frames after.
-2. **Clean.** Voxel-downsampled to ``voxel_m``, statistical outliers dropped, points that a
+2. **Clean.** One point per ``voxel_m`` voxel, marked "often seen" when seen at least a tenth as
+   often as the most seen voxel near it (``seen_voxels``: the depth noise's tail, a few points per
+   frame a few mm off a surface, is not), statistical outliers dropped, points that a
    resting frame sees past dropped (flying pixels at the silhouette, fused over many frames,
    form a dense wall that outlier removal keeps), and points within
    ``support_gap_m`` of the surface around the object dropped (the table at the mask's border;
@@ -20,7 +22,7 @@ with no imported mesh. No learned model.
    side's points only (the top face's points near its rim are not wall), finally by geometric
    least squares (Kasa's algebraic fit of an arc seen from one side is pulled toward the camera
    and shrunk). Anything else is completed as a height field standing on the support: walls go
-   straight down from the seen rim to the table. Heights (a column's, the top of a solid of
+   straight down from the seen rim to the table, around the convex hull of the often seen points. Heights (a column's, the top of a solid of
    revolution) are upper medians of the points (``cell_upper_median``, ``top_height``): the
    highest point is raised by the depth noise (a box 3-4 mm, a can 7 mm too tall before).
 4. **Close**: the completed solid is a voxel grid (``voxel_m``) whose occupancy ramps from 1 to 0
