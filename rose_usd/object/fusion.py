@@ -19,9 +19,11 @@ with no imported mesh. No learned model.
    object seen around the upper one). A solid of revolution (a can, a mug's body: the radial distance of the points to a
    fitted vertical axis varies by under ``revolution_tolerance`` of the radius within each height
    band) is completed by revolving its median profile up to its top. The axis is fitted to the
-   side's points only (the top face's points near its rim are not wall), finally by geometric
-   least squares (Kasa's algebraic fit of an arc seen from one side is pulled toward the camera
-   and shrunk). Anything else is completed as a height field standing on the support: walls go
+   side's points only (the top face's points near its rim are not wall) that face away from it
+   toward their cameras (each fused point keeps its mean direction to the cameras that saw it: a
+   mug's far inner wall, seen over the rim, faces the other way and once made the mugs 5 %
+   narrow), finally by geometric least squares (Kasa's algebraic fit of an arc seen from one
+   side is pulled toward the camera and shrunk). Anything else is completed as a height field standing on the support: walls go
    straight down from the seen rim to the table, around the convex hull of the often seen points. Heights (a column's, the top of a solid of
    revolution) are upper medians of the points (``cell_upper_median``, ``top_height``): the
    highest point is raised by the depth noise (a box 3-4 mm, a can 7 mm too tall before).
@@ -179,7 +181,16 @@ def _polar(xy: np.ndarray, center: np.ndarray, n_sectors: int) -> tuple[np.ndarr
     return np.hypot(d[:, 0], d[:, 1]), sector
 
 
-def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n_sectors: int = 36):
+def _facing_out(xy: np.ndarray, toward_xy: np.ndarray | None, center: np.ndarray) -> np.ndarray:
+    """Which points face away from the axis through ``center`` toward their cameras (``toward_xy``:
+    the horizontal part of the direction to them): an outer wall. A vessel's inner wall, seen over
+    its rim from across the axis, faces the other way. All of them without directions."""
+    if toward_xy is None:
+        return np.ones(len(xy), bool)
+    return np.einsum("ij,ij->i", xy - center, toward_xy) > 0
+
+
+def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, toward: np.ndarray | None = None, n_sectors: int = 36):
     """(axis center (2,), heights, radii) when the points are a solid of revolution about a
     vertical axis, else None.
 
@@ -187,12 +198,27 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
     every sector of a height band, up to ``tolerance`` of the radius (the median over the band's
     sectors); a few sectors may stand out (a mug's handle) and are left out of the axis fit and the
     radii (the fit keeps sectors within 5 % of the median, the radii within 15 %). Points inside the wall (a mug's inner wall, seen over its rim) never set a sector's
-    outer radius."""
+    outer radius.
+
+    ``toward`` (N, 3), each point's mean unit direction to the cameras that saw it, tells a vessel's
+    inner wall from its outer one where only one of them is seen: a camera on one side of a mug
+    sees its near outer wall and the far side's inner wall, which by radius alone are one circle
+    smaller by half the wall and off the axis by as much (the classical mugs were 5 % narrow)."""
     # the axis is fitted on the side: the top face's points near its rim are not on the wall
     ztop = top_height(points, 0.5 * band_m)
     side = points[:, 2] < ztop - 2 * band_m
-    xy = points[side, :2] if side.sum() >= 100 else points[:, :2]
+    if side.sum() < 100:
+        side = np.ones(len(points), bool)
+    xy = points[side, :2]
+    toward_xy = None if toward is None else toward[:, :2]
     center, radius = _circle_fit(xy)
+    if toward_xy is not None:  # the outer wall's points only: the mix's center is off by half the wall at most
+        for _ in range(2):
+            out = _facing_out(xy, toward_xy[side], center)
+            if out.sum() < 100:
+                break
+            center, radius = _circle_fit(xy[out])
+        xy = xy[out] if out.sum() >= 100 else xy
     for k in range(3):  # refit the axis on the outer wall of the sectors that agree
         r, sector = _polar(xy, center, n_sectors)
         outer = _sector_outer(r, sector, n_sectors)
@@ -210,7 +236,8 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
         return None
     xy = points[:, :2]
     r, sector = _polar(xy, center, n_sectors)
-    z = np.where(points[:, 2] < ztop - 0.5 * band_m, points[:, 2], np.inf)  # the top face's points are not wall
+    wall_side = (points[:, 2] < ztop - 0.5 * band_m) & _facing_out(xy, toward_xy, center)  # the top face's points are not wall
+    z = np.where(wall_side, points[:, 2], np.inf)
     edges = np.arange(0.0, ztop, band_m)
     heights, radii, spread = [], [], []
     for lo, hi in zip(edges[:-1], edges[1:]):
@@ -233,11 +260,12 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, n
     return center, np.array(heights), np.array(radii)
 
 
-def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, tolerance: float, outline: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, tolerance: float, outline: np.ndarray | None = None, toward: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """The object's solid as a voxel grid built from the seen points and what completes them:
     (occupancy (X, Y, Z) float in [0, 1], grid origin (3,) = the corner of voxel 0, step, how).
     ``outline`` (bool per point, default all): the points a height field's footprint is drawn
-    around (``seen_voxels``' often seen ones).
+    around (``seen_voxels``' often seen ones). ``toward``: each point's unit direction to its
+    cameras (``revolution_profile``).
 
     Voxel k spans z in [k, k+1) * step, so the solid's bottom face is the support, z = 0. Near a
     completed surface (the revolved wall, a top at its height) the occupancy ramps linearly from 1
@@ -251,7 +279,7 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
     centers = [lo[a] + (np.arange(shape[a]) + 0.5) * step_m for a in range(3)]
     x, y = np.meshgrid(centers[0], centers[1], indexing="ij")
     z = centers[2]
-    rev = revolution_profile(points, band_m, tolerance)
+    rev = revolution_profile(points, band_m, tolerance, toward=toward)
     idx = np.clip(np.floor((points - lo) / step_m).astype(int), 0, np.array(shape) - 1)
     if rev is not None:
         center, heights, radii = rev
@@ -363,6 +391,8 @@ class RestingCloud:
     often: np.ndarray
     """Per point: seen about as often as the points around it (``seen_voxels``); a footprint is
     drawn around these, not around the depth noise's tail."""
+    toward: np.ndarray
+    """Per point: the mean unit direction from it to the cameras that saw it (which way a wall faces)."""
     ground: float = 0.0
     """The height of the surface around the object [m] (0 = the world's support plane)."""
 
@@ -401,18 +431,19 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
         views = []  # the resting views that carve the fused points (their depth read once)
         for t, ratio in rests:  # every frame's depth brought to the rest's typical scale
             depth = depth_of(t) * np.float32(typical / ratio)
-            per_frame.append(masked_points(depth, masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t]))
+            pts, cols = masked_points(depth, masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t])
+            toward = (cameras.world_from_cv[t][:3, 3] - pts).astype(np.float32)
+            per_frame.append((pts, cols, toward / np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-9)))
             if t in carve_at:
                 views.append((depth, cameras.K[t], cameras.world_from_cv[t]))
         ground = ring_height(ctx, spec.name, [(t, typical / ratio) for t, ratio in rests], masks, depth_of, cameras)
-        pts = np.concatenate([p for p, _ in per_frame])
-        cols = np.concatenate([c for _, c in per_frame])
-        pts, cols, often = _clean(pts, cols, cfg.voxel_m, ground + cfg.support_gap_m)
+        pts, cols, toward = (np.concatenate(parts) for parts in zip(*per_frame))
+        pts, cols, toward, often = _clean(pts, cols, toward, cfg.voxel_m, ground + cfg.support_gap_m)
         keep = free_space_carve(pts, views)
-        pts, cols, often = pts[keep], cols[keep], often[keep]
+        pts, cols, toward, often = pts[keep], cols[keep], toward[keep], often[keep]
         if len(pts) < 200:
             raise InputError(f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames", path=folder, hint="check its masks and the depth")
-        clouds[spec.name] = RestingCloud(pts, cols, frames, masks, often, ground)
+        clouds[spec.name] = RestingCloud(pts, cols, frames, masks, often, toward, ground)
     return clouds
 
 
@@ -463,7 +494,7 @@ def run(ctx: StageContext) -> None:
         above = pts[:, 2] > support + cfg.support_gap_m
         pts, cols = pts[above], cols[above]
         lift = np.array([0.0, 0.0, support])
-        solid, lo, step, how = solid_from_points(pts - lift, step_m=cfg.voxel_m, band_m=4 * cfg.voxel_m, tolerance=cfg.revolution_tolerance, outline=cloud.often[above])
+        solid, lo, step, how = solid_from_points(pts - lift, step_m=cfg.voxel_m, band_m=4 * cfg.voxel_m, tolerance=cfg.revolution_tolerance, outline=cloud.often[above], toward=cloud.toward[above])
         vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
         vertices = vertices + lift
         problems = collider_problems(vertices, faces)
@@ -503,10 +534,11 @@ def support_height(points: np.ndarray, others: list[np.ndarray], *, ground: floa
     return min(best, lowest)
 
 
-def seen_voxels(points: np.ndarray, colors: np.ndarray, voxel_m: float, *, keep_fraction: float = 0.1, reach: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The points fused over many frames, one per ``voxel_m`` voxel (the mean of its points and
-    colors), and which of them are seen often: at least ``keep_fraction`` as often as the most
-    seen voxel within ``reach`` voxels of them. Returns (points, sRGB8 colors, often).
+def seen_voxels(points: np.ndarray, values: np.ndarray, voxel_m: float, *, keep_fraction: float = 0.1, reach: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points fused over many frames, one per ``voxel_m`` voxel (the mean of its points and of
+    their ``values`` (N, k): colors, directions to the camera), and which of them are seen often:
+    at least ``keep_fraction`` as often as the most seen voxel within ``reach`` voxels of them.
+    Returns (points, mean values (float), often).
 
     A surface seen in many frames fills its voxels many times over; the depth noise's tail and the
     registration's jitter put a few points per frame a few millimeters off it. A plain voxel
@@ -529,7 +561,8 @@ def seen_voxels(points: np.ndarray, colors: np.ndarray, voxel_m: float, *, keep_
     ids, owner, count = np.unique(((key[:, 0] - lo[0]) * dims[1] + (key[:, 1] - lo[1])) * dims[2] + (key[:, 2] - lo[2]), return_inverse=True, return_counts=True)
     owner = owner.ravel()
     mean = np.column_stack([np.bincount(owner, weights=points[:, a], minlength=len(ids)) for a in range(3)]) / count[:, None]
-    color = np.column_stack([np.bincount(owner, weights=colors[:, a].astype(float), minlength=len(ids)) for a in range(3)]) / count[:, None]
+    values = np.asarray(values, dtype=float).reshape(len(points), -1)
+    value = np.column_stack([np.bincount(owner, weights=values[:, a], minlength=len(ids)) for a in range(values.shape[1])]) / count[:, None]
     # the most seen voxel around each: every offset looked up in the (sorted) voxel ids
     most = count.copy()
     steps = range(-reach, reach + 1)
@@ -539,12 +572,13 @@ def seen_voxels(points: np.ndarray, colors: np.ndarray, voxel_m: float, *, keep_
         hit = ids[j] == other
         most[hit] = np.maximum(most[hit], count[j[hit]])
     often = (count >= keep_fraction * most) | (most <= 3)  # up to 3 (one frame's pixels): nothing to compare
-    return mean, np.clip(color + 0.5, 0, 255).astype(np.uint8), often
+    return mean, value, often
 
 
-def _clean(points: np.ndarray, colors: np.ndarray, voxel_m: float, above_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _clean(points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxel_m: float, above_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points higher than ``above_m`` (the table is left out), one per voxel (``seen_voxels``),
-    outliers and stray clusters dropped. Returns (points, sRGB8 colors, often seen)."""
+    outliers and stray clusters dropped. ``toward``: each point's unit direction to its camera.
+    Returns (points, sRGB8 colors, mean unit directions to the cameras, often seen)."""
     import open3d as o3d
 
     def inliers(pts: np.ndarray) -> np.ndarray:  # Open3D's statistical outlier test, as indices
@@ -552,20 +586,22 @@ def _clean(points: np.ndarray, colors: np.ndarray, voxel_m: float, above_m: floa
         return np.asarray(kept, dtype=np.int64)
 
     keep = points[:, 2] > above_m
-    pts, cols, often = seen_voxels(points[keep], colors[keep], voxel_m)
+    pts, values, often = seen_voxels(points[keep], np.column_stack([colors[keep], toward[keep]]), voxel_m)
+    cols = np.clip(values[:, :3] + 0.5, 0, 255).astype(np.uint8)
+    toward = values[:, 3:] / np.maximum(np.linalg.norm(values[:, 3:], axis=1, keepdims=True), 1e-12)
     kept = inliers(pts)
     if len(kept) > 50:  # keep the largest cluster (stray mask pixels on the background)
         labels = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[kept])).cluster_dbscan(eps=3 * voxel_m, min_points=4))
         if labels.max() >= 0:
             kept = kept[labels == np.bincount(labels[labels >= 0]).argmax()]
-    pts, cols, often = pts[kept], cols[kept], often[kept]
+    pts, cols, toward, often = pts[kept], cols[kept], toward[kept], often[kept]
     # an often seen voxel alone among the rarely seen ones (a flying pixels' strip, seen by few
     # frames but each time) is an outlier of the often seen
     marked = np.flatnonzero(often)
     if len(marked) > 50:
         often[:] = False
         often[marked[inliers(pts[marked])]] = True
-    return pts, cols, often
+    return pts, cols, toward, often
 
 
 def physics_for(spec, vertices: np.ndarray, faces: np.ndarray, ctx: StageContext):
