@@ -140,6 +140,67 @@ def test_a_mug_whose_far_side_shows_only_its_inner_wall_has_its_outer_radius():
     assert np.all(np.abs(radii - 0.0439) < 0.001), radii
 
 
+def _mug_seen_from(eye, rng, *, radius=0.0439, wall=0.005, height=0.0836, floor=0.006, lid=False, bottom_seen=True):
+    """Points of a mug (or, with ``lid``, a can) as a camera at ``eye`` on its +x side sees it
+    over many frames, 1 mm noise, with each point's unit direction to the camera."""
+    outer = _wall(radius, height, (-75, 75), rng, n=5000)
+    r = np.sqrt(rng.uniform(0, 1, 3000))
+    a = rng.uniform(0, 2 * np.pi, 3000)
+    if lid:
+        top = np.column_stack([radius * r * np.cos(a), radius * r * np.sin(a), np.full(3000, height)])
+        parts = [outer, top]
+    else:
+        inner = _wall(radius - wall, height, (110, 250), rng, n=3000)
+        inner = inner[inner[:, 2] > 0.03]  # seen over the rim from the camera's side
+        ring = radius - wall * r[:800]
+        rim = np.column_stack([ring * np.cos(a[:800]), ring * np.sin(a[:800]), np.full(800, height)])
+        bottom = np.column_stack([0.6 * (radius - wall) * r * np.cos(a) - 0.01, 0.6 * (radius - wall) * r * np.sin(a), np.full(3000, floor)])
+        parts = [outer, inner, rim] + [bottom] * bottom_seen
+    points = np.concatenate(parts)
+    points[:, 2] += rng.normal(0, 0.001, len(points)) * (points[:, 2] > height - 0.001)
+    toward = (eye - points) / np.linalg.norm(eye - points, axis=1, keepdims=True)
+    return points, toward
+
+
+def test_a_mug_seen_into_over_its_rim_is_an_open_vessel_and_a_can_is_not():
+    """A mug whose inner wall and inner bottom show over its rim is completed as an open vessel:
+    its cavity has the inner wall's radius and goes down to the floor seen (else to the wall's
+    thickness); a closed, watertight mesh of its wall. A can seen from the same camera, its lid
+    included, stays solid."""
+    import trimesh
+
+    from rose_usd.object.fusion import mesh_from_solid, solid_from_points
+
+    rng = np.random.default_rng(4)
+    eye = np.array([0.45, 0.0, 0.32])
+    points, toward = _mug_seen_from(eye, rng)
+    solid, lo, step, how = solid_from_points(points, step_m=0.002, band_m=0.008, tolerance=0.05, toward=toward)
+    assert how == "vessel"
+    v, f = mesh_from_solid(solid, lo, step, 40_000)
+    mesh = trimesh.Trimesh(v, f)
+    assert mesh.is_watertight and mesh.is_volume
+    # a ray down the axis meets the floor first; sideways at mid-height, the inner wall
+    down = mesh.ray.intersects_location([[0.0, 0.0, 0.2]], [[0.0, 0.0, -1.0]])[0]
+    assert abs(np.sort(down[:, 2])[-1] - 0.006) < 0.0015, down[:, 2]
+    side = mesh.ray.intersects_location([[0.0, 0.0, 0.05]], [[0.0, 1.0, 0.0]])[0]
+    assert abs(np.min(side[:, 1]) - 0.0389) < 0.0015, side[:, 1]
+    assert abs(np.max(side[:, 1]) - 0.0439) < 0.0015, side[:, 1]
+    wall = np.pi * (0.0439**2 - 0.0389**2) * (0.0836 - 0.006) + np.pi * 0.0439**2 * 0.006
+    assert abs(mesh.volume / wall - 1) < 0.15, mesh.volume / wall
+
+    # its inner bottom never seen: the floor as high as the wall is thick
+    points, toward = _mug_seen_from(eye, rng, bottom_seen=False)
+    solid, lo, step, how = solid_from_points(points, step_m=0.002, band_m=0.008, tolerance=0.05, toward=toward)
+    assert how.startswith("vessel (floor not seen")
+    v, f = mesh_from_solid(solid, lo, step, 40_000)
+    down = trimesh.Trimesh(v, f).ray.intersects_location([[0.0, 0.0, 0.2]], [[0.0, 0.0, -1.0]])[0]
+    assert abs(np.sort(down[:, 2])[-1] - 0.005) < 0.0015, down[:, 2]
+
+    points, toward = _mug_seen_from(eye, rng, lid=True)
+    _, _, _, how = solid_from_points(points, step_m=0.002, band_m=0.008, tolerance=0.05, toward=toward)
+    assert how == "revolution"
+
+
 def test_flying_pixels_above_a_top_face_are_carved_and_the_face_is_kept():
     """A top face at z = 5 cm seen from several cameras, with a strip of points 4-10 mm above its
     edge (a sensor's flying pixels fused over a rest): views see past the strip, not past the face."""

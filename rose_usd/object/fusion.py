@@ -23,7 +23,10 @@ with no imported mesh. No learned model.
    toward their cameras (each fused point keeps its mean direction to the cameras that saw it: a
    mug's far inner wall, seen over the rim, faces the other way and once made the mugs 5 %
    narrow), finally by geometric least squares (Kasa's algebraic fit of an arc seen from one
-   side is pulled toward the camera and shrunk). Anything else is completed as a height field standing on the support: walls go
+   side is pulled toward the camera and shrunk). A solid of revolution whose inner wall shows
+   over its rim (points facing the axis, inside the outer wall) is an open vessel: its cavity has
+   the inner wall's radius, down to the inner bottom where seen, else to the wall's thickness
+   above the support (``vessel_cavity``); its mass is then that of the modeled wall. Anything else is completed as a height field standing on the support: walls go
    straight down from the seen rim to the table, around the convex hull of the often seen points. Heights (a column's, the top of a solid of
    revolution) are upper medians of the points (``cell_upper_median``, ``top_height``): the
    highest point is raised by the depth noise (a box 3-4 mm, a can 7 mm too tall before).
@@ -190,6 +193,26 @@ def _facing_out(xy: np.ndarray, toward_xy: np.ndarray | None, center: np.ndarray
     return np.einsum("ij,ij->i", xy - center, toward_xy) > 0
 
 
+def _axis_fit(xy: np.ndarray, center: np.ndarray, n_sectors: int) -> tuple[np.ndarray, float] | None:
+    """A vertical axis (center, radius) fitted from ``center`` on the outer wall of the 10 deg sectors
+    whose outer radius agrees (within 5 % of their median), three times, the last by geometric
+    least squares; None when too few sectors or points are seen to trust it."""
+    for k in range(3):
+        r, sector = _polar(xy, center, n_sectors)
+        outer = _sector_outer(r, sector, n_sectors)
+        if np.count_nonzero(np.isfinite(outer)) < n_sectors // 3:
+            return None  # the angular coverage must be enough to trust the axis
+        typical = float(np.nanmedian(outer))
+        # sectors within 5 %: a handle stands out, and so does a far side seen only as the inner
+        # wall over the rim
+        agree = np.isfinite(outer) & (np.abs(outer - typical) <= 0.05 * typical)
+        wall = agree[sector] & (r >= 0.85 * np.where(np.isfinite(outer), outer, np.inf)[sector])
+        if wall.sum() < 30:
+            return None
+        center, radius = _circle_fit(xy[wall], geometric=k == 2)
+    return center, radius
+
+
 def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, toward: np.ndarray | None = None, n_sectors: int = 36):
     """(axis center (2,), heights, radii) when the points are a solid of revolution about a
     vertical axis, else None.
@@ -211,27 +234,14 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, t
         side = np.ones(len(points), bool)
     xy = points[side, :2]
     toward_xy = None if toward is None else toward[:, :2]
-    center, radius = _circle_fit(xy)
-    if toward_xy is not None:  # the outer wall's points only: the mix's center is off by half the wall at most
-        for _ in range(2):
-            out = _facing_out(xy, toward_xy[side], center)
-            if out.sum() < 100:
-                break
-            center, radius = _circle_fit(xy[out])
-        xy = xy[out] if out.sum() >= 100 else xy
-    for k in range(3):  # refit the axis on the outer wall of the sectors that agree
-        r, sector = _polar(xy, center, n_sectors)
-        outer = _sector_outer(r, sector, n_sectors)
-        if np.count_nonzero(np.isfinite(outer)) < n_sectors // 3:
-            return None  # the angular coverage must be enough to trust the axis
-        typical = float(np.nanmedian(outer))
-        # sectors within 5 %: a handle stands out, and so does a far side seen only as the inner
-        # wall over the rim
-        agree = np.isfinite(outer) & (np.abs(outer - typical) <= 0.05 * typical)
-        wall = agree[sector] & (r >= 0.85 * np.where(np.isfinite(outer), outer, np.inf)[sector])
-        if wall.sum() < 30:
-            return None
-        center, radius = _circle_fit(xy[wall], geometric=k == 2)
+    fit = _axis_fit(xy, _circle_fit(xy)[0], n_sectors)
+    if fit is None:
+        return None
+    center, radius = fit
+    if toward_xy is not None:  # again on the outer wall's points: the mix's axis is off by half the wall at most
+        out = _facing_out(xy, toward_xy[side], center)
+        if out.sum() >= 100:
+            center, radius = _axis_fit(xy[out], center, n_sectors) or (center, radius)
     if radius <= 0:
         return None
     xy = points[:, :2]
@@ -258,6 +268,51 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, t
     if len(heights) < 3 or np.median(spread) > tolerance:
         return None
     return center, np.array(heights), np.array(radii)
+
+
+def vessel_cavity(points: np.ndarray, toward: np.ndarray | None, center: np.ndarray, heights: np.ndarray, radii: np.ndarray, top: float, band_m: float, *, step_m: float):
+    """(floor height, heights, inner radii) of the cavity of a solid of revolution that is an open
+    vessel (a mug, a bowl), else None.
+
+    A vessel shows its inner wall over its rim: points that face the axis, not away from it, toward
+    their cameras (``toward``), at least 1.5 voxels inside the outer wall. At least 60 of them over
+    three ``band_m`` bands make it one, unless most of what is seen near the axis is at the top (a
+    can's lid). Its inner radius per band is their median radius (the nearest band's where none is
+    seen). The floor is the median height of the points seen near the axis below the rim (its
+    inner bottom); where that was never seen, as high as the wall is thick (a uniform wall: the
+    cameras of place-mug saw its inner wall only down to half its depth, and a cavity only that
+    deep doubled its mass). Returns (floor, heights, inner radii, whether the floor was seen)."""
+    if toward is None:
+        return None
+    pr = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1])
+    outer = np.interp(points[:, 2], heights, radii)
+    below_rim = points[:, 2] < top - band_m
+    near_axis = pr < 0.5 * outer
+    if near_axis.sum() >= 30 and np.mean(points[near_axis, 2] >= top - band_m) > 0.5:
+        return None  # a lid
+    bottom = near_axis & below_rim
+    seen_floor = float(np.median(points[bottom, 2])) if bottom.sum() >= 30 else None
+    # the inner wall above the floor (the floor's points near the wall are not wall)
+    above_floor = points[:, 2] > (seen_floor + 0.5 * band_m if seen_floor is not None else -np.inf)
+    inner = below_rim & above_floor & ~_facing_out(points[:, :2], toward[:, :2], center) & (pr < outer - 1.5 * step_m) & (pr > 0.6 * outer)
+    bands = np.floor(points[inner, 2] / band_m).astype(int)
+    if inner.sum() < 60 or len(np.unique(bands)) < 3:
+        return None
+    in_heights, in_radii = [], []
+    for b in np.unique(bands):
+        sel = bands == b
+        if sel.sum() >= 10:
+            in_heights.append((b + 0.5) * band_m)
+            in_radii.append(float(np.median(pr[inner][sel])))
+    if len(in_heights) < 2:
+        return None
+    in_heights, in_radii = np.array(in_heights), np.array(in_radii)
+    in_radii = np.minimum(in_radii, np.interp(in_heights, heights, radii) - 1.5 * step_m)
+    wall = float(np.median(np.interp(in_heights, heights, radii) - in_radii))
+    floor = max(seen_floor if seen_floor is not None else wall, 1.5 * step_m)  # a vessel stands on a bottom
+    if floor >= top - band_m:
+        return None
+    return floor, in_heights, in_radii, seen_floor is not None
 
 
 def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, tolerance: float, outline: np.ndarray | None = None, toward: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
@@ -293,6 +348,12 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
         out = (pr > np.interp(points[:, 2], heights, radii) + 2 * step_m) & (points[:, 2] < top_face)
         solid[_large_parts(idx[out], shape, min_voxels=12)] = 1.0
         how = "revolution"
+        cavity = vessel_cavity(points, toward, center, heights, radii, top_face, band_m, step_m=step_m)
+        if cavity is not None:  # open at the top, down to its floor
+            floor, in_heights, in_radii, floor_seen = cavity
+            empty = np.minimum(_ramp(np.interp(z, in_heights, in_radii)[None, None, :] - r[..., None], step_m), _ramp(z - floor, step_m)[None, None, :])
+            solid = np.minimum(solid, 1.0 - empty)
+            how = "vessel" if floor_seen else "vessel (floor not seen: as thick as the wall)"
     else:
         # a height field standing on the support: under every seen point the object is solid
         # down to the table; the footprint is the seen one, closed and made convex-hull-tight.
@@ -506,7 +567,7 @@ def run(ctx: StageContext) -> None:
         local = vertices - origin
         colors = transfer_colors(vertices, pts, srgb8_to_linear(cols))
         mesh = MeshData(vertices=local, faces=faces, vertex_colors=colors)
-        physics, mass = physics_for(spec, local, faces, ctx)
+        physics, mass = physics_for(spec, local, faces, ctx, wall_modeled=how.startswith("vessel"))
         models.append(ObjectModel(spec.name, mesh, se3.make_pose(np.eye(3), origin), mass, physics))
         facts[spec.name] = {
             "rest_frames": [frames[0], frames[-1]],
@@ -604,14 +665,15 @@ def _clean(points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxel_m: 
     return pts, cols, toward, often
 
 
-def physics_for(spec, vertices: np.ndarray, faces: np.ndarray, ctx: StageContext):
+def physics_for(spec, vertices: np.ndarray, faces: np.ndarray, ctx: StageContext, *, wall_modeled: bool = False):
     """Density, friction, restitution from the category prior with rose.toml's overrides; mass
-    properties of the solid (or of its wall, for hollow categories)."""
+    properties of the solid (or of its wall, for hollow categories, unless ``wall_modeled``: the
+    mesh is a vessel's wall already)."""
     prior, warning = lookup(spec.category)
     if warning:
         ctx.warn(f"object {spec.name!r}: {warning}")
     o = spec.overrides
-    hollow = bool(o.get("hollow", prior.hollow))
+    hollow = bool(o.get("hollow", prior.hollow)) and not wall_modeled
     density = float(o.get("density_kg_m3", prior.density_kg_m3))
     thickness = prior.shell_thickness_m if prior.shell_thickness_m > 0 else 0.003
     props = shell_mass_properties(vertices, faces, density, thickness) if hollow else mass_properties(vertices, faces, density)
