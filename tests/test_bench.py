@@ -3,6 +3,7 @@ every task (anything worse is a bug in the benchmark itself)."""
 
 import json
 
+import numpy as np
 import pytest
 
 from rose_usd.bench.modes import PerceptionMode
@@ -36,7 +37,36 @@ def test_oracle_targets_on_every_task(small_results):
         assert score["gate_passed"], case["case"]
         assert score["camera_ape_translation_m"] < 1e-4 and score["gravity_error_deg"] < 1e-3
         for obj in score["objects"]:
-            assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001 and obj["rpe_rotation_deg"] < 0.01, (case["case"], obj["name"])
+            assert obj["chamfer_m"] < 0.001 and obj["shape_chamfer_m"] < 0.001, (case["case"], obj["name"])
+            assert obj["ape_translation_m"] < 0.001 and obj["rpe_rotation_deg"] < 0.01, (case["case"], obj["name"])
+
+
+def test_shape_chamfer_leaves_the_placement_out(small_results, tmp_path):
+    """An object mesh moved 1 cm along each axis: the placed Chamfer sees it, the shape
+    Chamfer (the object frame: rigid ICP, no scale) does not; the APE scores the placement (the
+    true trajectory played on the moved mesh is 1.73 cm off every frame)."""
+    import shutil
+
+    from pxr import Usd, UsdGeom
+
+    from rose_usd.bench.evaluate import evaluate
+    from rose_usd.usd import paths
+
+    out, summary = small_results
+    case = summary["cases"][0]
+    run = shutil.copytree(out / "runs" / case["case"], tmp_path / "run")
+    stage = Usd.Stage.Open(str(run / "rose.usda"))
+    name = case["score"]["objects"][0]["name"]
+    meshes = [p for p in Usd.PrimRange(stage.GetPrimAtPath(paths.object_visual(name))) if p.IsA(UsdGeom.Mesh)]
+    assert meshes
+    for prim in meshes:  # an opinion in the root layer, over the object layer's
+        points = UsdGeom.Mesh(prim).GetPointsAttr()
+        points.Set([p + (0.01, 0.01, 0.01) for p in points.Get()])
+    stage.GetRootLayer().Save()
+    moved = evaluate(out.parent / "cases" / "small" / case["case"] / "rgbd", run).objects[0]
+    assert moved.chamfer_m > 0.005, moved.chamfer_m
+    assert moved.shape_chamfer_m < 0.001, moved.shape_chamfer_m
+    assert moved.ape_translation_m == pytest.approx(0.01 * np.sqrt(3), abs=5e-4)
 
 
 def test_results_files_and_report(small_results):

@@ -39,6 +39,9 @@ class ObjectScore:
     rpe_translation_m: float
     rpe_rotation_deg: float
     ape_translation_per_frame_m: list[float] = field(default_factory=list)
+    shape_chamfer_m: float | None = None
+    """The same Chamfer after the rigid transform that best registers the mesh onto the true one
+    (ICP, no scale): the mesh's shape and size alone, its frame-0 placement left to the APE."""
     mass_kg: float | None = None
     true_mass_kg: float | None = None
     size_error: float | None = None
@@ -282,6 +285,9 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
         x = se3.invert(rec_poses[0]) @ se3.invert(correction) @ true_poses[0]
         est = np.einsum("nij,jk->nik", rec_poses, x)
         a, r = metrics.ape(est, true_poses), metrics.rpe(est, true_poses)
+        shape_chamfer, _, _ = metrics.chamfer_point_surface(
+            se3.transform_points(correction, rec_samples), metrics.SurfaceDistance(se3.transform_points(correction, rec_world0), rec_faces), true_samples, true_obj_surface
+        )
         mass_attr = prim.GetAttribute("physics:mass")
         true_mass = next((o.get("mass_kg") for o in gt.data["objects"] if o["name"] == obj.name), None)
         scores.append(
@@ -293,6 +299,7 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
                 rpe_translation_m=r.translation.rmse,
                 rpe_rotation_deg=r.rotation.rmse,
                 ape_translation_per_frame_m=[float(v) for v in a.translation_m],
+                shape_chamfer_m=shape_chamfer,
                 mass_kg=float(mass_attr.Get()) if mass_attr and mass_attr.HasAuthoredValue() else None,
                 true_mass_kg=true_mass,
                 size_error=_rms_radius(rec_samples) / _rms_radius(true_samples) - 1.0,

@@ -169,18 +169,19 @@ def build_report(results_dir: Path) -> Path:
             "",
             "## Objects",
             "",
-            "Chamfer at frame 0 (as above); size error: RMS radius of the surface about its centroid, reconstructed over true, minus 1; "
+            "Chamfer at frame 0 (as above); shape Chamfer: the same after the rigid transform that best registers the mesh onto the true one (ICP, no scale: "
+            "its shape and size alone, its placement left to the APE); size error: RMS radius of the surface about its centroid, reconstructed over true, minus 1; "
             "category range: the mass the category's density range gives the reconstructed volume (the wall's, for hollow categories); rest drift: largest corner displacement in 1 s of Newton from frame 0 (target < 5 mm); "
             "object (s): the object stage's wall time for the case (all its objects).",
             "",
-            "| Case | object | Chamfer (mm) | size error (%) | mass (kg) | category range (kg) | true mass (kg) | rest drift (mm) | object (s) |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| Case | object | Chamfer (mm) | shape Chamfer (mm) | size error (%) | mass (kg) | category range (kg) | true mass (kg) | rest drift (mm) | object (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for case, o in object_rows:
             size = o.get("size_error")
             t_obj = (case.get("stages") or {}).get("object", {}).get("wall_time_s")
             lines.append(
-                f"| {case['case']} | {o['name']} | {_fmt(1e3 * o['chamfer_m'])} | {_fmt(None if size is None else 1e2 * size, 2)} | "
+                f"| {case['case']} | {o['name']} | {_fmt(1e3 * o['chamfer_m'])} | {_fmt(None if o.get('shape_chamfer_m') is None else 1e3 * o['shape_chamfer_m'])} | {_fmt(None if size is None else 1e2 * size, 2)} | "
                 f"{_fmt(o.get('mass_kg'), 3)} | {_range(o.get('mass_range_kg'))} | {_fmt(o.get('true_mass_kg'), 3)} | {_fmt(None if o.get('rest_drift_m') is None else 1e3 * o['rest_drift_m'], 1)} | {_fmt(t_obj, 1)} |"
             )
     track_rows = [(case, o) for case in ok_cases for o in (case.get("score") or {}).get("objects") or [] if np.isfinite(o.get("ape_translation_m", float("nan")))]
