@@ -165,8 +165,8 @@ def _mug_seen_from(eye, rng, *, radius=0.0439, wall=0.005, height=0.0836, floor=
 def test_a_mug_seen_into_over_its_rim_is_an_open_vessel_and_a_can_is_not():
     """A mug whose inner wall and inner bottom show over its rim is completed as an open vessel:
     its cavity has the inner wall's radius and goes down to the floor seen (else to the wall's
-    thickness); a closed, watertight mesh of its wall. A can seen from the same camera, its lid
-    included, stays solid."""
+    thickness); a closed, watertight mesh of its wall, decimated to 8000 triangles. A can seen from
+    the same camera, its lid included, stays solid."""
     import trimesh
 
     from rose_usd.object.fusion import mesh_from_solid, solid_from_points
@@ -176,9 +176,10 @@ def test_a_mug_seen_into_over_its_rim_is_an_open_vessel_and_a_can_is_not():
     points, toward = _mug_seen_from(eye, rng)
     solid, lo, step, how = solid_from_points(points, step_m=0.002, band_m=0.008, tolerance=0.05, toward=toward)
     assert how == "vessel"
-    v, f = mesh_from_solid(solid, lo, step, 40_000)
+    v, f = mesh_from_solid(solid, lo, step, 8000)
     mesh = trimesh.Trimesh(v, f)
     assert mesh.is_watertight and mesh.is_volume
+    assert len(f) <= 8000  # the thin wall decimates closed (the default aggression opened it)
     # a ray down the axis meets the floor first; sideways at mid-height, the inner wall
     down = mesh.ray.intersects_location([[0.0, 0.0, 0.2]], [[0.0, 0.0, -1.0]])[0]
     assert abs(np.sort(down[:, 2])[-1] - 0.006) < 0.0015, down[:, 2]
