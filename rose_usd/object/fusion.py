@@ -26,7 +26,8 @@ with no imported mesh. No learned model.
    side is pulled toward the camera and shrunk). A solid of revolution whose inner wall shows
    over its rim (points facing the axis, inside the outer wall) is an open vessel: its cavity has
    the inner wall's radius, down to the inner bottom where seen, else to the wall's thickness
-   above the support (``vessel_cavity``); its mass is then that of the modeled wall. Anything else is completed as a height field standing on the support: walls go
+   above the support (``vessel_cavity``); its mass is then that of the modeled wall.
+   Anything else is completed as a height field standing on the support: walls go
    straight down from the seen rim to the table, around the convex hull of the often seen points. Heights (a column's, the top of a solid of
    revolution) are upper medians of the points (``cell_upper_median``, ``top_height``): the
    highest point is raised by the depth noise (a box 3-4 mm, a can 7 mm too tall before).
@@ -271,8 +272,8 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, t
 
 
 def vessel_cavity(points: np.ndarray, toward: np.ndarray | None, center: np.ndarray, heights: np.ndarray, radii: np.ndarray, top: float, band_m: float, *, step_m: float):
-    """(floor height, heights, inner radii) of the cavity of a solid of revolution that is an open
-    vessel (a mug, a bowl), else None.
+    """(floor height, heights, inner radii, whether the floor was seen) of the cavity of a solid of
+    revolution that is an open vessel (a mug, a bowl), else None.
 
     A vessel shows its inner wall over its rim: points that face the axis, not away from it, toward
     their cameras (``toward``), at least 1.5 voxels inside the outer wall. At least 60 of them over
@@ -281,7 +282,7 @@ def vessel_cavity(points: np.ndarray, toward: np.ndarray | None, center: np.ndar
     seen). The floor is the median height of the points seen near the axis below the rim (its
     inner bottom); where that was never seen, as high as the wall is thick (a uniform wall: the
     cameras of place-mug saw its inner wall only down to half its depth, and a cavity only that
-    deep doubled its mass). Returns (floor, heights, inner radii, whether the floor was seen)."""
+    deep doubled its mass)."""
     if toward is None:
         return None
     pr = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1])
