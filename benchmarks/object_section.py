@@ -17,9 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from pxr import Usd
 
-from rose_usd.bench.evaluate import _icp_correction, _meshes
+from rose_usd.bench.evaluate import register_object
 from rose_usd.case.gt import GroundTruth
 from rose_usd.core import metrics, se3
 from rose_usd.usd import paths
@@ -40,16 +39,12 @@ def sections(case_dir: Path, run: Path, seed: int = 0):
     stage = open_stage(run / "rose.usda")
     align = metrics.align_poses(read_camera(stage, paths.CAMERA, gt.n_frames).world_from_cv, gt.camera_poses())
     for obj in gt.objects:
-        true_pose, true_mesh = gt.object_poses(obj.name)[0], gt.object_mesh(obj.name)
-        rec, faces = _meshes(stage, paths.object_visual(obj.name), Usd.TimeCode(0))
-        if not len(faces):
+        if not stage.GetPrimAtPath(paths.object_path(obj.name)):
             continue
-        rec = se3.transform_points(align, rec)
-        true_world = se3.transform_points(true_pose, true_mesh.vertices)
-        samples = metrics.sample_surface(rec, faces, 5000, rng)
-        correction = _icp_correction(samples, metrics.SurfaceDistance(true_world, true_mesh.faces), metrics.sample_surface(true_world, true_mesh.faces, 50_000, rng))
-        local = se3.transform_points(se3.invert(true_pose) @ correction, rec)
-        yield obj.name, section_mm(true_mesh.vertices, true_mesh.faces), section_mm(local, faces)
+        reg = register_object(stage, gt, align, obj.name, rng)
+        true_pose, true_mesh = gt.object_poses(obj.name)[0], gt.object_mesh(obj.name)
+        local = se3.transform_points(se3.invert(true_pose) @ reg.correction, reg.rec_world0)
+        yield obj.name, section_mm(true_mesh.vertices, true_mesh.faces), section_mm(local, reg.rec_faces)
 
 
 def main() -> None:

@@ -178,6 +178,36 @@ def _icp_correction(rec_points: np.ndarray, true_surface: metrics.SurfaceDistanc
     return correction
 
 
+@dataclass
+class ObjectRegistration:
+    """An object's reconstructed mesh at frame 0 in the true world (the worlds registered by the
+    cameras) with 50k surface samples, its true mesh's, and the rigid ``correction`` (4, 4) that
+    brings the former onto the latter (``_icp_correction`` on 5k of the samples)."""
+
+    rec_world0: np.ndarray
+    rec_faces: np.ndarray
+    rec_samples: np.ndarray
+    true_world0: np.ndarray
+    true_faces: np.ndarray
+    true_surface: metrics.SurfaceDistance
+    true_samples: np.ndarray
+    correction: np.ndarray
+
+
+def register_object(stage: Usd.Stage, gt: GroundTruth, align: np.ndarray, name: str, rng: np.random.Generator) -> ObjectRegistration:
+    """The registration that the object's Chamfers and its APE's object frame are computed from
+    (``align``: the reconstructed world's pose in the true one)."""
+    true_mesh = gt.object_mesh(name)
+    rec_world0, rec_faces = _meshes(stage, paths.object_visual(name), Usd.TimeCode(0))
+    rec_world0 = se3.transform_points(align, rec_world0)
+    true_world0 = se3.transform_points(gt.object_poses(name)[0], true_mesh.vertices)
+    true_surface = metrics.SurfaceDistance(true_world0, true_mesh.faces)
+    rec_samples = metrics.sample_surface(rec_world0, rec_faces, 50_000, rng)
+    true_samples = metrics.sample_surface(true_world0, true_mesh.faces, 50_000, rng)
+    correction = _icp_correction(rec_samples[:5000], true_surface, true_samples)
+    return ObjectRegistration(rec_world0, rec_faces, rec_samples, true_world0, true_mesh.faces, true_surface, true_samples, correction)
+
+
 def _mask_ious(true_dir: Path, rec_dir: Path, n: int, *, min_fraction: float | None = None, min_pixels: int = 0) -> float | None:
     """Mean IoU of reconstructed vs true masks over frames where the true mask is big enough:
     ``min_fraction`` of its 95th-percentile visible area ("more than half visible" for 0.5; the
@@ -270,18 +300,12 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
             scores.append(ObjectScore(obj.name, *(float("nan"),) * 5))
             continue
         true_poses = gt.object_poses(obj.name)
-        true_mesh = gt.object_mesh(obj.name)
-        rec_world0, rec_faces = _meshes(stage, paths.object_visual(obj.name), Usd.TimeCode(0))
-        rec_world0 = se3.transform_points(align, rec_world0)
+        reg = register_object(stage, gt, align, obj.name, rng)
+        rec_world0, rec_faces, rec_samples, true_samples = reg.rec_world0, reg.rec_faces, reg.rec_samples, reg.true_samples
+        true_obj_surface, correction = reg.true_surface, reg.correction
         rec_poses = np.einsum("ij,njk->nik", align, _rec_poses(stage, path, n))
-        true_world0 = se3.transform_points(true_poses[0], true_mesh.vertices)
-        true_obj_surface = metrics.SurfaceDistance(true_world0, true_mesh.faces)
-        rec_obj_surface = metrics.SurfaceDistance(rec_world0, rec_faces)
-        rec_samples = metrics.sample_surface(rec_world0, rec_faces, 50_000, rng)
-        true_samples = metrics.sample_surface(true_world0, true_mesh.faces, 50_000, rng)
-        chamfer, _, _ = metrics.chamfer_point_surface(rec_samples, rec_obj_surface, true_samples, true_obj_surface)
+        chamfer, _, _ = metrics.chamfer_point_surface(rec_samples, metrics.SurfaceDistance(rec_world0, rec_faces), true_samples, true_obj_surface)
         # object-frame correspondence: X maps true object coordinates into reconstructed ones
-        correction = _icp_correction(rec_samples[:5000], true_obj_surface, true_samples)
         x = se3.invert(rec_poses[0]) @ se3.invert(correction) @ true_poses[0]
         est = np.einsum("nij,jk->nik", rec_poses, x)
         a, r = metrics.ape(est, true_poses), metrics.rpe(est, true_poses)

@@ -308,8 +308,9 @@ def vessel_cavity(points: np.ndarray, toward: np.ndarray | None, center: np.ndar
     if len(in_heights) < 2:
         return None
     in_heights, in_radii = np.array(in_heights), np.array(in_radii)
-    in_radii = np.minimum(in_radii, np.interp(in_heights, heights, radii) - 1.5 * step_m)
-    wall = float(np.median(np.interp(in_heights, heights, radii) - in_radii))
+    outer_there = np.interp(in_heights, heights, radii)
+    in_radii = np.minimum(in_radii, outer_there - 1.5 * step_m)
+    wall = float(np.median(outer_there - in_radii))
     floor = max(seen_floor if seen_floor is not None else wall, 1.5 * step_m)  # a vessel stands on a bottom
     if floor >= top - band_m:
         return None
