@@ -309,7 +309,7 @@ def test_walls_fused_over_many_frames_lie_where_the_frames_put_them():
     walls, they lie within 3.5 mm, at least 1 mm nearer than around every voxel; the sides seen
     only as the top face's edges stay where they are (within 1 mm), and one frame's points (each
     voxel seen at most 3 times) all count as often seen."""
-    from rose_usd.object.fusion import _clean, seen_voxels
+    from rose_usd.object.fusion import clean_cloud, seen_voxels
 
     rng = np.random.default_rng(5)
     frames = []
@@ -324,7 +324,7 @@ def test_walls_fused_over_many_frames_lie_where_the_frames_put_them():
     points = np.concatenate(frames)
     colors = np.full((len(points), 3), 128, np.uint8)
     up = np.tile([0.0, 0.0, 1.0], (len(points), 1))
-    kept, _, _, often = _clean(points, colors, up, 0.002, 0.003)
+    kept, _, _, often = clean_cloud(points, colors, up, 0.002, 0.003)
     _, v, how = _mesh_top_and_radius(kept, outline=often)
     _, v_all, _ = _mesh_top_and_radius(kept)
     assert how == "height-field"

@@ -82,7 +82,8 @@ class CaseScore:
         return asdict(self)
 
 
-def _rec_poses(stage: Usd.Stage, path, n: int) -> np.ndarray:
+def prim_poses(stage: Usd.Stage, path, n: int) -> np.ndarray:
+    """The prim's world poses (n, 4, 4) at frames 0..n-1 (an object's trajectory)."""
     xf = UsdGeom.Xformable(stage.GetPrimAtPath(path))
     return np.array([np.array(xf.ComputeLocalToWorldTransform(Usd.TimeCode(t))).T for t in range(n)])
 
@@ -193,19 +194,30 @@ class ObjectRegistration:
     true_samples: np.ndarray
     correction: np.ndarray
 
+    def shape_chamfer(self) -> float:
+        """The shape Chamfer [m]: the Chamfer after ``correction`` (the mesh's shape and size alone)."""
+        rec = se3.transform_points(self.correction, self.rec_world0)
+        chamfer, _, _ = metrics.chamfer_point_surface(se3.transform_points(self.correction, self.rec_samples), metrics.SurfaceDistance(rec, self.rec_faces), self.true_samples, self.true_surface)
+        return chamfer
 
-def register_object(stage: Usd.Stage, gt: GroundTruth, align: np.ndarray, name: str, rng: np.random.Generator) -> ObjectRegistration:
-    """The registration that the object's Chamfers and its APE's object frame are computed from
-    (``align``: the reconstructed world's pose in the true one)."""
+
+def register_mesh(rec_world0: np.ndarray, rec_faces: np.ndarray, gt: GroundTruth, name: str, rng: np.random.Generator) -> ObjectRegistration:
+    """The registration of a reconstructed mesh of object ``name`` at frame 0, already in the true
+    world, onto the true one."""
     true_mesh = gt.object_mesh(name)
-    rec_world0, rec_faces = _meshes(stage, paths.object_visual(name), Usd.TimeCode(0))
-    rec_world0 = se3.transform_points(align, rec_world0)
     true_world0 = se3.transform_points(gt.object_poses(name)[0], true_mesh.vertices)
     true_surface = metrics.SurfaceDistance(true_world0, true_mesh.faces)
     rec_samples = metrics.sample_surface(rec_world0, rec_faces, 50_000, rng)
     true_samples = metrics.sample_surface(true_world0, true_mesh.faces, 50_000, rng)
     correction = _icp_correction(rec_samples[:5000], true_surface, true_samples)
     return ObjectRegistration(rec_world0, rec_faces, rec_samples, true_world0, true_mesh.faces, true_surface, true_samples, correction)
+
+
+def register_object(stage: Usd.Stage, gt: GroundTruth, align: np.ndarray, name: str, rng: np.random.Generator) -> ObjectRegistration:
+    """The registration that the object's Chamfers and its APE's object frame are computed from
+    (``align``: the reconstructed world's pose in the true one)."""
+    rec_world0, rec_faces = _meshes(stage, paths.object_visual(name), Usd.TimeCode(0))
+    return register_mesh(se3.transform_points(align, rec_world0), rec_faces, gt, name, rng)
 
 
 def _mask_ious(true_dir: Path, rec_dir: Path, n: int, *, min_fraction: float | None = None, min_pixels: int = 0) -> float | None:
@@ -303,15 +315,13 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
         reg = register_object(stage, gt, align, obj.name, rng)
         rec_world0, rec_faces, rec_samples, true_samples = reg.rec_world0, reg.rec_faces, reg.rec_samples, reg.true_samples
         true_obj_surface, correction = reg.true_surface, reg.correction
-        rec_poses = np.einsum("ij,njk->nik", align, _rec_poses(stage, path, n))
+        rec_poses = np.einsum("ij,njk->nik", align, prim_poses(stage, path, n))
         chamfer, _, _ = metrics.chamfer_point_surface(rec_samples, metrics.SurfaceDistance(rec_world0, rec_faces), true_samples, true_obj_surface)
         # object-frame correspondence: X maps true object coordinates into reconstructed ones
         x = se3.invert(rec_poses[0]) @ se3.invert(correction) @ true_poses[0]
         est = np.einsum("nij,jk->nik", rec_poses, x)
         a, r = metrics.ape(est, true_poses), metrics.rpe(est, true_poses)
-        shape_chamfer, _, _ = metrics.chamfer_point_surface(
-            se3.transform_points(correction, rec_samples), metrics.SurfaceDistance(se3.transform_points(correction, rec_world0), rec_faces), true_samples, true_obj_surface
-        )
+        shape_chamfer = reg.shape_chamfer()
         mass_attr = prim.GetAttribute("physics:mass")
         true_mass = next((o.get("mass_kg") for o in gt.data["objects"] if o["name"] == obj.name), None)
         scores.append(

@@ -5,7 +5,8 @@ with no imported mesh. No learned model.
    edge pixels) gives a world point cloud per frame. It rests from its first clear view for as
    long as its points of that view, projected into later frames, still meet the depth there
    (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are fused (the world frame is the object's frame
-   while it rests). The trajectory stage will add the frames after.
+   while it rests). Only those: the frames after, mapped into the rest by the tracked trajectory,
+   made the shape worse on 8 of the benchmark's 11 moved objects (``benchmarks/tracked_fusion.py``).
 2. **Clean.** One point per ``voxel_m`` voxel, marked "often seen" when seen at least a tenth as
    often as the most seen voxel near it (``seen_voxels``: the depth noise's tail, a few points per
    frame a few mm off a surface, is not), statistical outliers dropped, points that a
@@ -501,7 +502,7 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
                 views.append((depth, cameras.K[t], cameras.world_from_cv[t]))
         ground = ring_height(ctx, spec.name, [(t, typical / ratio) for t, ratio in rests], masks, depth_of, cameras)
         pts, cols, toward = (np.concatenate(parts) for parts in zip(*per_frame))
-        pts, cols, toward, often = _clean(pts, cols, toward, cfg.voxel_m, ground + cfg.support_gap_m)
+        pts, cols, toward, often = clean_cloud(pts, cols, toward, cfg.voxel_m, ground + cfg.support_gap_m)
         keep = free_space_carve(pts, views)
         pts, cols, toward, often = pts[keep], cols[keep], toward[keep], often[keep]
         if len(pts) < 200:
@@ -556,12 +557,8 @@ def run(ctx: StageContext) -> None:
         cloud = clouds[spec.name]
         pts, cols, frames = cloud.points, cloud.colors, cloud.frames
         support = support_height(pts, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground)
-        above = pts[:, 2] > support + cfg.support_gap_m
+        vertices, faces, how, above = complete(pts, cloud.toward, cloud.often, support, cfg)
         pts, cols = pts[above], cols[above]
-        lift = np.array([0.0, 0.0, support])
-        solid, lo, step, how = solid_from_points(pts - lift, step_m=cfg.voxel_m, band_m=4 * cfg.voxel_m, tolerance=cfg.revolution_tolerance, outline=cloud.often[above], toward=cloud.toward[above])
-        vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
-        vertices = vertices + lift
         problems = collider_problems(vertices, faces)
         if problems or self_intersects(vertices, faces):
             raise MeshError(f"object {spec.name!r}: the mesh is {', '.join(problems) or 'self-intersecting'}", hint="try a larger object.voxel_m")
@@ -583,6 +580,17 @@ def run(ctx: StageContext) -> None:
     for name, authored in author_objects(ctx, models, cfg.convex_tolerance).items():  # everything built and checked: now author
         facts[name] |= authored
     ctx.record(objects=facts)
+
+
+def complete(points: np.ndarray, toward: np.ndarray, often: np.ndarray, support: float, cfg) -> tuple[np.ndarray, np.ndarray, str, np.ndarray]:
+    """Steps 3 and 4 for one object's cleaned world points standing on ``support``: its closed
+    surface (vertices in the world, faces), how it was completed, and which points were used
+    (those above the support by ``cfg.support_gap_m``)."""
+    above = points[:, 2] > support + cfg.support_gap_m
+    lift = np.array([0.0, 0.0, support])
+    solid, lo, step, how = solid_from_points(points[above] - lift, step_m=cfg.voxel_m, band_m=4 * cfg.voxel_m, tolerance=cfg.revolution_tolerance, outline=often[above], toward=toward[above])
+    vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
+    return vertices + lift, faces, how, above
 
 
 def support_height(points: np.ndarray, others: list[np.ndarray], *, ground: float = 0.0, margin_m: float = 0.01) -> float:
@@ -640,7 +648,7 @@ def seen_voxels(points: np.ndarray, values: np.ndarray, voxel_m: float, *, keep_
     return mean, value, often
 
 
-def _clean(points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxel_m: float, above_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def clean_cloud(points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxel_m: float, above_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points higher than ``above_m`` (the table is left out), one per voxel (``seen_voxels``),
     outliers and stray clusters dropped. ``toward``: each point's unit direction to its camera.
     Returns (points, sRGB8 colors, mean unit directions to the cameras, often seen)."""
