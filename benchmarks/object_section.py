@@ -12,13 +12,13 @@ cases it ran on (default benchmarks/cases)."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from rose_usd.bench.evaluate import register_object
+from rose_usd.bench.runner import kept_runs
 from rose_usd.case.gt import GroundTruth
 from rose_usd.core import metrics, se3
 from rose_usd.usd import paths
@@ -59,15 +59,11 @@ def main() -> None:
     ap.add_argument("--cases", type=Path, default=Path("benchmarks/cases"))
     ap.add_argument("--only", default=None, help="only cases whose name contains this")
     args = ap.parse_args()
-    summary = json.loads((args.results / "results.json").read_text())
     panels = []
-    for case in summary["cases"]:
+    for case, case_dir, run in kept_runs(args.results, args.cases, args.only):
         name = case["case"]
-        if "error" in case or (args.only and args.only not in name):
-            continue
         scores = {o["name"]: o for o in (case.get("score") or {}).get("objects") or []}
-        case_dir = args.cases / summary["suite"] / name / summary["mode"]
-        for obj, true_lines, rec_lines in sections(case_dir, args.results / "runs" / name):
+        for obj, true_lines, rec_lines in sections(case_dir, run):
             panels.append((f"{name} {obj}", true_lines, rec_lines, scores.get(obj, {}).get("shape_chamfer_m")))
     if not panels:
         raise SystemExit(f"{args.results}: no run with an object to draw")

@@ -15,13 +15,13 @@ measurement behind the object stage not fusing tracked frames (issue 7, item 4).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from rose_usd import registry
 from rose_usd.bench.evaluate import prim_poses, register_mesh
+from rose_usd.bench.runner import kept_runs
 from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.case.gt import GroundTruth
 from rose_usd.case.layout import load_case
@@ -91,13 +91,11 @@ def main() -> None:
     ap.add_argument("--cases", type=Path, default=Path("benchmarks/cases"))
     ap.add_argument("--stride", type=int, default=3, help="every this many frames after the rest (default 3)")
     args = ap.parse_args()
-    meta = json.loads((args.results / "results.json").read_text())
     rows = []
     print("| case | object | resting frames | tracked frames added | shape Chamfer mm, resting | with tracked |")
     print("|---|---|---|---|---|---|")
-    for entry in meta["cases"]:
-        case_dir = args.cases / meta["suite"] / entry["case"] / meta["mode"]
-        for name, n_rest, n_after, rest, both in compare(case_dir, args.results / "runs" / entry["case"], args.stride):
+    for entry, case_dir, run in kept_runs(args.results, args.cases):
+        for name, n_rest, n_after, rest, both in compare(case_dir, run, args.stride):
             rows.append((f"{entry['case'].rsplit('-', 1)[0]}\n{name}", rest, both))
             print(f"| {entry['case']} | {name} | {n_rest} | {n_after} | {1e3 * rest:.2f} | {1e3 * both:.2f} |", flush=True)
     x = np.arange(len(rows))

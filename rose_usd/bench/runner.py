@@ -162,6 +162,17 @@ def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -
     return {"commit": summary.get("commit"), "cases": cases}
 
 
+def kept_runs(results: Path, cases_dir: Path = DEFAULT_CASES, only: str | None = None):
+    """For the scripts that look into a results folder's kept runs: (the case's summary entry, its
+    generated case folder in the results' mode, its run folder) for each case that ran without
+    error and kept its run, in the summary's order (only names containing ``only``, if given)."""
+    summary = json.loads((Path(results) / "results.json").read_text())
+    for entry in summary["cases"]:
+        run = Path(results) / "runs" / entry["case"]
+        if "error" not in entry and run.is_dir() and (not only or only in entry["case"]):
+            yield entry, Path(cases_dir) / summary["suite"] / entry["case"] / summary["mode"], run
+
+
 def rescore(out_dir: Path, *, cases_dir: Path = DEFAULT_CASES) -> dict:
     """Score a results folder's runs again with the current metrics (no stage re-runs): for a
     metric added after the runs were made. The summary records the commit that rescored."""
