@@ -34,21 +34,31 @@ from rose_usd.usd.camera import read_camera
 from rose_usd.usd.stage import layer_file, open_stage, read_provenance
 
 
-def fused_shape_chamfer(run: Path, case, gt: GroundTruth, name: str, frames: list[int], last_rest: int, support: float, cfg: ObjectConfig) -> float:
+class RunView:
+    """What both completions of a run's objects read, read once: its stage's cameras, the camera
+    registration onto the true world, and the metric depth."""
+
+    def __init__(self, case_dir: Path, run: Path):
+        self.run, self.gt = run, GroundTruth(case_dir / "gt")
+        self.case = load_case(case_dir, registry.STAGE_NAMES)
+        self.stage = open_stage(run / "rose.usda")
+        self.cams = read_camera(self.stage, paths.CAMERA, self.gt.n_frames)
+        self.align = metrics.align_poses(self.cams.world_from_cv, self.gt.camera_poses())
+        self.depth_of = metric_depth_reader(self.stage, self.case)
+
+
+def fused_shape_chamfer(view: RunView, name: str, frames: list[int], last_rest: int, support: float, cfg: ObjectConfig) -> float:
     """The shape Chamfer [m] of the object completed from ``frames``, each mapped into the
     frame-0 pose by the run's trajectory; the resting frames (up to ``last_rest``) carve."""
-    n = gt.n_frames
-    stage = open_stage(run / "rose.usda")
-    cams = read_camera(stage, paths.CAMERA, n)
-    poses = prim_poses(stage, paths.object_path(name), n)
-    depth_of = metric_depth_reader(stage, case)
+    cams, depth_of = view.cams, view.depth_of
+    poses = prim_poses(view.stage, paths.object_path(name), view.gt.n_frames)
     parts, views = [], []
     for t in frames:
-        mask = read_mask(run / "masks" / name / f"{t:06d}.png") > 0
+        mask = read_mask(view.run / "masks" / name / f"{t:06d}.png") > 0
         if mask.sum() < 50:
             continue
         to_rest = poses[0] @ se3.invert(poses[t])  # the object's motion since frame 0, undone
-        pts, cols = masked_points(depth_of(t), mask, case.rgb(t), cams.K[t], cams.world_from_cv[t])
+        pts, cols = masked_points(depth_of(t), mask, view.case.rgb(t), cams.K[t], cams.world_from_cv[t])
         pts = se3.transform_points(to_rest, pts)
         toward = se3.transform_points(to_rest, cams.world_from_cv[t][None, :3, 3])[0] - pts
         parts.append((pts, cols, (toward / np.linalg.norm(toward, axis=1, keepdims=True)).astype(np.float32)))
@@ -58,24 +68,22 @@ def fused_shape_chamfer(run: Path, case, gt: GroundTruth, name: str, frames: lis
     pts, cols, toward, often = clean_cloud(pts, cols, toward, cfg.voxel_m, support + cfg.support_gap_m)
     keep = free_space_carve(pts, views[:: max(1, len(views) // 16)])
     vertices, faces, _, _ = complete(pts[keep], toward[keep], often[keep], support, cfg)
-    align = metrics.align_poses(cams.world_from_cv, gt.camera_poses())
-    return register_mesh(se3.transform_points(align, vertices), faces, gt, name, np.random.default_rng(0)).shape_chamfer()
+    return register_mesh(se3.transform_points(view.align, vertices), faces, view.gt, name, np.random.default_rng(0)).shape_chamfer()
 
 
 def compare(case_dir: Path, run: Path, stride: int, cfg: ObjectConfig = ObjectConfig()):
     """Per fused object: (name, resting frames, tracked frames added, shape Chamfer [m] from the
     resting frames, from those and the tracked frames)."""
-    gt = GroundTruth(case_dir / "gt")
-    case = load_case(case_dir, registry.STAGE_NAMES)
+    view = RunView(case_dir, run)
     facts = read_provenance(layer_file(run, "object"))["results"]["objects"]
-    for obj in gt.objects:
+    for obj in view.gt.objects:
         if "completion" not in facts.get(obj.name, {}):
             continue  # not fused (an imported mesh)
         first, last = facts[obj.name]["rest_frames"]
         support = facts[obj.name]["support_height_m"]
-        rest, after = list(range(first, last + 1)), list(range(last + 1, gt.n_frames, stride))
-        only = fused_shape_chamfer(run, case, gt, obj.name, rest, last, support, cfg)
-        both = fused_shape_chamfer(run, case, gt, obj.name, rest + after, last, support, cfg) if after else float("nan")
+        rest, after = list(range(first, last + 1)), list(range(last + 1, view.gt.n_frames, stride))
+        only = fused_shape_chamfer(view, obj.name, rest, last, support, cfg)
+        both = fused_shape_chamfer(view, obj.name, rest + after, last, support, cfg) if after else float("nan")
         yield obj.name, len(rest), len(after), only, both
 
 
