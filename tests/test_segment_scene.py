@@ -89,7 +89,8 @@ def test_scene_mesh_is_a_valid_collider_without_ghosts(classical_out, sample_cas
     top = float(np.median(z[np.abs(z) < 0.006]))
     assert -0.0015 < top < 0.0005, top
     # the box rests on the table before the arm touches it: the collider under it is a flat pad
-    # at the table's height around it (within its wrap's offset of that height everywhere)
+    # at the table's height around it, flat to the ray cast's float32 precision (the wrap alone
+    # left it within its offset of that height: 1-2 mm of relief)
     pads = read_provenance(layer_file(classical_out, "scene"))["results"]["support_pads"]
     assert set(pads) == {"Box"} and abs(pads["Box"]["height_m"]) < 0.003
     footprint = gt.object_mesh("Box").vertices @ pose[:3, :3].T + pose[:3, 3]
@@ -98,7 +99,7 @@ def test_scene_mesh_is_a_valid_collider_without_ghosts(classical_out, sample_cas
     from_true = np.linalg.inv(to_true)
     probe = np.column_stack([grid, np.full(len(grid), 0.3)]) @ from_true[:3, :3].T + from_true[:3, 3]
     under = probe[:, 2] - SurfaceDistance(collision.vertices, collision.faces).drop(probe)
-    assert np.ptp(under) < 0.002 and abs(np.median(under) - pads["Box"]["height_m"]) < 0.0025, under
+    assert np.abs(under - pads["Box"]["height_m"]).max() < 1e-4, under
 
 
 def test_sam2_import_round_trip_paletted_and_per_object(tmp_path, case_copy, sample_case):
