@@ -537,11 +537,18 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
     out = vertices.copy()
     moved = 0
     for pad in pads:
-        tree = cKDTree(pad.xy)
         near_height = np.abs(out[:, 2] - pad.height_m) <= band_m
-        near = tree.query(out[:, :2], distance_upper_bound=0.2)[0]
-        top_faces = (tm.face_normals[:, 2] > np.cos(np.radians(up_deg))) & near_height[faces].all(axis=1) & (near[faces] < 0.2).any(axis=1)
-        reach = 0.75 * pad.cell_m + (float(edge[top_faces].max()) if top_faces.any() else 0.0)
+        near = cKDTree(pad.xy).query(out[:, :2])[0]  # horizontal distance to the footprint (within half a cell)
+        flat_faces = (tm.face_normals[:, 2] > np.cos(np.radians(up_deg))) & near_height[faces].all(axis=1)
+        # a triangle over the footprint has its vertices within its longest edge of it: grow the
+        # reach by the longest edge among the triangles it takes in, until that stops growing
+        reach = 0.75 * pad.cell_m
+        for _ in range(8):
+            taken = flat_faces & (near[faces] <= reach).any(axis=1)
+            grown = 0.75 * pad.cell_m + (float(edge[taken].max()) if taken.any() else 0.0)
+            if grown <= reach:
+                break
+            reach = grown
         snap = (near <= reach) & near_height & up
         moved += int(np.count_nonzero(out[snap, 2] != pad.height_m))
         out[snap, 2] = pad.height_m
