@@ -91,7 +91,12 @@ def test_the_wrapped_collider_is_exactly_flat_over_a_pad_and_still_valid():
     inner = _footprint(0.2 + 0.04 * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]), 0.02, 0.004)  # well inside the pad
     probe = np.column_stack([inner, np.full(len(inner), 0.1)])
     before = probe[:, 2] - SurfaceDistance(vertices, faces).drop(probe)
-    flat, moved = flatten_pads(vertices, faces, [pad], band_m=0.004)
+    # a vertex of the wrap over the footprint 6 mm off the pad (beyond the band kept around it)
+    # is still the pad's: nothing else was wrapped there
+    inside = np.flatnonzero((cKDTree(pad.xy).query(vertices[:, :2])[0] < 0.003) & (np.abs(vertices[:, 2]) < 0.005))
+    vertices = vertices.copy()
+    vertices[inside[0], 2] = 0.006
+    flat, moved = flatten_pads(vertices, faces, [pad], band_m=0.004, over_band_m=0.01)
     after = probe[:, 2] - SurfaceDistance(flat, faces).drop(probe)
     assert np.ptp(before) > 1e-3  # the wrap alone is not flat there (3 mm here)
     # flat to the ray cast's float32 precision (0.01 mm over the 10 cm drop)

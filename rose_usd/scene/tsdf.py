@@ -514,7 +514,7 @@ def lay_pads(points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: 
     return points, colors, normals, replaced
 
 
-def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad], *, band_m: float, up_deg: float = 20.0) -> tuple[np.ndarray, int]:
+def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad], *, band_m: float, over_band_m: float, up_deg: float = 20.0, over_up_deg: float = 45.0) -> tuple[np.ndarray, int]:
     """The wrapped collider with its top flat at each pad's height over the pad's footprint.
 
     The wrap of a flat pad is flat only to its vertices' scatter about its offset surface: on
@@ -525,8 +525,12 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
     outside it: the vertices set at the pad's height are those within one edge length (the
     longest among the up-facing triangles near the pad) of the footprint, within ``band_m`` of
     the pad's height (the pad height is the surface's around the object) and facing within
-    ``up_deg`` of up. They move only vertically and by under ``band_m``, on a slab ``thickness_m``
-    thick: the caller still checks validity. Returns the vertices and how many moved."""
+    ``up_deg`` of up. Over the footprint itself nothing but the pad was wrapped (``lay_pads``
+    replaced the fused surface there), so a vertex there is the pad's when within
+    ``over_band_m`` (less than the slab's thickness, so never its underside) and ``over_up_deg``:
+    one left out would tilt a triangle under the object. Vertices move only vertically, on a slab
+    ``thickness_m`` thick: the caller still checks validity. Returns the vertices and how many
+    moved."""
     import trimesh
 
     if not pads:
@@ -549,7 +553,8 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
             if grown <= reach:
                 break
             reach = grown
-        snap = (near <= reach) & near_height & up
+        over = (near <= 0.75 * pad.cell_m) & (np.abs(out[:, 2] - pad.height_m) <= over_band_m) & (tm.vertex_normals[:, 2] > np.cos(np.radians(over_up_deg)))
+        snap = ((near <= reach) & near_height & up) | over
         moved += int(np.count_nonzero(out[snap, 2] != pad.height_m))
         out[snap, 2] = pad.height_m
     return out, moved
@@ -580,7 +585,7 @@ def run(ctx: StageContext) -> None:
         # coarser wrap rather than decimation: the wrap's guarantees (no self-intersection) hold
         alpha *= 1.5
         vertices, faces = alpha_wrap(slab, alpha, cfg.offset_m)
-    vertices, flattened = flatten_pads(vertices, faces, pads, band_m=2 * cfg.offset_m)
+    vertices, flattened = flatten_pads(vertices, faces, pads, band_m=2 * cfg.offset_m, over_band_m=0.5 * cfg.thickness_m)
     problems = collider_problems(vertices, faces)
     if problems:
         raise MeshError(f"the wrapped scene mesh is {', '.join(problems)}", hint="try a larger scene.alpha_m")
