@@ -194,10 +194,16 @@ class ObjectRegistration:
     true_samples: np.ndarray
     correction: np.ndarray
 
+    def placed_chamfer(self) -> float:
+        """The object Chamfer [m] of the mesh where it was placed at frame 0."""
+        return self._chamfer(self.rec_world0, self.rec_samples)
+
     def shape_chamfer(self) -> float:
         """The shape Chamfer [m]: the Chamfer after ``correction`` (the mesh's shape and size alone)."""
-        rec = se3.transform_points(self.correction, self.rec_world0)
-        chamfer, _, _ = metrics.chamfer_point_surface(se3.transform_points(self.correction, self.rec_samples), metrics.SurfaceDistance(rec, self.rec_faces), self.true_samples, self.true_surface)
+        return self._chamfer(se3.transform_points(self.correction, self.rec_world0), se3.transform_points(self.correction, self.rec_samples))
+
+    def _chamfer(self, rec_vertices: np.ndarray, rec_samples: np.ndarray) -> float:
+        chamfer, _, _ = metrics.chamfer_point_surface(rec_samples, metrics.SurfaceDistance(rec_vertices, self.rec_faces), self.true_samples, self.true_surface)
         return chamfer
 
 
@@ -313,30 +319,26 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
             continue
         true_poses = gt.object_poses(obj.name)
         reg = register_object(stage, gt, align, obj.name, rng)
-        rec_world0, rec_faces, rec_samples, true_samples = reg.rec_world0, reg.rec_faces, reg.rec_samples, reg.true_samples
-        true_obj_surface, correction = reg.true_surface, reg.correction
         rec_poses = np.einsum("ij,njk->nik", align, prim_poses(stage, path, n))
-        chamfer, _, _ = metrics.chamfer_point_surface(rec_samples, metrics.SurfaceDistance(rec_world0, rec_faces), true_samples, true_obj_surface)
         # object-frame correspondence: X maps true object coordinates into reconstructed ones
-        x = se3.invert(rec_poses[0]) @ se3.invert(correction) @ true_poses[0]
+        x = se3.invert(rec_poses[0]) @ se3.invert(reg.correction) @ true_poses[0]
         est = np.einsum("nij,jk->nik", rec_poses, x)
         a, r = metrics.ape(est, true_poses), metrics.rpe(est, true_poses)
-        shape_chamfer = reg.shape_chamfer()
         mass_attr = prim.GetAttribute("physics:mass")
         true_mass = next((o.get("mass_kg") for o in gt.data["objects"] if o["name"] == obj.name), None)
         scores.append(
             ObjectScore(
                 name=obj.name,
-                chamfer_m=chamfer,
+                chamfer_m=reg.placed_chamfer(),
                 ape_translation_m=a.translation.rmse,
                 ape_rotation_deg=a.rotation.rmse,
                 rpe_translation_m=r.translation.rmse,
                 rpe_rotation_deg=r.rotation.rmse,
                 ape_translation_per_frame_m=[float(v) for v in a.translation_m],
-                shape_chamfer_m=shape_chamfer,
+                shape_chamfer_m=reg.shape_chamfer(),
                 mass_kg=float(mass_attr.Get()) if mass_attr and mass_attr.HasAuthoredValue() else None,
                 true_mass_kg=true_mass,
-                size_error=_rms_radius(rec_samples) / _rms_radius(true_samples) - 1.0,
+                size_error=_rms_radius(reg.rec_samples) / _rms_radius(reg.true_samples) - 1.0,
                 mass_range_kg=_mass_range(prim),
             )
         )
