@@ -522,10 +522,10 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
     0.9 deg, and Newton's mug rocked on the ridge (1.8 deg and 5.2 mm in 1 s; 0.06 deg on the
     same collider flattened). Every triangle over the footprint must be flat, and the wrap's
     triangles are alpha-sized (3-6 cm), so a triangle over the footprint can have its vertices
-    outside it: the vertices set at the pad's height are those within one edge length (the
-    longest among the up-facing triangles near the pad) of the footprint, within ``band_m`` of
-    the pad's height (the pad height is the surface's around the object) and facing within
-    ``up_deg`` of up. Over the footprint itself nothing but the pad was wrapped (``lay_pads``
+    outside it: the vertices set at the pad's height are those within one edge length of the
+    footprint (the longest among the flat triangles that reach takes in, grown until that stops
+    growing), within ``band_m`` of the pad's height (the pad height is the surface's around the
+    object) and facing within ``up_deg`` of up. Over the footprint itself nothing but the pad was wrapped (``lay_pads``
     replaced the fused surface there), so a vertex there is the pad's when within
     ``over_band_m`` (less than the slab's thickness, so never its underside) and ``over_up_deg``:
     one left out would tilt a triangle under the object. Vertices move only vertically, on a slab
@@ -541,7 +541,8 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
     out = vertices.copy()
     moved = 0
     for pad in pads:
-        near_height = np.abs(out[:, 2] - pad.height_m) <= band_m
+        dz = np.abs(out[:, 2] - pad.height_m)
+        near_height = dz <= band_m
         near = cKDTree(pad.xy).query(out[:, :2])[0]  # horizontal distance to the footprint (within half a cell)
         flat_faces = (tm.face_normals[:, 2] > np.cos(np.radians(up_deg))) & near_height[faces].all(axis=1)
         # a triangle over the footprint has its vertices within its longest edge of it: grow the
@@ -553,7 +554,7 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
             if grown <= reach:
                 break
             reach = grown
-        over = (near <= 0.75 * pad.cell_m) & (np.abs(out[:, 2] - pad.height_m) <= over_band_m) & (tm.vertex_normals[:, 2] > np.cos(np.radians(over_up_deg)))
+        over = (near <= 0.75 * pad.cell_m) & (dz <= over_band_m) & (tm.vertex_normals[:, 2] > np.cos(np.radians(over_up_deg)))
         snap = ((near <= reach) & near_height & up) | over
         moved += int(np.count_nonzero(out[snap, 2] != pad.height_m))
         out[snap, 2] = pad.height_m
