@@ -131,3 +131,21 @@ def test_object_correspondence_of_a_too_large_can_stays_put():
     c = _icp_correction(rec_pts, metrics.SurfaceDistance(can.vertices, can.faces), true_pts)
     assert se3.rotation_angle_deg(c[:3, :3]) < 2.0
     assert np.linalg.norm(se3.transform_points(c, can.centroid[None])[0] - can.centroid) < 0.003
+
+
+def test_surface_rms_radius_is_exact():
+    # a cube of side s: the 2 faces across an axis lie at s/2, the other 4 spread over [-s/2, s/2],
+    # so E[x^2] = (2/6) s^2/4 + (4/6) s^2/12 = 5 s^2/36 and the rms radius is s sqrt(5/12)
+    s = 0.13
+    cube = trimesh.creation.box(extents=(s, s, s))
+    assert metrics.surface_rms_radius(cube.vertices, cube.faces) == pytest.approx(s * np.sqrt(5 / 12), rel=1e-12)
+    # the same surface cut into more triangles, turned and moved: the same value
+    fine = cube.subdivide().subdivide()
+    pose = se3.make_pose(Rotation.from_rotvec([0.3, -1.1, 0.4]).as_matrix(), [2.0, -1.0, 0.5])
+    moved = se3.transform_points(pose, fine.vertices)
+    assert metrics.surface_rms_radius(moved, fine.faces) == pytest.approx(s * np.sqrt(5 / 12), rel=1e-12)
+    # and what sampling estimates on an uneven mesh: 200k samples are within their own noise (~0.1 %)
+    mug = trimesh.creation.annulus(r_min=0.035, r_max=0.04, height=0.1, sections=48)
+    pts = metrics.sample_surface(mug.vertices, mug.faces, 200_000, np.random.default_rng(0))
+    sampled = np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1)))
+    assert metrics.surface_rms_radius(mug.vertices, mug.faces) == pytest.approx(sampled, rel=3e-3)

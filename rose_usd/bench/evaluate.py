@@ -133,10 +133,6 @@ def _mass_range(prim) -> list[float] | None:
     return [k * float(rng.Get()[0]), k * float(rng.Get()[1])]
 
 
-def _rms_radius(points: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
-
-
 def _backproject(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
     v, u = np.nonzero(mask)
     z = depth[v, u]
@@ -193,6 +189,11 @@ class ObjectRegistration:
     true_surface: metrics.SurfaceDistance
     true_samples: np.ndarray
     correction: np.ndarray
+
+    def size_error(self) -> float:
+        """The mesh's size against the true one's: the ratio of their surfaces' rms radii (exact,
+        ``metrics.surface_rms_radius``) minus 1."""
+        return metrics.surface_rms_radius(self.rec_world0, self.rec_faces) / metrics.surface_rms_radius(self.true_world0, self.true_faces) - 1.0
 
     def placed_chamfer(self) -> float:
         """The object Chamfer [m] of the mesh where it was placed at frame 0."""
@@ -338,7 +339,7 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
                 shape_chamfer_m=reg.shape_chamfer(),
                 mass_kg=float(mass_attr.Get()) if mass_attr and mass_attr.HasAuthoredValue() else None,
                 true_mass_kg=true_mass,
-                size_error=_rms_radius(reg.rec_samples) / _rms_radius(reg.true_samples) - 1.0,
+                size_error=reg.size_error(),
                 mass_range_kg=_mass_range(prim),
             )
         )

@@ -118,6 +118,23 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, rng: np.
     return t[:, 0] + r1[:, None] * (t[:, 1] - t[:, 0]) + r2[:, None] * (t[:, 2] - t[:, 0])
 
 
+def surface_rms_radius(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The root mean square distance of a triangle mesh's surface from its area centroid, exact.
+
+    For a point uniform on a triangle with corners a, b, c: E[x] = (a + b + c) / 3 and
+    E[x x^T] = (a a^T + b b^T + c c^T + (a + b + c)(a + b + c)^T) / 12. Sampling it instead
+    (50k points on each mesh) moved a box's size ratio by 0.2-0.3 % from seed to seed."""
+    tri = np.asarray(vertices, dtype=float)[np.asarray(faces)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if area.sum() <= 0:
+        raise ValueError("surface_rms_radius: the mesh has no area")
+    w = area / area.sum()
+    corners = tri.sum(axis=1)
+    centroid = w @ corners / 3.0
+    second = w @ ((tri**2).sum(axis=(1, 2)) + (corners**2).sum(axis=1)) / 12.0  # E[|x|^2]
+    return float(np.sqrt(max(second - centroid @ centroid, 0.0)))
+
+
 class SurfaceDistance:
     """Unsigned distance from points to a triangle mesh (Open3D's raycasting scene)."""
 
