@@ -11,14 +11,14 @@ cases it ran on (default benchmarks/cases)."""
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from rose_usd.bench.evaluate import register_object
-from rose_usd.bench.runner import kept_runs
+from rose_usd.bench.report import pyplot
+from rose_usd.bench.runner import kept_runs, kept_runs_parser
 from rose_usd.case.gt import GroundTruth
 from rose_usd.core import metrics, se3
 from rose_usd.usd import paths
@@ -48,17 +48,10 @@ def sections(case_dir: Path, run: Path, seed: int = 0):
 
 
 def main() -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("results", type=Path)
-    ap.add_argument("-o", "--output", type=Path, required=True)
-    ap.add_argument("--cases", type=Path, default=Path("benchmarks/cases"))
+    ap = kept_runs_parser(__doc__)
     ap.add_argument("--only", default=None, help="only cases whose name contains this")
     args = ap.parse_args()
+    plt = pyplot()
     panels = []
     for case, case_dir, run in kept_runs(args.results, args.cases, args.only):
         name = case["case"]

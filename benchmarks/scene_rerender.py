@@ -17,11 +17,7 @@ import numpy as np
 
 
 def main() -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from rose_usd.bench.report import pyplot
     from rose_usd.case.layout import load_case
     from rose_usd.gate.ssim import masked_ssim
     from rose_usd.io.images import read_mask
@@ -37,6 +33,7 @@ def main() -> int:
     ap.add_argument("--frames", default="", help="comma-separated frames (default: 3 spread over the video)")
     ap.add_argument("--spp", type=int, default=16)
     args = ap.parse_args()
+    plt = pyplot()
     case, out = load_case(args.case), Path(args.out)
     stage = open_stage(out / "rose.usda")
     n = case.n_frames

@@ -14,14 +14,14 @@ measurement behind the object stage not fusing tracked frames (issue 7, item 4).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
 from rose_usd import registry
 from rose_usd.bench.evaluate import prim_poses, register_mesh
-from rose_usd.bench.runner import kept_runs
+from rose_usd.bench.report import pyplot
+from rose_usd.bench.runner import kept_runs, kept_runs_parser
 from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.case.gt import GroundTruth
 from rose_usd.case.layout import load_case
@@ -88,17 +88,10 @@ def compare(case_dir: Path, run: Path, stride: int, cfg: ObjectConfig = ObjectCo
 
 
 def main() -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("results", type=Path)
-    ap.add_argument("-o", "--output", type=Path, required=True)
-    ap.add_argument("--cases", type=Path, default=Path("benchmarks/cases"))
+    ap = kept_runs_parser(__doc__)
     ap.add_argument("--stride", type=int, default=3, help="every this many frames after the rest (default 3)")
     args = ap.parse_args()
+    plt = pyplot()
     rows = []
     print("| case | object | resting frames | tracked frames added | shape Chamfer mm, resting | with tracked |")
     print("|---|---|---|---|---|---|")

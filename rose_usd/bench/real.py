@@ -160,10 +160,9 @@ def _scene_against_recorded(folder: Path, run_dir: Path, truth: np.ndarray, alig
 
 def _picture(out_dir: Path, ours, ref, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int) -> None:
     """Depth of the reconstructed collider and of the reference fusion from one recorded camera."""
-    import matplotlib
+    from rose_usd.bench.report import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     d_ours, _ = ours.depth_and_labels(world_from_cv, K, width, height)
     d_ref, _ = ref.depth_and_labels(world_from_cv, K, width, height)
@@ -184,10 +183,9 @@ def _picture(out_dir: Path, ours, ref, world_from_cv: np.ndarray, K: np.ndarray,
 
 
 def _plot(out_dir: Path, est: np.ndarray, truth: np.ndarray, ape_m: np.ndarray) -> None:
-    import matplotlib
+    from rose_usd.bench.report import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6), dpi=100, layout="constrained")
     a.plot(truth[:, 0, 3], truth[:, 1, 3], label="recorded (KinectFusion)", lw=2)

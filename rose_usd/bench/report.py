@@ -230,12 +230,18 @@ def build_report(results_dir: Path) -> Path:
     return report
 
 
-def _plots(results_dir: Path, cases: list[dict], by_task: dict, tasks: list[str]) -> list[str]:
+def pyplot():
+    """matplotlib.pyplot drawing to files only (the Agg backend: no display on these machines)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _plots(results_dir: Path, cases: list[dict], by_task: dict, tasks: list[str]) -> list[str]:
+    plt = pyplot()
     out = results_dir / "plots"
     out.mkdir(exist_ok=True)
     panels = [("scene_chamfer_mm", "scene Chamfer (mm)"), ("object_chamfer_mm", "object Chamfer (mm)"), ("ape_t_cm", "object APE trans (cm)"), ("ssim", "SSIM")]

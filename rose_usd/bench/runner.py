@@ -162,6 +162,18 @@ def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -
     return {"commit": summary.get("commit"), "cases": cases}
 
 
+def kept_runs_parser(doc: str):
+    """The command line that the scripts under benchmarks/ drawing from a results folder's kept
+    runs share: RESULTS, -o/--output PNG and --cases (see ``kept_runs``); each adds its own."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("results", type=Path)
+    parser.add_argument("-o", "--output", type=Path, required=True)
+    parser.add_argument("--cases", type=Path, default=DEFAULT_CASES)
+    return parser
+
+
 def kept_runs(results: Path, cases_dir: Path = DEFAULT_CASES, only: str | None = None):
     """For the scripts that look into a results folder's kept runs: (the case's summary entry, its
     generated case folder in the results' mode, its run folder) for each case that ran without
