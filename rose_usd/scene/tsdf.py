@@ -445,6 +445,12 @@ class SupportPad:
     def area_m2(self) -> float:
         return len(self.xy) * self.cell_m**2
 
+    @property
+    def over_m(self) -> float:
+        """A point lies over the footprint when its nearest grid point is within this horizontally
+        (a cell's half diagonal is 0.71 of it)."""
+        return 0.75 * self.cell_m
+
 
 def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, max_gap_m: float = 0.015, count: int = 8) -> tuple[list[SupportPad], dict[str, str]]:
     """Where each object rests before the interactor first touches it, the support under it as a
@@ -515,7 +521,7 @@ def lay_pads(points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: 
     remaining fused points). Returns points, colors, normals and the number of points replaced."""
     replaced, new = 0, []
     for pad in pads:
-        near = cKDTree(pad.xy).query(points[:, :2], distance_upper_bound=0.75 * pad.cell_m)[0] < np.inf
+        near = cKDTree(pad.xy).query(points[:, :2], distance_upper_bound=pad.over_m)[0] < np.inf
         drop = near & (np.abs(points[:, 2] - pad.height_m) < band_m)
         replaced += int(drop.sum())
         points, colors, normals = points[~drop], colors[~drop], normals[~drop]
@@ -561,14 +567,14 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
         flat_faces = (tm.face_normals[:, 2] > np.cos(np.radians(up_deg))) & near_height[faces].all(axis=1)
         # a triangle over the footprint has its vertices within its longest edge of it: grow the
         # reach by the longest edge among the triangles it takes in, until that stops growing
-        reach = 0.75 * pad.cell_m
+        reach = pad.over_m
         for _ in range(8):
             taken = flat_faces & (near[faces] <= reach).any(axis=1)
-            grown = 0.75 * pad.cell_m + (float(edge[taken].max()) if taken.any() else 0.0)
+            grown = pad.over_m + (float(edge[taken].max()) if taken.any() else 0.0)
             if grown <= reach:
                 break
             reach = grown
-        over = (near <= 0.75 * pad.cell_m) & (dz <= over_band_m) & (tm.vertex_normals[:, 2] > np.cos(np.radians(over_up_deg)))
+        over = (near <= pad.over_m) & (dz <= over_band_m) & (tm.vertex_normals[:, 2] > np.cos(np.radians(over_up_deg)))
         snap = ((near <= reach) & near_height & up) | over
         moved += int(np.count_nonzero(out[snap, 2] != pad.height_m))
         out[snap, 2] = pad.height_m
