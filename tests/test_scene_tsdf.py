@@ -126,7 +126,6 @@ def test_only_triangles_facing_a_camera_are_textured_and_the_rest_keep_their_ver
     assert np.allclose(v[f], slab.vertices[slab.faces[facing]])
 
 
-
 def _plane_depth(world_from_cv: np.ndarray, K: np.ndarray, w: int, h: int) -> np.ndarray:
     """Metric depth of the plane z = 0 (0 where a ray misses it)."""
     v, u = np.mgrid[0:h, 0:w]
@@ -137,7 +136,7 @@ def _plane_depth(world_from_cv: np.ndarray, K: np.ndarray, w: int, h: int) -> np
 
 def test_the_fused_surface_comes_out_the_same_from_the_same_frames():
     # Open3D allocates the grid's blocks from several threads: before the sort, the same frames
-    # gave the same points in a different order, and the wrap, colors and texture followed it
+    # gave the same points in a different order, which everything downstream would take in
     from rose_usd.core import se3
     from rose_usd.scene.tsdf import Fusion
 

@@ -91,8 +91,9 @@ class Fusion:
 
     The grid's blocks are allocated by several threads, so the surface it extracts comes out in
     a different order from run to run (the same points, colors and normals: checked on push-box,
-    3 fusions of 10 frames). Everything downstream (the wrap, the colors' nearest neighbors, the
-    texture) follows that order, so it is sorted by position here."""
+    3 fusions of 10 frames). It is sorted by position here, so that nothing downstream (the wrap,
+    the colors' nearest neighbors, the texture) can depend on thread timing; on the sample the
+    scene came out the same either way."""
 
     def __init__(self, voxel_m: float, depth_max_m: float):
         import open3d as o3d
