@@ -47,7 +47,9 @@ def panel(run: Path, t: int, size: int = 320) -> np.ndarray:
     cx, cy = (box[0] + box[2]) // 2, (box[1] + box[3]) // 2
     half = int(max(box[2] - box[0], box[3] - box[1]) * 0.75) + 10
     x0, y0 = max(cx - half, 0), max(cy - half, 0)
-    crop = cv2.resize(image[y0 : min(cy + half, h), x0 : min(cx + half, w)], (size, size), interpolation=cv2.INTER_CUBIC)
+    crop = cv2.resize(
+        image[y0 : min(cy + half, h), x0 : min(cx + half, w)], (size, size), interpolation=cv2.INTER_CUBIC
+    )
     cv2.putText(crop, run.name, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
     return crop
 

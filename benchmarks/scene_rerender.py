@@ -40,7 +40,9 @@ def main() -> int:
     frames = [int(f) for f in args.frames.split(",")] if args.frames else [0, n // 2, n - 1]
     cams = read_camera(stage, paths.CAMERA, n)
     renderer = StageRenderer(stage)
-    fig, axes = plt.subplots(len(frames), 3, figsize=(12, 3.1 * len(frames)), dpi=100, layout="constrained", squeeze=False)
+    fig, axes = plt.subplots(
+        len(frames), 3, figsize=(12, 3.1 * len(frames)), dpi=100, layout="constrained", squeeze=False
+    )
     for row, t in zip(axes, frames):
         original = case.rgb(t)
         rendered = renderer.scene.render_srgb8(cams.world_from_cv[t], cams.K[t], case.width, case.height, spp=args.spp)

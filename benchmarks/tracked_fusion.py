@@ -47,7 +47,9 @@ class RunView:
         self.depth_of = metric_depth_reader(self.stage, self.case)
 
 
-def fused_shape_chamfer(view: RunView, name: str, frames: list[int], last_rest: int, support: float, cfg: ObjectConfig) -> float:
+def fused_shape_chamfer(
+    view: RunView, name: str, frames: list[int], last_rest: int, support: float, cfg: ObjectConfig
+) -> float:
     """The shape Chamfer [m] of the object completed from ``frames``, each mapped into the
     frame-0 pose by the run's trajectory; the resting frames (up to ``last_rest``) carve."""
     cams, depth_of = view.cams, view.depth_of
@@ -68,7 +70,9 @@ def fused_shape_chamfer(view: RunView, name: str, frames: list[int], last_rest: 
     pts, cols, toward, often = clean_cloud(pts, cols, toward, cfg.voxel_m, support + cfg.support_gap_m)
     keep = free_space_carve(pts, views[:: max(1, len(views) // 16)])
     vertices, faces, _, _ = complete(pts[keep], toward[keep], often[keep], support, cfg)
-    return register_mesh(se3.transform_points(view.align, vertices), faces, view.gt, name, np.random.default_rng(0)).shape_chamfer()
+    return register_mesh(
+        se3.transform_points(view.align, vertices), faces, view.gt, name, np.random.default_rng(0)
+    ).shape_chamfer()
 
 
 def compare(case_dir: Path, run: Path, stride: int, cfg: ObjectConfig = ObjectConfig()):
@@ -98,7 +102,9 @@ def main() -> None:
     for entry, case_dir, run in kept_runs(args.results, args.cases):
         for name, n_rest, n_after, rest, both in compare(case_dir, run, args.stride):
             rows.append((f"{entry['case'].rsplit('-', 1)[0]}\n{name}", rest, both))
-            print(f"| {entry['case']} | {name} | {n_rest} | {n_after} | {1e3 * rest:.2f} | {1e3 * both:.2f} |", flush=True)
+            print(
+                f"| {entry['case']} | {name} | {n_rest} | {n_after} | {1e3 * rest:.2f} | {1e3 * both:.2f} |", flush=True
+            )
     x = np.arange(len(rows))
     fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(rows)), 3.6))
     ax.bar(x - 0.2, [1e3 * r[1] for r in rows], 0.4, label="resting frames (what the object stage fuses)")

@@ -23,7 +23,10 @@ def _parse_assignments(values: list[str] | None, what: str) -> dict:
     out: dict = {}
     for item in values or []:
         if "=" not in item:
-            raise ConfigError(f"{what} {item!r} is not KEY=VALUE", hint=f"write e.g. {'capture=oracle' if what == '--backend' else 'gate.spp=16'}")
+            raise ConfigError(
+                f"{what} {item!r} is not KEY=VALUE",
+                hint=f"write e.g. {'capture=oracle' if what == '--backend' else 'gate.spp=16'}",
+            )
         key, value = item.split("=", 1)
         if what == "--set":
             if "." not in key:
@@ -112,7 +115,9 @@ def cmd_inspect(args) -> int:
 def cmd_diff(args) -> int:
     from rose_usd.usd.diff import compare, load_dump
 
-    lines = compare(load_dump(args.a), load_dump(args.b), rtol=args.rtol, atol=args.atol, ignore=tuple(args.ignore or ()))
+    lines = compare(
+        load_dump(args.a), load_dump(args.b), rtol=args.rtol, atol=args.atol, ignore=tuple(args.ignore or ())
+    )
     for line in lines:
         print(line)
     print(f"{len(lines)} difference(s)" if lines else "stages match within tolerance")
@@ -140,7 +145,9 @@ def cmd_stages(args) -> int:
 
     for s in registry.STAGES:
         except_ = "".join(f" ({b}: [{', '.join(n)}])" for b, n in s.needs_by_backend.items())
-        print(f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]{except_}  backends: {', '.join(s.backends)}")
+        print(
+            f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]{except_}  backends: {', '.join(s.backends)}"
+        )
         print(f"            {s.summary}")
         for f in dataclasses.fields(s.config):
             default = getattr(s.config(), f.name)
@@ -155,7 +162,16 @@ def cmd_bench_generate(args) -> int:
     from rose_usd.synth.shapes import ObjectShape
 
     width, height = _size(args.size)
-    config = GenerateConfig(task=Task(args.task), shape=ObjectShape(args.shape), seed=args.seed, n_frames=args.frames, width=width, height=height, fps=args.fps, spp=args.spp)
+    config = GenerateConfig(
+        task=Task(args.task),
+        shape=ObjectShape(args.shape),
+        seed=args.seed,
+        n_frames=args.frames,
+        width=width,
+        height=height,
+        fps=args.fps,
+        spp=args.spp,
+    )
     generate_case(config, args.output, overwrite=args.overwrite)
     return 0
 
@@ -173,12 +189,32 @@ def cmd_bench_run(args) -> int:
         tag += "-unprompted"
     if args.until:
         tag += f"-until-{args.until}"
-    out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"{args.suite}-{mode.value}-{tag}"
-    command = "rose-usd " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("rose-usd") else f"rose-usd bench run --suite {args.suite} --mode {mode.value}"
-    summary = run_suite(args.suite, mode, out, cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES, backends=backends, settings=settings, command=command, until=args.until, prompts=not args.no_prompts, start_from=Path(args.start_from) if args.start_from else None, rerun=tuple(args.rerun or ()))
+    out = (
+        Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"{args.suite}-{mode.value}-{tag}"
+    )
+    command = (
+        "rose-usd " + " ".join(sys.argv[1:])
+        if sys.argv and sys.argv[0].endswith("rose-usd")
+        else f"rose-usd bench run --suite {args.suite} --mode {mode.value}"
+    )
+    summary = run_suite(
+        args.suite,
+        mode,
+        out,
+        cases_dir=Path(args.cases) if args.cases else DEFAULT_CASES,
+        backends=backends,
+        settings=settings,
+        command=command,
+        until=args.until,
+        prompts=not args.no_prompts,
+        start_from=Path(args.start_from) if args.start_from else None,
+        rerun=tuple(args.rerun or ()),
+    )
     report = build_report(out)
     failed = [c["case"] for c in summary["cases"] if "error" in c]
-    print(f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed -> {out}/results.json, {report}")
+    print(
+        f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed -> {out}/results.json, {report}"
+    )
     print(report.read_text().split("## Per case")[0])
     return 1 if failed else 0
 
@@ -193,7 +229,12 @@ def cmd_bench_real(args) -> int:
         result = evaluate_sam2_cups(Path(args.folder), out)
         print(json.dumps(result, indent=1))
         return 0
-    result = evaluate_seven_scenes(Path(args.folder), out, backends=_parse_assignments(args.backend, "--backend") or None, scene=not args.capture_only)
+    result = evaluate_seven_scenes(
+        Path(args.folder),
+        out,
+        backends=_parse_assignments(args.backend, "--backend") or None,
+        scene=not args.capture_only,
+    )
     print(json.dumps({k: v for k, v in result.items() if k != "capture_results"}, indent=1, default=float))
     return 0
 
@@ -228,9 +269,24 @@ def cmd_bench_report(args) -> int:
 
 def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="output folder (rose.usda, layers/, masks/, report/)")
-    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backend of a stage (repeatable); STAGE 'all' sets every stage that has it")
-    p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="override a stage setting (repeatable); see `rose-usd stages`")
-    p.add_argument("--prompt", action="append", metavar="[NAME=]FRAME:X0,Y0,X1,Y1", help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml (repeatable; NAME may be left out for one object)")
+    p.add_argument(
+        "--backend",
+        action="append",
+        metavar="STAGE=NAME",
+        help="backend of a stage (repeatable); STAGE 'all' sets every stage that has it",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="STAGE.FIELD=VALUE",
+        help="override a stage setting (repeatable); see `rose-usd stages`",
+    )
+    p.add_argument(
+        "--prompt",
+        action="append",
+        metavar="[NAME=]FRAME:X0,Y0,X1,Y1",
+        help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml (repeatable; NAME may be left out for one object)",
+    )
     p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
 
 
@@ -238,7 +294,9 @@ def build_parser() -> argparse.ArgumentParser:
     from rose_usd.synth.motion import Task
     from rose_usd.synth.shapes import ObjectShape
 
-    parser = argparse.ArgumentParser(prog="rose-usd", description="Casual video of a person moving an object -> simulator-ready OpenUSD stage.")
+    parser = argparse.ArgumentParser(
+        prog="rose-usd", description="Casual video of a person moving an object -> simulator-ready OpenUSD stage."
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("reconstruct", help="run every stage on a case (skips stages that are up to date)")
@@ -298,15 +356,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench_generate)
     p = bsub.add_parser("run", help="run a suite of generated cases in one perception mode and score every stage")
     p.add_argument("--suite", default="small", help="suite name: small (CI) or default (5 tasks x 2 seeds, 640x480)")
-    p.add_argument("--mode", default="rgbd", choices=["rgbd", "mono-imported", "rgb"], help="what the cases give the pipeline")
+    p.add_argument(
+        "--mode", default="rgbd", choices=["rgbd", "mono-imported", "rgb"], help="what the cases give the pipeline"
+    )
     p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default all=oracle)")
     p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="stage settings")
     p.add_argument("-o", "--output", help="results folder (default benchmarks/results/SUITE-MODE-BACKENDS)")
     p.add_argument("--cases", help="where generated cases are cached (default benchmarks/cases)")
-    p.add_argument("--until", metavar="STAGE", help="run only this stage and what it needs (metrics of later stages are left out)")
-    p.add_argument("--no-prompts", action="store_true", help="drop the object prompts from the cases' rose.toml (objects are named, never pointed at)")
-    p.add_argument("--start-from", metavar="FOLDER", help="start each case from a copy of this earlier results folder's kept run (same suite and mode): its current layers are not run again, their times carried over")
-    p.add_argument("--rerun", action="append", metavar="STAGE", help="with --start-from: run this stage even when its layer is current (after a change of its code; what depends on it follows)")
+    p.add_argument(
+        "--until", metavar="STAGE", help="run only this stage and what it needs (metrics of later stages are left out)"
+    )
+    p.add_argument(
+        "--no-prompts",
+        action="store_true",
+        help="drop the object prompts from the cases' rose.toml (objects are named, never pointed at)",
+    )
+    p.add_argument(
+        "--start-from",
+        metavar="FOLDER",
+        help="start each case from a copy of this earlier results folder's kept run (same suite and mode): its current layers are not run again, their times carried over",
+    )
+    p.add_argument(
+        "--rerun",
+        action="append",
+        metavar="STAGE",
+        help="with --start-from: run this stage even when its layer is current (after a change of its code; what depends on it follows)",
+    )
     p.set_defaults(func=cmd_bench_run)
     p = bsub.add_parser("speed", help="time one stage on a long case (default 300 frames at 640x480)")
     p.add_argument("stage", help="stage to time (its prerequisites run first, untimed)")
@@ -315,14 +390,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", default="640x480")
     p.add_argument("-o", "--output", help="output folder (default benchmarks/results/speed)")
     p.set_defaults(func=cmd_bench_speed)
-    p = bsub.add_parser("real", help="run rose on a real recording: 7scenes (capture and scene mesh vs recorded poses), sam2-cups (masks of one cup, contact sheet)")
+    p = bsub.add_parser(
+        "real",
+        help="run rose on a real recording: 7scenes (capture and scene mesh vs recorded poses), sam2-cups (masks of one cup, contact sheet)",
+    )
     p.add_argument("dataset", choices=["7scenes", "sam2-cups"])
-    p.add_argument("folder", help="e.g. ../shared/data/real/7scenes-redkitchen-600-799 or ../shared/data/real/sam2-cups")
+    p.add_argument(
+        "folder", help="e.g. ../shared/data/real/7scenes-redkitchen-600-799 or ../shared/data/real/sam2-cups"
+    )
     p.add_argument("-o", "--output", help="output folder (default benchmarks/results/real-DATASET)")
-    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default capture=rgbd, segment=classical, scene=tsdf)")
+    p.add_argument(
+        "--backend",
+        action="append",
+        metavar="STAGE=NAME",
+        help="backends (default capture=rgbd, segment=classical, scene=tsdf)",
+    )
     p.add_argument("--capture-only", action="store_true", help="stop after capture (no scene mesh comparison)")
     p.set_defaults(func=cmd_bench_real)
-    p = bsub.add_parser("rescore", help="score a results folder's runs again with the current metrics (no stage re-runs), then rebuild its report")
+    p = bsub.add_parser(
+        "rescore",
+        help="score a results folder's runs again with the current metrics (no stage re-runs), then rebuild its report",
+    )
     p.add_argument("results", help="a folder with results.json and runs/")
     p.add_argument("--cases", help="where generated cases are cached (default benchmarks/cases)")
     p.set_defaults(func=cmd_bench_rescore)

@@ -84,7 +84,8 @@ class Pipeline:
             if backend not in stage_def.backends and not (backend == "auto" and stage_def.auto_backend):
                 raise ConfigError(
                     f"stage {stage_def.name!r} has no backend {backend!r}",
-                    hint=f"backends of {stage_def.name}: {', '.join(stage_def.backends)}" + (", auto" if stage_def.auto_backend else ""),
+                    hint=f"backends of {stage_def.name}: {', '.join(stage_def.backends)}"
+                    + (", auto" if stage_def.auto_backend else ""),
                 )
             values["backend"] = backend
         values.update(self.options.settings.get(stage_def.name, {}))
@@ -124,7 +125,11 @@ class Pipeline:
         config = self.config(stage_def)
         for need in stage_def.needs_of(config.backend.value):
             if not usd_stage.layer_file(self.out_dir, registry.get(need).layer).is_file():
-                raise StageError(f"stage {stage_def.name!r} needs layer {registry.get(need).layer!r}, which is missing", path=self.out_dir, hint=f"run `rose-usd run {need}` first")
+                raise StageError(
+                    f"stage {stage_def.name!r} needs layer {registry.get(need).layer!r}, which is missing",
+                    path=self.out_dir,
+                    hint=f"run `rose-usd run {need}` first",
+                )
         provenance = {
             "stage": stage_def.name,
             "backend": config.backend.value,
@@ -161,4 +166,3 @@ class Pipeline:
         if not usd_stage.root_file(self.out_dir).is_file():
             usd_stage.write_root(self.out_dir, self.time_info)
         return outcomes
-

@@ -146,4 +146,6 @@ def _coerce(stage: str, key: str, value: Any, default: Any, source: str) -> Any:
         return value
     except (ValueError, TypeError):
         allowed = f" (one of {', '.join(m.value for m in type(default))})" if isinstance(default, enum.Enum) else ""
-        raise ConfigError(f"{stage}.{key} = {value!r} is not valid{allowed}", path=source, hint=f"the default is {default!r}") from None
+        raise ConfigError(
+            f"{stage}.{key} = {value!r} is not valid{allowed}", path=source, hint=f"the default is {default!r}"
+        ) from None

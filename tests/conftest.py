@@ -23,7 +23,9 @@ def oracle_options():
 
 
 def pytest_addoption(parser):
-    parser.addoption("--update-reference", action="store_true", help="rewrite stages/*.json from this run (deliberate golden update)")
+    parser.addoption(
+        "--update-reference", action="store_true", help="rewrite stages/*.json from this run (deliberate golden update)"
+    )
 
 
 @pytest.fixture(scope="session")

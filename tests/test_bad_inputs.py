@@ -118,7 +118,9 @@ def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
     """Unknown stage and backend names list the valid ones."""
     code, err = run_cli(capsys, "run", "segmnt", str(sample_case), "-o", str(tmp_path / "o"))
     assert_one_line_error(code, err, "unknown stage", "segment")
-    code, err = run_cli(capsys, "reconstruct", str(sample_case), "-o", str(tmp_path / "o"), "--backend", "capture=colmap")
+    code, err = run_cli(
+        capsys, "reconstruct", str(sample_case), "-o", str(tmp_path / "o"), "--backend", "capture=colmap"
+    )
     assert_one_line_error(code, err, "no backend 'colmap'", "rgbd, megasam, oracle, auto")
 
 
@@ -126,7 +128,10 @@ def test_object_never_visible_leaves_previous_output(capsys, case_copy, out_copy
     """An object that never appears fails the segment stage; its previous layer and masks stay."""
     for mask in (case_copy / "gt" / "masks" / "Box").glob("*.png"):
         cv2.imwrite(str(mask), np.zeros((240, 320), np.uint8))
-    before = {p: p.read_bytes() for p in [out_copy / "layers" / "masks.usda", *sorted((out_copy / "masks" / "Box").glob("*.png"))[:3]]}
+    before = {
+        p: p.read_bytes()
+        for p in [out_copy / "layers" / "masks.usda", *sorted((out_copy / "masks" / "Box").glob("*.png"))[:3]]
+    }
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out_copy), "--backend", "all=oracle")
     assert_one_line_error(code, err, "never visible", "Box")
     for path, content in before.items():

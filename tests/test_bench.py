@@ -82,7 +82,9 @@ def test_results_files_and_report(small_results):
     report = build_report(out).read_text()
     assert "Table 2" in report and "Table 3" in report and "Paper" in report and "## Trajectories" in report
     assert set(data["cases"][0]["stage_results"]) == set(stages)  # what each stage recorded (None: nothing)
-    assert (out / "plots" / "per_task.png").stat().st_size > 0 and (out / "plots" / "ape_over_time.png").stat().st_size > 0
+    assert (out / "plots" / "per_task.png").stat().st_size > 0 and (
+        out / "plots" / "ape_over_time.png"
+    ).stat().st_size > 0
 
 
 def test_default_suite_is_the_papers_size():
@@ -97,11 +99,15 @@ def test_default_suite_meets_oracle_targets(tmp_path):
     """Benchmark job: the default suite with oracle backends meets the oracle targets on every task."""
     from rose_usd.bench.runner import DEFAULT_CASES
 
-    summary = run_suite("default", PerceptionMode.RGBD, tmp_path / "results", cases_dir=DEFAULT_CASES, command="pytest -m slow")
+    summary = run_suite(
+        "default", PerceptionMode.RGBD, tmp_path / "results", cases_dir=DEFAULT_CASES, command="pytest -m slow"
+    )
     for case in summary["cases"]:
         assert "error" not in case, case
         score = case["score"]
-        assert score["scene_chamfer_m"] < 0.002 and score["scene_chamfer_visible_m"] < 0.002 and score["ssim_mean"] > 0.98, case["case"]
+        assert (
+            score["scene_chamfer_m"] < 0.002 and score["scene_chamfer_visible_m"] < 0.002 and score["ssim_mean"] > 0.98
+        ), case["case"]
         for obj in score["objects"]:
             assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001, (case["case"], obj["name"])
 
@@ -110,15 +116,27 @@ def test_start_from_an_earlier_run_reruns_only_what_changed(small_results, tmp_p
     """``--start-from``: a kept run's current layers are kept with their recorded times; a changed
     setting re-runs its stage (and what depends on it), ``--rerun`` a stage named, and the scores match."""
     earlier_dir, earlier = small_results
-    summary = run_suite("small", PerceptionMode.RGBD, tmp_path / "again", cases_dir=earlier_dir.parent / "cases", settings={"gate": {"frame_stride": 3}}, start_from=earlier_dir, rerun=("trajectory",))
+    summary = run_suite(
+        "small",
+        PerceptionMode.RGBD,
+        tmp_path / "again",
+        cases_dir=earlier_dir.parent / "cases",
+        settings={"gate": {"frame_stride": 3}},
+        start_from=earlier_dir,
+        rerun=("trajectory",),
+    )
     assert summary["started_from"]["folder"] == str(earlier_dir)
     for before, after in zip(earlier["cases"], summary["cases"], strict=True):
         assert "error" not in after, after
         for name in ("capture", "segment", "scene", "object"):
-            assert after["stages"][name]["reused"] and after["stages"][name]["wall_time_s"] == pytest.approx(before["stages"][name]["wall_time_s"], abs=1e-3)
+            assert after["stages"][name]["reused"] and after["stages"][name]["wall_time_s"] == pytest.approx(
+                before["stages"][name]["wall_time_s"], abs=1e-3
+            )
             assert after["stages"][name]["peak_rss_mb"] == before["stages"][name]["peak_rss_mb"]
         assert "reused" not in after["stages"]["gate"] and "reused" not in after["stages"]["trajectory"]
-        assert [o["ape_translation_m"] for o in after["score"]["objects"]] == [o["ape_translation_m"] for o in before["score"]["objects"]]
+        assert [o["ape_translation_m"] for o in after["score"]["objects"]] == [
+            o["ape_translation_m"] for o in before["score"]["objects"]
+        ]
     gate = json.loads((tmp_path / "again" / "runs" / earlier["cases"][0]["case"] / "report" / "gate.json").read_text())
     assert gate["frames_rendered"] < earlier["cases"][0]["n_frames"]
 
@@ -129,4 +147,10 @@ def test_start_from_refuses_another_mode(small_results, tmp_path):
 
     earlier_dir, _ = small_results
     with pytest.raises(InputError, match=r"results\.json.*mode 'rgbd'"):
-        run_suite("small", PerceptionMode.MONO_IMPORTED, tmp_path / "x", cases_dir=earlier_dir.parent / "cases", start_from=earlier_dir)
+        run_suite(
+            "small",
+            PerceptionMode.MONO_IMPORTED,
+            tmp_path / "x",
+            cases_dir=earlier_dir.parent / "cases",
+            start_from=earlier_dir,
+        )

@@ -85,7 +85,9 @@ def test_mitsuba_render_lands_where_opencv_projects():
     world_from_cv = se3.look_at([0.5, -0.4, 0.5], [0.0, 0.0, 0.0])
     center = np.array([0.06, 0.03, 0.02])
     ball = sphere(0.01, center, subdivisions=4)
-    scene = RenderScene([RenderItem("ball", MeshData(ball.vertices, ball.faces, color=(1.0, 1.0, 1.0)), label=1)], Lighting.unlit())
+    scene = RenderScene(
+        [RenderItem("ball", MeshData(ball.vertices, ball.faces, color=(1.0, 1.0, 1.0)), label=1)], Lighting.unlit()
+    )
     uv, _ = project_cv(K_OFFCENTER, world_from_cv, center[None])
     u, v = uv[0]
     _, labels = scene.depth_and_labels(world_from_cv, K_OFFCENTER, W, H)
@@ -107,7 +109,9 @@ def test_depth_is_z_depth():
 
     wall = box((10.0, 10.0, 0.01), center=(0.0, 0.0, -0.005))  # its top face is the plane z = 0
     world_from_cv = se3.make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 1.5])  # looks straight down
-    scene = RenderScene([RenderItem("wall", MeshData(wall.vertices, wall.faces, color=(0.5, 0.5, 0.5)))], Lighting.unlit())
+    scene = RenderScene(
+        [RenderItem("wall", MeshData(wall.vertices, wall.faces, color=(0.5, 0.5, 0.5)))], Lighting.unlit()
+    )
     depth, _ = scene.depth_and_labels(world_from_cv, K_OFFCENTER, W, H)
     np.testing.assert_allclose(depth, 1.5, atol=1e-5)
 
@@ -147,4 +151,11 @@ def test_view_counts_sort_points_in_front_on_and_behind_a_seen_wall():
     edge = depth.copy()
     edge[25, 43] = 0.4  # beside the 5th point's pixel (42, 24): u = 32 + 100 x 0.05 / 0.5
     assert view_counts(points, [(edge, K, np.eye(4))], tol_m=0.01)[0].tolist() == [1, 0, 0, 0, 1, 0]
-    assert view_counts(points, [(edge, K, np.eye(4))], tol_m=0.01, window=3)[0].tolist() == [1, 0, 0, 1, 0, 0]  # the hole takes its neighbours' depth
+    assert view_counts(points, [(edge, K, np.eye(4))], tol_m=0.01, window=3)[0].tolist() == [
+        1,
+        0,
+        0,
+        1,
+        0,
+        0,
+    ]  # the hole takes its neighbours' depth

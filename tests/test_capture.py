@@ -105,7 +105,9 @@ def test_megasam_import_is_metric_after_the_fit(mono_case, tmp_path):
     score = evaluate(mono_case, out)
     assert score.scale_error < 0.02
     simulated = json.loads((mono_case / "perception" / "simulated.json").read_text())
-    assert prov["results"]["alpha"] * simulated["megasam"]["scale"] == pytest.approx(simulated["unidepth"]["scale_bias"], abs=0.01)
+    assert prov["results"]["alpha"] * simulated["megasam"]["scale"] == pytest.approx(
+        simulated["unidepth"]["scale_bias"], abs=0.01
+    )
     assert score.gravity_error_deg < simulated["geocalib"]["error_deg"] + 0.3
     stage = open_stage(out / "rose.usda")
     world = stage.GetPrimAtPath(paths.WORLD)

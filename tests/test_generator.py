@@ -17,7 +17,9 @@ from rose_usd.synth.shapes import ObjectShape
 @pytest.fixture(scope="module")
 def small_case(tmp_path_factory):
     out = tmp_path_factory.mktemp("gen") / "lift-mug"
-    return generate_case(GenerateConfig(task=Task.LIFT, shape=ObjectShape.MUG, seed=3, n_frames=12, width=96, height=72, spp=4), out)
+    return generate_case(
+        GenerateConfig(task=Task.LIFT, shape=ObjectShape.MUG, seed=3, n_frames=12, width=96, height=72, spp=4), out
+    )
 
 
 def test_layout_is_a_valid_case(small_case):
@@ -77,7 +79,10 @@ def test_same_seed_same_case(tmp_path):
 def test_every_task_starts_and_ends_at_rest_on_a_support(task, tmp_path):
     """Each task's objects rest at the start and the end (on the table or on each other), move in
     between, and stay over the table."""
-    case = generate_case(GenerateConfig(task=task, shape=ObjectShape.BOX, seed=21, n_frames=30, width=64, height=48, spp=1), tmp_path / task.value)
+    case = generate_case(
+        GenerateConfig(task=task, shape=ObjectShape.BOX, seed=21, n_frames=30, width=64, height=48, spp=1),
+        tmp_path / task.value,
+    )
     gt = GroundTruth(case / "gt")
     layout = gt.data["layout"]
     half = np.asarray(layout["table_half_extent"])
@@ -92,7 +97,10 @@ def test_every_task_starts_and_ends_at_rest_on_a_support(task, tmp_path):
             assert lowest >= -1e-6
             center = poses[t][:2, 3] - np.asarray(layout["table_center"])
             assert np.all(np.abs(center) < half)
-        moved.append(float(np.linalg.norm(poses[-1][:3, 3] - poses[0][:3, 3])) + se3.rotation_angle_deg(poses[-1][:3, :3].T @ poses[0][:3, :3]) / 100)
+        moved.append(
+            float(np.linalg.norm(poses[-1][:3, 3] - poses[0][:3, 3]))
+            + se3.rotation_angle_deg(poses[-1][:3, :3].T @ poses[0][:3, :3]) / 100
+        )
     if task is Task.UNSTACK:
         base, top = gt.objects
         assert moved[0] == pytest.approx(0.0, abs=1e-9)  # the base stays

@@ -27,7 +27,11 @@ def test_cylinder_inertia_within_one_percent():
     mp = mass_properties(cyl.vertices, cyl.faces, rho)
     m = rho * np.pi * r**2 * h
     assert mp.mass_kg == pytest.approx(m, rel=0.01)
-    np.testing.assert_allclose(sorted(mp.diagonal_inertia), sorted([m * r**2 / 2, m * (3 * r**2 + h**2) / 12, m * (3 * r**2 + h**2) / 12]), rtol=0.01)
+    np.testing.assert_allclose(
+        sorted(mp.diagonal_inertia),
+        sorted([m * r**2 / 2, m * (3 * r**2 + h**2) / 12, m * (3 * r**2 + h**2) / 12]),
+        rtol=0.01,
+    )
 
 
 def test_rotated_box_principal_axes():
@@ -35,7 +39,9 @@ def test_rotated_box_principal_axes():
     box = trimesh.creation.box([0.1, 0.2, 0.3])
     box.apply_transform(trimesh.transformations.random_rotation_matrix(np.random.default_rng(5).random(3)))
     mp = mass_properties(box.vertices, box.faces, 500.0)
-    np.testing.assert_allclose(mp.principal_axes @ np.diag(mp.diagonal_inertia) @ mp.principal_axes.T, mp.inertia_com, atol=1e-12)
+    np.testing.assert_allclose(
+        mp.principal_axes @ np.diag(mp.diagonal_inertia) @ mp.principal_axes.T, mp.inertia_com, atol=1e-12
+    )
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered in divide")

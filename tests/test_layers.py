@@ -56,7 +56,10 @@ def test_winning_opinions_come_from_the_expected_layer(oracle_out):
 
     assert strongest(obj.GetAttribute("physics:mass")) == "object.usda"
     assert strongest(obj.GetAttribute("xformOp:translate"), Usd.TimeCode(10)) == "trajectory.usda"
-    assert obj.GetAttribute("xformOp:translate").GetResolveInfo(Usd.TimeCode(10)).GetSource() == Usd.ResolveInfoSourceTimeSamples
+    assert (
+        obj.GetAttribute("xformOp:translate").GetResolveInfo(Usd.TimeCode(10)).GetSource()
+        == Usd.ResolveInfoSourceTimeSamples
+    )
     assert strongest(stage.GetPrimAtPath(paths.CAMERA).GetAttribute("rose:camera:K")) == "world.usda"
     assert strongest(stage.GetPrimAtPath(paths.GATE).GetAttribute("rose:gate:ssimMean")) == "gate.usda"
 

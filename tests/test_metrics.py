@@ -31,7 +31,10 @@ def _evo(est, ref):
     t_est = PoseTrajectory3D(poses_se3=list(est), timestamps=stamps)
     t_ref = PoseTrajectory3D(poses_se3=list(ref), timestamps=stamps)
     out = {}
-    for name, rel in (("t", evo_metrics.PoseRelation.translation_part), ("r", evo_metrics.PoseRelation.rotation_angle_deg)):
+    for name, rel in (
+        ("t", evo_metrics.PoseRelation.translation_part),
+        ("r", evo_metrics.PoseRelation.rotation_angle_deg),
+    ):
         ape = evo_metrics.APE(rel)
         ape.process_data((t_ref, t_est))
         out[f"ape_{name}"] = ape.error

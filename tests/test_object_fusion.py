@@ -82,7 +82,9 @@ def test_an_object_that_never_appears_is_a_clear_error(tmp_path, case_copy, fusi
     assert not layer_file(out, "object").exists()
 
 
-def _wall(radius: float, height: float, angles_deg: tuple[float, float], rng, n: int = 4000, center=(0.0, 0.0)) -> np.ndarray:
+def _wall(
+    radius: float, height: float, angles_deg: tuple[float, float], rng, n: int = 4000, center=(0.0, 0.0)
+) -> np.ndarray:
     """Points on a vertical cylinder wall over an arc of angles, with 1 mm noise."""
     a = np.radians(rng.uniform(*angles_deg, n))
     r = radius + rng.normal(0, 0.001, n)
@@ -101,7 +103,13 @@ def test_a_mug_seen_from_one_side_is_a_solid_of_revolution():
     inner = _wall(0.036, 0.095, (120, 240), rng, n=1500, center=center)
     inner = inner[inner[:, 2] > 0.06]  # only its upper part shows over the rim
     t = rng.uniform(-np.pi / 2, np.pi / 2, 800)  # a handle: a half ring out to 7 cm from the axis at +x
-    handle = np.column_stack([center[0] + 0.045 + 0.022 * np.cos(t), np.full(800, center[1]) + rng.normal(0, 0.004, 800), 0.05 + 0.03 * np.sin(t)])
+    handle = np.column_stack(
+        [
+            center[0] + 0.045 + 0.022 * np.cos(t),
+            np.full(800, center[1]) + rng.normal(0, 0.004, 800),
+            0.05 + 0.03 * np.sin(t),
+        ]
+    )
     got = revolution_profile(np.concatenate([outer, inner, handle]), 0.01, 0.05)
     assert got is not None
     axis, heights, radii = got
@@ -112,7 +120,9 @@ def test_a_mug_seen_from_one_side_is_a_solid_of_revolution():
     side = rng.uniform(-0.04, 0.04, 6000)
     z = rng.uniform(0, 0.08, 6000)
     face = rng.integers(0, 3, 6000)  # three faces of a 8 cm box that a camera sees
-    box = np.column_stack([np.where(face == 0, 0.04, side), np.where(face == 1, 0.04, np.where(face == 2, -0.04, side)), z])
+    box = np.column_stack(
+        [np.where(face == 0, 0.04, side), np.where(face == 1, 0.04, np.where(face == 2, -0.04, side)), z]
+    )
     box[face == 0, 1] = side[face == 0]
     assert revolution_profile(box, 0.01, 0.05) is None
 
@@ -154,7 +164,9 @@ def _mug_seen_from(eye, rng, *, radius=0.0439, wall=0.005, height=0.0836, floor=
         inner = inner[inner[:, 2] > 0.03]  # seen over the rim from the camera's side
         ring = radius - wall * r[:800]
         rim = np.column_stack([ring * np.cos(a[:800]), ring * np.sin(a[:800]), np.full(800, height)])
-        bottom = np.column_stack([0.6 * (radius - wall) * r * np.cos(a) - 0.01, 0.6 * (radius - wall) * r * np.sin(a), np.full(3000, floor)])
+        bottom = np.column_stack(
+            [0.6 * (radius - wall) * r * np.cos(a) - 0.01, 0.6 * (radius - wall) * r * np.sin(a), np.full(3000, floor)]
+        )
         parts = [outer, inner, rim] + [bottom] * bottom_seen
     points = np.concatenate(parts)
     points[:, 2] += rng.normal(0, 0.001, len(points)) * (points[:, 2] > height - 0.001)

@@ -72,7 +72,9 @@ def test_scale_and_pose_search_recovers_a_known_box():
     finds the scale within 2 % and the pose."""
     rho, yaw, xy = 0.12, np.radians(40.0), np.array([0.03, -0.02])
     vertices_up, faces, observed, views = _box_seen_by_three_cameras(rho, yaw, xy)
-    best, tried = fit_scale_and_pose(vertices_up, faces, observed, 0.0, views, rho0=0.75 * rho, alpha=1.5, steps=15, search=True)
+    best, tried = fit_scale_and_pose(
+        vertices_up, faces, observed, 0.0, views, rho0=0.75 * rho, alpha=1.5, steps=15, search=True
+    )
     assert best.rho == pytest.approx(rho, rel=0.02)
     assert best.iou > 0.95
     dyaw = (best.yaw - yaw + np.pi / 2) % np.pi - np.pi / 2  # a box is the same turned 180 degrees
@@ -88,7 +90,9 @@ def test_a_scale_between_the_search_grids_points_is_found():
     rho, yaw, xy = 0.12, np.radians(40.0), np.array([0.03, -0.02])
     vertices_up, faces, observed, views = _box_seen_by_three_cameras(rho, yaw, xy)
     step = 1.5 ** (2 / 14)
-    best, _ = fit_scale_and_pose(vertices_up, faces, observed, 0.0, views, rho0=rho / step ** 5.125, alpha=1.5, steps=15, search=True)
+    best, _ = fit_scale_and_pose(
+        vertices_up, faces, observed, 0.0, views, rho0=rho / step**5.125, alpha=1.5, steps=15, search=True
+    )
     assert best.rho == pytest.approx(rho, rel=0.002)
 
 
@@ -105,14 +109,18 @@ def test_search_from_one_viewpoint_with_a_noisy_mesh_finds_the_box(seed):
     noisy = trimesh.Trimesh(box.vertices + rng.normal(0.0, 0.004, box.vertices.shape), box.faces)
     up_rot = world_from_up(np.array([0.0, 1.0, 0.0]))
     rho, yaw, xy = 0.12, np.radians(40.0), np.array([0.03, -0.02])
-    world = se3.transform_points(se3.make_pose(se3.rotation_about([0, 0, 1], yaw), np.array([*xy, 0.35 * rho])), rho * (box.vertices @ up_rot.T))
+    world = se3.transform_points(
+        se3.make_pose(se3.rotation_about([0, 0, 1], yaw), np.array([*xy, 0.35 * rho])), rho * (box.vertices @ up_rot.T)
+    )
     cams = [se3.look_at(np.array([0.45, -0.35, 0.35]) + 0.01 * i, (0.0, 0.0, 0.04)) for i in range(4)]
     views = [View(silhouette(world, box.faces, c, K, 640, 480), np.zeros((480, 640), bool), K, c) for c in cams]
     pts, face = trimesh.sample.sample_surface(trimesh.Trimesh(world, box.faces), 6000, seed=1)
     normals = trimesh.Trimesh(world, box.faces).face_normals[face]
     seen = (np.einsum("ij,ij->i", normals, cams[0][:3, 3] - pts) > 0) & (pts[:, 2] > 0.003)
     observed = pts[seen] + rng.normal(0.0, 0.001, (int(seen.sum()), 3))
-    best, _ = fit_scale_and_pose(noisy.vertices @ up_rot.T, noisy.faces, observed, 0.0, views, rho0=0.8 * rho, alpha=1.5, steps=15, search=True)
+    best, _ = fit_scale_and_pose(
+        noisy.vertices @ up_rot.T, noisy.faces, observed, 0.0, views, rho0=0.8 * rho, alpha=1.5, steps=15, search=True
+    )
     assert best.rho == pytest.approx(rho, rel=0.015)
     dyaw = (best.yaw - yaw + np.pi / 2) % np.pi - np.pi / 2
     assert abs(np.degrees(dyaw)) < 1.0
@@ -186,7 +194,11 @@ def test_unreadable_and_empty_meshes_are_clear_errors(tmp_path):
     with pytest.raises(MeshError, match="broken.glb"):
         read_imported(bad)
     nan = tmp_path / "nan.ply"
-    trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [0, np.nan, 0], [0, 0, 1]]), [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], process=False).export(nan)
+    trimesh.Trimesh(
+        np.array([[0, 0, 0], [1, 0, 0], [0, np.nan, 0], [0, 0, 1]]),
+        [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]],
+        process=False,
+    ).export(nan)
     with pytest.raises(MeshError):
         read_imported(nan)
 
@@ -230,7 +242,9 @@ def imported_out(tmp_path_factory, sample_case):
     gt = GroundTruth(case / "gt")
     _, info = simulate_trellis(case, gt, "Box", np.random.default_rng(3), PerceptionErrors())
     out = case.parent / "out"
-    Pipeline(case, out, Options(backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf", "object": "imported"})).run("object")
+    Pipeline(
+        case, out, Options(backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf", "object": "imported"})
+    ).run("object")
     return case, out, info
 
 
@@ -267,7 +281,11 @@ def test_a_mesh_in_millimeters_is_scaled_with_a_warning(tmp_path, case_copy):
     (case_copy / "perception").mkdir(exist_ok=True)
     trimesh.Trimesh(1000.0 * truth.vertices, truth.faces).export(case_copy / "perception" / "Box.obj")
     out = tmp_path / "out"
-    Pipeline(case_copy, out, Options(backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf", "object": "imported"})).run("object")
+    Pipeline(
+        case_copy,
+        out,
+        Options(backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf", "object": "imported"}),
+    ).run("object")
     prov = read_provenance(layer_file(out, "object"))
     facts = prov["results"]["objects"]["Box"]
     assert facts["rho"] == 0.001 and facts["scale"] == "file units (millimeters)"

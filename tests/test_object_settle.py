@@ -22,7 +22,11 @@ def _table():
 
 def _box(name: str, bottom_z: float, size: float = 0.06):
     box = trimesh.creation.box(extents=(size, size, size))  # object frame at its center
-    return SimpleNamespace(name=name, mesh=MeshData(np.asarray(box.vertices), np.asarray(box.faces)), world_from_object_0=se3.make_pose(np.eye(3), np.array([0.0, 0.0, bottom_z + 0.5 * size])))
+    return SimpleNamespace(
+        name=name,
+        mesh=MeshData(np.asarray(box.vertices), np.asarray(box.faces)),
+        world_from_object_0=se3.make_pose(np.eye(3), np.array([0.0, 0.0, bottom_z + 0.5 * size])),
+    )
 
 
 def _bottom(model) -> float:

@@ -21,7 +21,9 @@ from rose_usd.synth.shapes import ObjectShape
 @pytest.fixture(scope="module")
 def base_case(tmp_path_factory):
     out = tmp_path_factory.mktemp("modes") / "base"
-    return generate_case(GenerateConfig(task=Task.UNSTACK, shape=ObjectShape.CAN, seed=5, n_frames=12, width=128, height=96, spp=4), out)
+    return generate_case(
+        GenerateConfig(task=Task.UNSTACK, shape=ObjectShape.CAN, seed=5, n_frames=12, width=128, height=96, spp=4), out
+    )
 
 
 @pytest.fixture(scope="module")
@@ -141,11 +143,15 @@ def test_trellis_glb_and_foundationpose_agree_with_truth(mono):
         assert extents.max() == pytest.approx(1.0, abs=1e-3)
         true_mesh = gt.object_mesh(obj.name)
         true_height = true_mesh.vertices[:, 2].max() - true_mesh.vertices[:, 2].min()
-        assert extents[1] * info[obj.name]["scale_m_per_unit"] == pytest.approx(true_height, abs=0.004)  # Y is up; shape noise ~1 mm
+        assert extents[1] * info[obj.name]["scale_m_per_unit"] == pytest.approx(
+            true_height, abs=0.004
+        )  # Y is up; shape noise ~1 mm
         t = 6
         pose = foundationpose.read_pose(mono / "perception" / "ob_in_cam" / obj.name / f"{t:06d}.txt")
         in_cam = se3.transform_points(pose, mesh.vertices * info[obj.name]["scale_m_per_unit"])
-        true_in_cam = se3.transform_points(se3.invert(gt.camera_poses()[t]) @ gt.object_poses(obj.name)[t], true_mesh.vertices)
+        true_in_cam = se3.transform_points(
+            se3.invert(gt.camera_poses()[t]) @ gt.object_poses(obj.name)[t], true_mesh.vertices
+        )
         assert np.linalg.norm(in_cam.mean(axis=0) - true_in_cam.mean(axis=0)) < 0.015
         # the jitter of the mesh's center over the frames where the object is in full view is the
         # translation jitter (2 mm per axis), not the rotation jitter times the camera distance
@@ -157,7 +163,10 @@ def test_trellis_glb_and_foundationpose_agree_with_truth(mono):
         for u in np.flatnonzero(area > 0.8 * area.max()):
             pose = foundationpose.read_pose(mono / "perception" / "ob_in_cam" / obj.name / f"{u:06d}.txt")
             truth = se3.invert(gt.camera_poses()[u]) @ gt.object_poses(obj.name)[u]
-            errs.append(se3.transform_points(pose, center[None])[0] - se3.transform_points(truth, true_mesh.vertices).mean(axis=0))
+            errs.append(
+                se3.transform_points(pose, center[None])[0]
+                - se3.transform_points(truth, true_mesh.vertices).mean(axis=0)
+            )
         jitter = np.asarray(errs) - np.mean(errs, axis=0)
         assert np.sqrt(np.mean(np.sum(jitter**2, axis=1))) < 0.006, obj.name
 

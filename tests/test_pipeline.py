@@ -37,7 +37,13 @@ def test_run_stage_runs_its_needs_only(tmp_path, sample_case):
     object, trajectory -- not gate."""
     out = tmp_path / "out"
     Pipeline(sample_case, out, oracle_options()).run("trajectory")
-    assert sorted(p.stem for p in (out / "layers").glob("*.usda")) == ["masks", "object", "scene", "trajectory", "world"]
+    assert sorted(p.stem for p in (out / "layers").glob("*.usda")) == [
+        "masks",
+        "object",
+        "scene",
+        "trajectory",
+        "world",
+    ]
     assert (out / "rose.usda").is_file()
 
 
@@ -51,7 +57,14 @@ def test_provenance_records_what_made_the_layer(oracle_out):
     assert "config_hash" in prov and prov["config"]["backend"] == "oracle"
 
 
-@pytest.mark.parametrize("flag", [{"backends": {"capture": "nope"}}, {"settings": {"gate": {"no_such_field": "1"}}}, {"settings": {"gate": {"spp": "many"}}}])
+@pytest.mark.parametrize(
+    "flag",
+    [
+        {"backends": {"capture": "nope"}},
+        {"settings": {"gate": {"no_such_field": "1"}}},
+        {"settings": {"gate": {"spp": "many"}}},
+    ],
+)
 def test_bad_options_fail_before_anything_runs(tmp_path, sample_case, flag):
     """Unknown backends, settings and unparsable values are refused with a one-line error."""
     from rose_usd.errors import ConfigError

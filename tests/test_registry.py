@@ -27,7 +27,9 @@ def test_stage_definition_is_complete(stage):
     for f in dataclasses.fields(stage.config):
         assert f.kw_only, f"{stage.name}.{f.name} must be keyword-only"
     for need in stage.needs:
-        assert registry.STAGE_NAMES.index(need) < registry.STAGE_NAMES.index(stage.name), "registry order must be a run order"
+        assert registry.STAGE_NAMES.index(need) < registry.STAGE_NAMES.index(stage.name), (
+            "registry order must be a run order"
+        )
 
 
 def test_layers_are_unique_per_stage():

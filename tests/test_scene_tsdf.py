@@ -86,7 +86,9 @@ def test_the_wrapped_collider_is_exactly_flat_over_a_pad_and_still_valid():
     x, y = np.meshgrid(g, g, indexing="ij")
     top = np.column_stack([x.ravel(), y.ravel(), rng.normal(0.0, 0.0007, x.size)])  # a table, noisy as fused depth
     pad = SupportPad("Mug", 0.0, _footprint(0.2 + 0.04 * rng.uniform(-1, 1, (200, 2)), 0.03, 0.004), 0.004)
-    top = np.concatenate([top[cKDTree(pad.xy).query(top[:, :2])[0] > 0.003], np.column_stack([pad.xy, np.zeros(len(pad.xy))])])
+    top = np.concatenate(
+        [top[cKDTree(pad.xy).query(top[:, :2])[0] > 0.003], np.column_stack([pad.xy, np.zeros(len(pad.xy))])]
+    )
     vertices, faces = alpha_wrap(np.concatenate([top - [0, 0, 0.002], top - [0, 0, 0.022]]), 0.03, 0.002)
     inner = _footprint(0.2 + 0.04 * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]), 0.02, 0.004)  # well inside the pad
     probe = np.column_stack([inner, np.full(len(inner), 0.1)])
@@ -103,7 +105,9 @@ def test_the_wrapped_collider_is_exactly_flat_over_a_pad_and_still_valid():
     assert moved > 0 and np.abs(after).max() < 5e-5, (np.ptp(before), np.abs(after).max())
     far = cKDTree(pad.xy).query(vertices[:, :2])[0] > 0.08  # beyond a triangle of the pad
     assert np.array_equal(flat[far], vertices[far])  # nothing outside the pad moves
-    assert (flat[:, 2] < -0.01).sum() == (vertices[:, 2] < -0.01).sum() and np.array_equal(flat[vertices[:, 2] < -0.01], vertices[vertices[:, 2] < -0.01])  # nor the slab's underside
+    assert (flat[:, 2] < -0.01).sum() == (vertices[:, 2] < -0.01).sum() and np.array_equal(
+        flat[vertices[:, 2] < -0.01], vertices[vertices[:, 2] < -0.01]
+    )  # nor the slab's underside
     assert not collider_problems(flat, faces) and not self_intersects(flat, faces)
     assert trimesh.Trimesh(flat, faces, process=False).is_watertight
 
@@ -119,8 +123,14 @@ def test_only_triangles_facing_a_camera_are_textured_and_the_rest_keep_their_ver
     centers = np.array([[0.0, -1.0, 1.0], [1.0, -1.2, 0.8]])  # above, in front (-y), the second right of it (+x)
     facing = faces_facing(slab.vertices, slab.faces, centers)
     normals = slab.face_normals
-    assert facing[normals[:, 2] > 0.9].all() and facing[normals[:, 1] < -0.9].all() and facing[normals[:, 0] > 0.9].all()
-    assert not facing[normals[:, 2] < -0.9].any() and not facing[normals[:, 1] > 0.9].any() and not facing[normals[:, 0] < -0.9].any()
+    assert (
+        facing[normals[:, 2] > 0.9].all() and facing[normals[:, 1] < -0.9].all() and facing[normals[:, 0] > 0.9].all()
+    )
+    assert (
+        not facing[normals[:, 2] < -0.9].any()
+        and not facing[normals[:, 1] > 0.9].any()
+        and not facing[normals[:, 0] < -0.9].any()
+    )
     v, f = submesh(slab.vertices, slab.faces, facing)
     assert len(f) == facing.sum() and f.max() == len(v) - 1
     assert np.allclose(v[f], slab.vertices[slab.faces[facing]])

@@ -24,7 +24,12 @@ def test_registry_knows_every_api(name):
 def test_prior_schema_fields():
     """The physics prior carries source and uncertainty fields (the issue's minimum)."""
     props = Usd.SchemaRegistry().FindAppliedAPIPrimDefinition(schema.PHYSICS_PRIOR_API).GetPropertyNames()
-    for name in ("rose:prior:source", "rose:prior:massUncertainty", "rose:prior:frictionUncertainty", "rose:prior:densityRange"):
+    for name in (
+        "rose:prior:source",
+        "rose:prior:massUncertainty",
+        "rose:prior:frictionUncertainty",
+        "rose:prior:densityRange",
+    ):
         assert name in props
 
 
@@ -32,7 +37,9 @@ def test_generated_files_are_current(tmp_path):
     """generatedSchema.usda and plugInfo.json equal what usdGenSchema makes from schema.usda now."""
     schema.regenerate(tmp_path)
     for name in ("generatedSchema.usda", "plugInfo.json"):
-        assert filecmp.cmp(tmp_path / name, schema.schema_dir() / name, shallow=False), f"{name} is stale: python -m rose_usd.usd.schema --regenerate"
+        assert filecmp.cmp(tmp_path / name, schema.schema_dir() / name, shallow=False), (
+            f"{name} is stale: python -m rose_usd.usd.schema --regenerate"
+        )
 
 
 def test_stage_using_every_api_validates():

@@ -34,7 +34,9 @@ def test_rotation_angle_and_axis():
     assert se3.rotation_angle_deg(r) == pytest.approx(37.0)
 
 
-@pytest.mark.parametrize("a,b", [([1, 0, 0], [0, 1, 0]), ([0, 0, 1], [0, 0, -1]), ([1, 1, 0], [1, 1, 0]), ([0.3, -2, 1], [-1, 0.5, 0.2])])
+@pytest.mark.parametrize(
+    "a,b", [([1, 0, 0], [0, 1, 0]), ([0, 0, 1], [0, 0, -1]), ([1, 1, 0], [1, 1, 0]), ([0.3, -2, 1], [-1, 0.5, 0.2])]
+)
 def test_rotation_between_maps_a_to_b(a, b):
     """rotation_between(a, b) takes direction a onto direction b, also for opposite directions."""
     r = se3.rotation_between(a, b)

@@ -70,7 +70,9 @@ def test_parse_prompts_box_and_point(sample_case):
 def test_backend_needs_decide_what_runs_first():
     """segment needs capture, except with the flow backend (RGB alone)."""
     assert [s.name for s in registry.closure("segment")] == ["capture", "segment"]
-    assert [s.name for s in registry.closure("segment", lambda s: "flow" if s.name == "segment" else "rgbd")] == ["segment"]
+    assert [s.name for s in registry.closure("segment", lambda s: "flow" if s.name == "segment" else "rgbd")] == [
+        "segment"
+    ]
 
 
 def test_static_scene_declares_no_objects(tmp_path, case_copy):

@@ -25,7 +25,9 @@ N = 48
 
 
 def _rgbd(force: bool = False, **settings) -> Options:
-    return Options(backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf"}, force=force, settings=settings)
+    return Options(
+        backends={"capture": "rgbd", "segment": "classical", "scene": "tsdf"}, force=force, settings=settings
+    )
 
 
 def _sam2(**segment) -> Options:
@@ -114,8 +116,13 @@ def test_sam2_import_round_trip_paletted_and_per_object(tmp_path, case_copy, sam
     out = tmp_path / "paletted"
     Pipeline(case_copy, out, _sam2(sam2_ids="Box=3", sam2_interactor_id=5)).run("segment")
     for t in (0, 20, 47):
-        assert np.array_equal(read_mask(out / "masks" / "Box" / f"{t:06d}.png"), read_mask(gt.mask_dir("Box") / f"{t:06d}.png"))
-        assert np.array_equal(read_mask(out / "masks" / "Interactor" / f"{t:06d}.png"), read_mask(gt.mask_dir("interactor") / f"{t:06d}.png"))
+        assert np.array_equal(
+            read_mask(out / "masks" / "Box" / f"{t:06d}.png"), read_mask(gt.mask_dir("Box") / f"{t:06d}.png")
+        )
+        assert np.array_equal(
+            read_mask(out / "masks" / "Interactor" / f"{t:06d}.png"),
+            read_mask(gt.mask_dir("interactor") / f"{t:06d}.png"),
+        )
     # per-object folders <obj_id>/<frame>.png, default ids (1 = first object of rose.toml)
     shutil.rmtree(folder)
     for t in range(N):
@@ -124,7 +131,9 @@ def test_sam2_import_round_trip_paletted_and_per_object(tmp_path, case_copy, sam
         Image.fromarray((m * 255).astype(np.uint8)).save(folder / "1" / f"{t:05d}.png")
     out2 = tmp_path / "folders"
     Pipeline(case_copy, out2, _sam2()).run("segment")
-    assert np.array_equal(read_mask(out2 / "masks" / "Box" / "000030.png"), read_mask(gt.mask_dir("Box") / "000030.png"))
+    assert np.array_equal(
+        read_mask(out2 / "masks" / "Box" / "000030.png"), read_mask(gt.mask_dir("Box") / "000030.png")
+    )
     assert read_provenance(layer_file(out2, "masks"))["results"]["interactor"] == "static-world residual"
 
 
@@ -149,7 +158,9 @@ def test_sam2_masks_of_another_size_fail_before_writing(tmp_path, case_copy):
 def test_bad_prompts_are_one_line_errors(tmp_path, case_copy, prompt, message):
     """A box outside the image, or one around bare table (the object is never there)."""
     toml = case_copy / "rose.toml"
-    toml.write_text("\n".join(prompt if line.startswith("prompt") else line for line in toml.read_text().splitlines()) + "\n")
+    toml.write_text(
+        "\n".join(prompt if line.startswith("prompt") else line for line in toml.read_text().splitlines()) + "\n"
+    )
     out = tmp_path / "out"
     with pytest.raises(RoseError, match=message) as info:
         Pipeline(case_copy, out, _rgbd()).run("segment")
@@ -189,7 +200,9 @@ def _static_ssim(out, sample_case, frames=(0, 24, 47)) -> float:
         for track in (out / "masks").iterdir():
             moving |= read_mask(track / f"{t:06d}.png").astype(np.uint8)
         exclude = cv2.dilate(moving, np.ones((9, 9), np.uint8)).astype(bool)
-        rendered = renderer.scene.render_srgb8(camera.world_from_cv[t], camera.K[t], case.width, case.height, spp=4, seed=t)
+        rendered = renderer.scene.render_srgb8(
+            camera.world_from_cv[t], camera.K[t], case.width, case.height, spp=4, seed=t
+        )
         scores.append(masked_ssim(case.rgb(t), rendered, exclude)[0])
     return float(np.mean(scores))
 

@@ -11,7 +11,12 @@ from rose_usd.synth.sensor import DepthSensor, axial_sigma_m, sensor_depth
 def two_planes(h=200, w=300, near=1.0, far=3.0):
     depth = np.full((h, w), near, np.float32)
     depth[:, w // 2 :] = far
-    return Surface(depth=depth, labels=np.zeros((h, w), np.uint8), albedo=np.full((h, w, 3), 0.5, np.float32), cos_incidence=np.ones((h, w), np.float32))
+    return Surface(
+        depth=depth,
+        labels=np.zeros((h, w), np.uint8),
+        albedo=np.full((h, w, 3), 0.5, np.float32),
+        cos_incidence=np.ones((h, w), np.float32),
+    )
 
 
 def test_noise_grows_with_depth_like_the_model():

@@ -39,7 +39,9 @@ def _write_truth(case, drop=(), mesh_frame=np.eye(4)):
     cams, objs = gt.camera_poses(), gt.object_poses("Box")
     for t in range(gt.n_frames):
         if t not in drop:
-            foundationpose.write_pose(case / "perception" / "ob_in_cam" / f"{t:06d}.txt", se3.invert(cams[t]) @ objs[t] @ mesh_frame)
+            foundationpose.write_pose(
+                case / "perception" / "ob_in_cam" / f"{t:06d}.txt", se3.invert(cams[t]) @ objs[t] @ mesh_frame
+            )
     return gt.n_frames
 
 

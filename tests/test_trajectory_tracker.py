@@ -106,7 +106,15 @@ def _standing_can():
     eye = np.array([0.45, -0.35, 0.35])
     pts, tri = trimesh.sample.sample_surface_even(can, 4000, seed=2)
     K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
-    return can, Model.from_mesh(can.vertices, can.faces, 3000), eye, se3.look_at(eye, np.array([0.0, 0.0, 0.05])), K, pts, can.face_normals[tri]
+    return (
+        can,
+        Model.from_mesh(can.vertices, can.faces, 3000),
+        eye,
+        se3.look_at(eye, np.array([0.0, 0.0, 0.05])),
+        K,
+        pts,
+        can.face_normals[tri],
+    )
 
 
 def test_a_can_seen_only_by_its_wall_is_set_down_by_its_silhouette():
@@ -127,7 +135,9 @@ def test_a_can_seen_only_by_its_wall_is_set_down_by_its_silhouette():
     assert fit_at(model, pts[wall], floating).fitness > 0.6  # depth alone cannot tell
     fit = settle_along_gravity(model, pts[wall], fit_at(model, pts[wall], floating), score)
     assert abs(fit.motion[2, 3]) < 0.002, fit.motion[2, 3]
-    assert settle_along_gravity(model, pts[wall], fit_at(model, pts[wall], np.eye(4)), score).motion[2, 3] == 0.0  # where it is: left alone
+    assert (
+        settle_along_gravity(model, pts[wall], fit_at(model, pts[wall], np.eye(4)), score).motion[2, 3] == 0.0
+    )  # where it is: left alone
 
 
 def test_a_direction_depth_leaves_free_is_found_and_the_silhouette_fixes_it():
@@ -145,5 +155,14 @@ def test_a_direction_depth_leaves_free_is_found_and_the_silhouette_fixes_it():
     mask = silhouette(can.vertices, can.faces, pose, K, 320, 240)
     ignore = np.zeros_like(mask)
     lifted = fit_at(model, pts[wall], se3.make_pose(np.eye(3), np.array([0.0, 0.0, 0.02])))
-    fit = slide(model, pts[wall], lifted, axis, lambda f: f.fitness + silhouette_iou(model, f.motion, mask, ignore, pose, K), span_m=0.03, step_m=0.004, margin=0.005)
+    fit = slide(
+        model,
+        pts[wall],
+        lifted,
+        axis,
+        lambda f: f.fitness + silhouette_iou(model, f.motion, mask, ignore, pose, K),
+        span_m=0.03,
+        step_m=0.004,
+        margin=0.005,
+    )
     assert abs(fit.motion[2, 3]) < 0.002, fit.motion[2, 3]

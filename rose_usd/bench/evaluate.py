@@ -119,7 +119,9 @@ def _rest_drifts(out_dir, scores: list[ObjectScore]) -> None:
         layer = layer_file(Path(out_dir), name)
         if layer.is_file():
             stage.MuteLayer(str(layer.resolve()))
-    objects = {sc.name: str(paths.object_path(sc.name)) for sc in scores if stage.GetPrimAtPath(paths.object_path(sc.name))}
+    objects = {
+        sc.name: str(paths.object_path(sc.name)) for sc in scores if stage.GetPrimAtPath(paths.object_path(sc.name))
+    }
     for result in simulate_rest(stage, objects):
         next(sc for sc in scores if sc.name == result.name).rest_drift_m = result.max_displacement_m
 
@@ -152,7 +154,9 @@ def _static_pixels(gt: GroundTruth, t: int, stride_px: int = 2) -> tuple[np.ndar
     return depth, mask & sub
 
 
-def _icp_correction(rec_points: np.ndarray, true_surface: metrics.SurfaceDistance, true_points: np.ndarray) -> np.ndarray:
+def _icp_correction(
+    rec_points: np.ndarray, true_surface: metrics.SurfaceDistance, true_points: np.ndarray
+) -> np.ndarray:
     """Rigid world correction C (4, 4) bringing the reconstructed object points onto the true
     surface (point-to-point ICP against dense true samples; identity when they already agree)."""
     from scipy.spatial import cKDTree
@@ -193,7 +197,11 @@ class ObjectRegistration:
     def size_error(self) -> float:
         """The mesh's size against the true one's: the ratio of their surfaces' rms radii (exact,
         ``metrics.surface_rms_radius``) minus 1."""
-        return metrics.surface_rms_radius(self.rec_world0, self.rec_faces) / metrics.surface_rms_radius(self.true_world0, self.true_faces) - 1.0
+        return (
+            metrics.surface_rms_radius(self.rec_world0, self.rec_faces)
+            / metrics.surface_rms_radius(self.true_world0, self.true_faces)
+            - 1.0
+        )
 
     def placed_chamfer(self) -> float:
         """The object Chamfer [m] of the mesh where it was placed at frame 0."""
@@ -201,14 +209,21 @@ class ObjectRegistration:
 
     def shape_chamfer(self) -> float:
         """The shape Chamfer [m]: the Chamfer after ``correction`` (the mesh's shape and size alone)."""
-        return self._chamfer(se3.transform_points(self.correction, self.rec_world0), se3.transform_points(self.correction, self.rec_samples))
+        return self._chamfer(
+            se3.transform_points(self.correction, self.rec_world0),
+            se3.transform_points(self.correction, self.rec_samples),
+        )
 
     def _chamfer(self, rec_vertices: np.ndarray, rec_samples: np.ndarray) -> float:
-        chamfer, _, _ = metrics.chamfer_point_surface(rec_samples, metrics.SurfaceDistance(rec_vertices, self.rec_faces), self.true_samples, self.true_surface)
+        chamfer, _, _ = metrics.chamfer_point_surface(
+            rec_samples, metrics.SurfaceDistance(rec_vertices, self.rec_faces), self.true_samples, self.true_surface
+        )
         return chamfer
 
 
-def register_mesh(rec_world0: np.ndarray, rec_faces: np.ndarray, gt: GroundTruth, name: str, rng: np.random.Generator) -> ObjectRegistration:
+def register_mesh(
+    rec_world0: np.ndarray, rec_faces: np.ndarray, gt: GroundTruth, name: str, rng: np.random.Generator
+) -> ObjectRegistration:
     """The registration of a reconstructed mesh of object ``name`` at frame 0, already in the true
     world, onto the true one."""
     true_mesh = gt.object_mesh(name)
@@ -217,17 +232,23 @@ def register_mesh(rec_world0: np.ndarray, rec_faces: np.ndarray, gt: GroundTruth
     rec_samples = metrics.sample_surface(rec_world0, rec_faces, 50_000, rng)
     true_samples = metrics.sample_surface(true_world0, true_mesh.faces, 50_000, rng)
     correction = _icp_correction(rec_samples[:5000], true_surface, true_samples)
-    return ObjectRegistration(rec_world0, rec_faces, rec_samples, true_world0, true_mesh.faces, true_surface, true_samples, correction)
+    return ObjectRegistration(
+        rec_world0, rec_faces, rec_samples, true_world0, true_mesh.faces, true_surface, true_samples, correction
+    )
 
 
-def register_object(stage: Usd.Stage, gt: GroundTruth, align: np.ndarray, name: str, rng: np.random.Generator) -> ObjectRegistration:
+def register_object(
+    stage: Usd.Stage, gt: GroundTruth, align: np.ndarray, name: str, rng: np.random.Generator
+) -> ObjectRegistration:
     """The registration that the object's Chamfers and its APE's object frame are computed from
     (``align``: the reconstructed world's pose in the true one)."""
     rec_world0, rec_faces = _meshes(stage, paths.object_visual(name), Usd.TimeCode(0))
     return register_mesh(se3.transform_points(align, rec_world0), rec_faces, gt, name, rng)
 
 
-def _mask_ious(true_dir: Path, rec_dir: Path, n: int, *, min_fraction: float | None = None, min_pixels: int = 0) -> float | None:
+def _mask_ious(
+    true_dir: Path, rec_dir: Path, n: int, *, min_fraction: float | None = None, min_pixels: int = 0
+) -> float | None:
     """Mean IoU of reconstructed vs true masks over frames where the true mask is big enough:
     ``min_fraction`` of its 95th-percentile visible area ("more than half visible" for 0.5; the
     true masks hold visible pixels only, so the unoccluded area is estimated this way), or at
@@ -265,7 +286,9 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
     # ---------------------------------------------------------------- scene
     true_parts = [gt.part_mesh(p) for p in gt.parts]
     tv = np.concatenate([m.vertices for m in true_parts])
-    tf = np.concatenate([m.faces + off for m, off in zip(true_parts, np.cumsum([0] + [len(m.vertices) for m in true_parts[:-1]]))])
+    tf = np.concatenate(
+        [m.faces + off for m, off in zip(true_parts, np.cumsum([0] + [len(m.vertices) for m in true_parts[:-1]]))]
+    )
     true_surface = metrics.SurfaceDistance(tv, tf)
     frames = list(range(0, n, max(1, frame_stride)))
     pixels = {t: _static_pixels(gt, t) for t in frames}
@@ -296,7 +319,9 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
         # ghosts: reconstructed surface more than 1.5 cm inside where an object or the hand was
         # at some frame and more than 1.5 cm from the true static scene (the support under an
         # object, wrapped with an offset, and a simulated hand dipping into the table stay out)
-        area = float(np.sum(0.5 * np.linalg.norm(np.cross(rv[rf[:, 1]] - rv[rf[:, 0]], rv[rf[:, 2]] - rv[rf[:, 0]]), axis=1)))
+        area = float(
+            np.sum(0.5 * np.linalg.norm(np.cross(rv[rf[:, 1]] - rv[rf[:, 0]], rv[rf[:, 2]] - rv[rf[:, 0]]), axis=1))
+        )
         movers = [(gt.object_mesh(o.name), gt.object_poses(o.name)) for o in gt.objects]
         if gt.interactor is not None:
             movers.append((gt.mesh(gt.interactor.mesh, gt.interactor.appearance), gt.interactor_poses()))
@@ -383,5 +408,10 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
         objects=scores,
         ssim_mean=ssim,
         gate_passed=passed,
-        interactor_iou=_mask_ious(gt.mask_dir("interactor"), Path(out_dir) / "masks" / "Interactor", n, min_pixels=int(0.005 * gt.width * gt.height)),
+        interactor_iou=_mask_ious(
+            gt.mask_dir("interactor"),
+            Path(out_dir) / "masks" / "Interactor",
+            n,
+            min_pixels=int(0.005 * gt.width * gt.height),
+        ),
     )

@@ -101,7 +101,9 @@ def evaluate_seven_scenes(folder: Path, out_dir: Path, *, backends: dict | None 
     return result
 
 
-def _scene_against_recorded(folder: Path, run_dir: Path, truth: np.ndarray, align: np.ndarray, out_dir: Path, *, every: int = 10) -> dict:
+def _scene_against_recorded(
+    folder: Path, run_dir: Path, truth: np.ndarray, align: np.ndarray, out_dir: Path, *, every: int = 10
+) -> dict:
     """The scene stage's collider, moved into the recorded frame by the camera alignment, against a
     TSDF fusion (same voxel size) of all recorded depth frames with the recorded poses. Per sampled
     frame both surfaces are ray cast through the same pixels and compared as point sets (symmetric
@@ -143,7 +145,9 @@ def _scene_against_recorded(folder: Path, run_dir: Path, truth: np.ndarray, alig
         p_ref = se3.transform_points(truth[t], backproject(u, v, d_ref[v, u], K))
         p_ours = se3.transform_points(truth[t], backproject(u[hit], v[hit], d_ours[v[hit], u[hit]], K))
         per_frame.append(metrics.chamfer_points(p_ours, p_ref))
-    to_ours = metrics.SurfaceDistance(ours_v, col.faces)(ref_pts[rng.choice(len(ref_pts), size=min(len(ref_pts), 200_000), replace=False)])
+    to_ours = metrics.SurfaceDistance(ours_v, col.faces)(
+        ref_pts[rng.choice(len(ref_pts), size=min(len(ref_pts), 200_000), replace=False)]
+    )
     _picture(out_dir, ours, ref, truth[len(truth) // 2], K, case.width, case.height)
     return {
         "scene_collider_problems": problems,
@@ -169,7 +173,10 @@ def _picture(out_dir: Path, ours, ref, world_from_cv: np.ndarray, K: np.ndarray,
     both = (d_ours > 0) & (d_ref > 0)
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.4), dpi=100, layout="constrained")
     hi = float(np.percentile(d_ref[d_ref > 0], 99))
-    for ax, d, title in ((axes[0], d_ref, "fusion with recorded poses"), (axes[1], d_ours, "rose scene collider (aligned)")):
+    for ax, d, title in (
+        (axes[0], d_ref, "fusion with recorded poses"),
+        (axes[1], d_ours, "rose scene collider (aligned)"),
+    ):
         ax.imshow(np.where(d > 0, d, np.nan), vmin=0, vmax=hi, cmap="viridis")
         ax.set_title(f"{title}: depth", fontsize=10)
         ax.axis("off")
@@ -221,7 +228,9 @@ def evaluate_sam2_cups(folder: Path, out_dir: Path, *, prompt: str = CUPS_PROMPT
         '# three identical red cups shuffled by hand\n[[objects]]\nname = "Cup"\ncategory = "cup"\n',
     )
     run_dir = out_dir / "runs" / "out"
-    pipe = Pipeline(case_dir, run_dir, Options(backends={"segment": "flow"}, settings={"segment": {"prompts": prompt}}, force=True))
+    pipe = Pipeline(
+        case_dir, run_dir, Options(backends={"segment": "flow"}, settings={"segment": {"prompts": prompt}}, force=True)
+    )
     t0 = time.perf_counter()
     pipe.run("segment")
     wall = time.perf_counter() - t0
@@ -260,8 +269,19 @@ def _contact_sheet(case, run_dir: Path, n: int, every: int, conf: np.ndarray, pa
         over[read_mask(run_dir / "masks" / "Interactor" / f"{t:06d}.png")] = (40, 80, 255)
         over[read_mask(run_dir / "masks" / "Cup" / f"{t:06d}.png")] = (0, 230, 0)
         tile = cv2.addWeighted(rgb, 0.45, over, 0.55, 0)
-        tile = cv2.resize(tile, (tile_w, int(round(tile_w * rgb.shape[0] / rgb.shape[1]))), interpolation=cv2.INTER_AREA)
-        cv2.putText(tile, f"frame {t}  visible {conf[t]:.2f}", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 0), 1, cv2.LINE_AA)
+        tile = cv2.resize(
+            tile, (tile_w, int(round(tile_w * rgb.shape[0] / rgb.shape[1]))), interpolation=cv2.INTER_AREA
+        )
+        cv2.putText(
+            tile,
+            f"frame {t}  visible {conf[t]:.2f}",
+            (6, 20),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            (255, 255, 0),
+            1,
+            cv2.LINE_AA,
+        )
         tiles.append(tile)
     cols = 4
     while len(tiles) % cols:

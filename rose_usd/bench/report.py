@@ -69,7 +69,9 @@ def _case_metrics(case: dict) -> dict:
         "cam_rpe_r_deg": s.get("camera_rpe_rotation_deg", float("nan")) if s else float("nan"),
         "gravity_deg": s.get("gravity_error_deg", float("nan")) if s else float("nan"),
         "scale_pct": 1e2 * s.get("scale_error", float("nan")) if s else float("nan"),
-        "depth_scale_pct": 1e2 * abs(case["depth_scale_error"]) if case.get("depth_scale_error") is not None else float("nan"),
+        "depth_scale_pct": 1e2 * abs(case["depth_scale_error"])
+        if case.get("depth_scale_error") is not None
+        else float("nan"),
         "peak_mb": case.get("peak_rss_mb", float("nan")),
         **{f"t_{name}": stages.get(name, {}).get("wall_time_s", float("nan")) for name in STAGES},
         "t_total": float(sum(st.get("wall_time_s", 0.0) for st in stages.values())) if stages else float("nan"),
@@ -112,12 +114,22 @@ def build_report(results_dir: Path) -> Path:
         "| Task | Scene Chamfer (mm) | Scene Chamfer, visible (mm) | Object Chamfer (mm) | APE trans (cm) | APE rot (deg) | RPE trans (mm) | RPE rot (deg) |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    keys2 = ("scene_chamfer_mm", "scene_visible_mm", "object_chamfer_mm", "ape_t_cm", "ape_r_deg", "rpe_t_mm", "rpe_r_deg")
+    keys2 = (
+        "scene_chamfer_mm",
+        "scene_visible_mm",
+        "object_chamfer_mm",
+        "ape_t_cm",
+        "ape_r_deg",
+        "rpe_t_mm",
+        "rpe_r_deg",
+    )
     digits2 = (2, 2, 2, 3, 3, 3, 3)
     for t in tasks:
         lines.append(row(t.capitalize(), by_task[t], keys2, digits2))
     lines.append(row("**Mean (ours)**", allm, keys2, digits2))
-    lines.append(f"| Paper (mean, real videos) | – | – | – | {PAPER['ape_translation_cm']} | – | {PAPER['rpe_translation_mm']} | {PAPER['rpe_rotation_deg']} |")
+    lines.append(
+        f"| Paper (mean, real videos) | – | – | – | {PAPER['ape_translation_cm']} | – | {PAPER['rpe_translation_mm']} | {PAPER['rpe_rotation_deg']} |"
+    )
     lines += [
         "",
         "## Table 3: runtime per stage and re-render quality",
@@ -130,7 +142,9 @@ def build_report(results_dir: Path) -> Path:
     for t in tasks:
         lines.append(row(t.capitalize(), by_task[t], keys3, digits3))
     lines.append(row("**Mean (ours)**", allm, keys3, digits3))
-    lines.append("| Paper (real videos) | " + " | ".join("–" for _ in range(len(STAGES) + 2)) + f" | {PAPER['ssim_real']} |")
+    lines.append(
+        "| Paper (real videos) | " + " | ".join("–" for _ in range(len(STAGES) + 2)) + f" | {PAPER['ssim_real']} |"
+    )
     lines += [
         "",
         "## Cameras, gravity, scale",
@@ -163,7 +177,12 @@ def build_report(results_dir: Path) -> Path:
     for case, m in zip(ok_cases, ok_metrics):
         lines.append(row(case["case"], [m], keysm, (3, 3, 3, 1)))
     lines.append(row("**Mean**", ok_metrics, keysm, (3, 3, 3, 1)))
-    object_rows = [(case, o) for case in ok_cases for o in (case.get("score") or {}).get("objects") or [] if np.isfinite(o.get("chamfer_m", float("nan")))]
+    object_rows = [
+        (case, o)
+        for case in ok_cases
+        for o in (case.get("score") or {}).get("objects") or []
+        if np.isfinite(o.get("chamfer_m", float("nan")))
+    ]
     if object_rows:
         lines += [
             "",
@@ -184,7 +203,12 @@ def build_report(results_dir: Path) -> Path:
                 f"| {case['case']} | {o['name']} | {_fmt(1e3 * o['chamfer_m'])} | {_fmt(None if o.get('shape_chamfer_m') is None else 1e3 * o['shape_chamfer_m'])} | {_fmt(None if size is None else 1e2 * size, 2)} | "
                 f"{_fmt(o.get('mass_kg'), 3)} | {_range(o.get('mass_range_kg'))} | {_fmt(o.get('true_mass_kg'), 3)} | {_fmt(None if o.get('rest_drift_m') is None else 1e3 * o['rest_drift_m'], 1)} | {_fmt(t_obj, 1)} |"
             )
-    track_rows = [(case, o) for case in ok_cases for o in (case.get("score") or {}).get("objects") or [] if np.isfinite(o.get("ape_translation_m", float("nan")))]
+    track_rows = [
+        (case, o)
+        for case in ok_cases
+        for o in (case.get("score") or {}).get("objects") or []
+        if np.isfinite(o.get("ape_translation_m", float("nan")))
+    ]
     if track_rows and any("trajectory" in (case.get("stages") or {}) for case in ok_cases):
         lines += [
             "",
@@ -200,7 +224,9 @@ def build_report(results_dir: Path) -> Path:
         ]
         for case, o in track_rows:
             stage = (case.get("stages") or {}).get("trajectory", {})
-            facts = (((case.get("stage_results") or {}).get("trajectory") or {}).get("objects") or {}).get(o["name"], {})
+            facts = (((case.get("stage_results") or {}).get("trajectory") or {}).get("objects") or {}).get(
+                o["name"], {}
+            )
             lines.append(
                 f"| {case['case']} | {o['name']} | {stage.get('backend', '–')} | {_fmt(1e3 * o['ape_translation_m'], 1)} | {_fmt(o['ape_rotation_deg'], 2)} | "
                 f"{_fmt(1e3 * o['rpe_translation_m'], 2)} | {_fmt(o['rpe_rotation_deg'], 2)} | "
@@ -244,7 +270,12 @@ def _plots(results_dir: Path, cases: list[dict], by_task: dict, tasks: list[str]
     plt = pyplot()
     out = results_dir / "plots"
     out.mkdir(exist_ok=True)
-    panels = [("scene_chamfer_mm", "scene Chamfer (mm)"), ("object_chamfer_mm", "object Chamfer (mm)"), ("ape_t_cm", "object APE trans (cm)"), ("ssim", "SSIM")]
+    panels = [
+        ("scene_chamfer_mm", "scene Chamfer (mm)"),
+        ("object_chamfer_mm", "object Chamfer (mm)"),
+        ("ape_t_cm", "object APE trans (cm)"),
+        ("ssim", "SSIM"),
+    ]
     fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.2), dpi=100, layout="constrained")
     colors = plt.get_cmap("tab10")
     for ax, (key, label) in zip(axes, panels):

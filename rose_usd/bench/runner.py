@@ -48,7 +48,11 @@ def ensure_mode(base: Path, spec: CaseSpec, mode: PerceptionMode, prompts: bool 
     out = base.parent / (mode.value + ("" if prompts else "-unprompted"))
     stamp = out / ".mode"
     base_stamp = (base / "gt" / "scene.json").stat().st_mtime_ns
-    if stamp.is_file() and stamp.read_text() == mode_stamp(mode, prompts) and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp:
+    if (
+        stamp.is_file()
+        and stamp.read_text() == mode_stamp(mode, prompts)
+        and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp
+    ):
         return out
     return make_mode_case(base, mode, out, spec.seed, prompts=prompts)
 
@@ -58,7 +62,19 @@ def _flatten(result: dict) -> list[dict]:
     rows = []
     score = result.get("score") or {}
     base = {k: result[k] for k in ("case", "task", "shape", "seed", "mode", "n_frames", "error") if k in result}
-    for key in ("camera_ape_translation_m", "camera_ape_rotation_deg", "camera_rpe_translation_m", "camera_rpe_rotation_deg", "gravity_error_deg", "scale_error", "scene_chamfer_m", "scene_chamfer_visible_m", "scene_ghost_cm2", "ssim_mean", "gate_passed"):
+    for key in (
+        "camera_ape_translation_m",
+        "camera_ape_rotation_deg",
+        "camera_rpe_translation_m",
+        "camera_rpe_rotation_deg",
+        "gravity_error_deg",
+        "scale_error",
+        "scene_chamfer_m",
+        "scene_chamfer_visible_m",
+        "scene_ghost_cm2",
+        "ssim_mean",
+        "gate_passed",
+    ):
         base[key] = score.get(key)
     for name, st in (result.get("stages") or {}).items():
         base[f"time_{name}_s"] = st["wall_time_s"]
@@ -114,17 +130,45 @@ def run_suite(
             shutil.copytree(Path(start_from) / "runs" / spec.name, run_out)
         t0 = time.perf_counter()
         proc = subprocess.run(
-            [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(run_out), "--result", str(result_file), "--backends", json.dumps(backends), "--settings", json.dumps(settings or {})]
+            [
+                sys.executable,
+                "-m",
+                "rose_usd.bench.worker",
+                "--case",
+                str(case),
+                "--out",
+                str(run_out),
+                "--result",
+                str(result_file),
+                "--backends",
+                json.dumps(backends),
+                "--settings",
+                json.dumps(settings or {}),
+            ]
             + (["--until", until] if until else [])
             + (["--reuse"] if earlier is not None else [])
             + (["--rerun", ",".join(rerun)] if rerun else []),
             env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
         )
-        result = json.loads(result_file.read_text()) if result_file.is_file() else {"error": f"worker exited with {proc.returncode} and wrote no result"}
+        result = (
+            json.loads(result_file.read_text())
+            if result_file.is_file()
+            else {"error": f"worker exited with {proc.returncode} and wrote no result"}
+        )
         for name, st in (result.get("stages") or {}).items():
             if st.get("reused"):
                 st["peak_rss_mb"] = ((earlier or {}).get("stages") or {}).get(name, {}).get("peak_rss_mb")
-        result.update(case=spec.name, task=spec.task.value, shape=spec.shape.value, seed=spec.seed, mode=mode.value, n_frames=spec.n_frames, size=[spec.width, spec.height], generate_time_s=round(gen_time, 1), case_wall_time_s=round(time.perf_counter() - t0, 1))
+        result.update(
+            case=spec.name,
+            task=spec.task.value,
+            shape=spec.shape.value,
+            seed=spec.seed,
+            mode=mode.value,
+            n_frames=spec.n_frames,
+            size=[spec.width, spec.height],
+            generate_time_s=round(gen_time, 1),
+            case_wall_time_s=round(time.perf_counter() - t0, 1),
+        )
         if "error" in result:
             say(f"bench: {spec.name} failed: {result['error']}")
         results.append(result)
@@ -135,7 +179,9 @@ def run_suite(
         "settings": settings or {},
         "until": until,
         "prompts": prompts,
-        "started_from": {"folder": str(start_from), "commit": source["commit"], "rerun": list(rerun)} if source else None,
+        "started_from": {"folder": str(start_from), "commit": source["commit"], "rerun": list(rerun)}
+        if source
+        else None,
         "command": command,
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
@@ -153,11 +199,19 @@ def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -
     folder = Path(folder)
     summary_file = folder / "results.json"
     if not summary_file.is_file() or not (folder / "runs").is_dir():
-        raise InputError("no kept benchmark here (results.json and runs/ are needed)", path=folder, hint="pass a folder that `rose-usd bench run` wrote on this machine")
+        raise InputError(
+            "no kept benchmark here (results.json and runs/ are needed)",
+            path=folder,
+            hint="pass a folder that `rose-usd bench run` wrote on this machine",
+        )
     summary = json.loads(summary_file.read_text())
     theirs = (summary["suite"], summary["mode"], summary.get("prompts", True))
     if theirs != (suite, mode.value, prompts):
-        raise InputError(f"its runs are of suite {theirs[0]!r}, mode {theirs[1]!r}, prompts {theirs[2]}, not {suite!r}, {mode.value!r}, {prompts}", path=summary_file, hint="start from a folder of the same suite and mode")
+        raise InputError(
+            f"its runs are of suite {theirs[0]!r}, mode {theirs[1]!r}, prompts {theirs[2]}, not {suite!r}, {mode.value!r}, {prompts}",
+            path=summary_file,
+            hint="start from a folder of the same suite and mode",
+        )
     cases = {c["case"]: c for c in summary["cases"] if "error" not in c and (folder / "runs" / c["case"]).is_dir()}
     return {"commit": summary.get("commit"), "cases": cases}
 
@@ -200,7 +254,9 @@ def rescore(out_dir: Path, *, cases_dir: Path = DEFAULT_CASES) -> dict:
         spec = specs[result["case"]]
         base, _ = ensure_case(spec, Path(cases_dir) / summary["suite"])
         say(f"bench rescore {spec.name}")
-        result["score"] = evaluate(ensure_mode(base, spec, mode, summary.get("prompts", True)), out_dir / "runs" / spec.name).to_json()
+        result["score"] = evaluate(
+            ensure_mode(base, spec, mode, summary.get("prompts", True)), out_dir / "runs" / spec.name
+        ).to_json()
     summary["rescored_by"] = _git_commit()
     _write(summary, out_dir)
     return summary
@@ -228,8 +284,15 @@ def _version(pkg: str) -> str:
 def _git_commit() -> str | None:
     """The checkout's commit, with ``-dirty`` when tracked files have uncommitted changes."""
     try:
-        commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, check=True).stdout.strip()
+        commit = subprocess.run(
+            ["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
         return commit + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return None

@@ -22,7 +22,16 @@ def speed_case(frames: int, width: int, height: int, cases_dir: Path = DEFAULT_C
     return ensure_case(spec, Path(cases_dir) / "speed")
 
 
-def measure(stage: str, backends: dict, *, frames: int = 300, width: int = 640, height: int = 480, out_dir: Path, cases_dir: Path = DEFAULT_CASES) -> dict:
+def measure(
+    stage: str,
+    backends: dict,
+    *,
+    frames: int = 300,
+    width: int = 640,
+    height: int = 480,
+    out_dir: Path,
+    cases_dir: Path = DEFAULT_CASES,
+) -> dict:
     """Run ``stage`` (after its prerequisites, which are not timed) and report its wall time."""
     case, gen_time = speed_case(frames, width, height, cases_dir)
     out_dir = Path(out_dir)
@@ -31,7 +40,21 @@ def measure(stage: str, backends: dict, *, frames: int = 300, width: int = 640, 
     say(f"bench speed: {stage} on {case} ({frames} frames {width}x{height})")
     t0 = time.perf_counter()
     subprocess.run(
-        [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(run_out), "--result", str(result_file), "--backends", json.dumps(backends), "--until", stage],
+        [
+            sys.executable,
+            "-m",
+            "rose_usd.bench.worker",
+            "--case",
+            str(case),
+            "--out",
+            str(run_out),
+            "--result",
+            str(result_file),
+            "--backends",
+            json.dumps(backends),
+            "--until",
+            stage,
+        ],
         env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
         check=False,
     )

@@ -35,7 +35,15 @@ class CaseSpec:
         return f"{self.task.value}-{self.shape.value}-s{self.seed}"
 
     def generate_config(self) -> GenerateConfig:
-        return GenerateConfig(task=self.task, shape=self.shape, seed=self.seed, n_frames=self.n_frames, width=self.width, height=self.height, spp=self.spp)
+        return GenerateConfig(
+            task=self.task,
+            shape=self.shape,
+            seed=self.seed,
+            n_frames=self.n_frames,
+            width=self.width,
+            height=self.height,
+            spp=self.spp,
+        )
 
     def matches(self, generator: dict, n_frames: int, width: int, height: int) -> bool:
         """Whether a generated case's recorded generator settings are this spec's."""
@@ -54,12 +62,17 @@ def _default() -> tuple[CaseSpec, ...]:
     for ti, task in enumerate(TASK_ORDER):
         for k in range(2):
             seed = 100 * (k + 1) + ti
-            specs.append(CaseSpec(task, _SHAPES[task][k], seed, n_frames=150 + (seed * 37) % 61, width=640, height=480, spp=8))
+            specs.append(
+                CaseSpec(task, _SHAPES[task][k], seed, n_frames=150 + (seed * 37) % 61, width=640, height=480, spp=8)
+            )
     return tuple(specs)
 
 
 def _small() -> tuple[CaseSpec, ...]:
-    return tuple(CaseSpec(task, _SHAPES[task][0], 10 + ti, n_frames=24, width=160, height=120, spp=16) for ti, task in enumerate(TASK_ORDER))
+    return tuple(
+        CaseSpec(task, _SHAPES[task][0], 10 + ti, n_frames=24, width=160, height=120, spp=16)
+        for ti, task in enumerate(TASK_ORDER)
+    )
 
 
 SUITES: dict[str, tuple[CaseSpec, ...]] = {"default": _default(), "small": _small()}

@@ -46,7 +46,15 @@ class RssMonitor:
         self._stop.set()
 
 
-def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str | None = None, reuse: bool = False, rerun: tuple[str, ...] = ()) -> dict:
+def run_case(
+    case: Path,
+    out: Path,
+    backends: dict,
+    settings: dict,
+    until: str | None = None,
+    reuse: bool = False,
+    rerun: tuple[str, ...] = (),
+) -> dict:
     """Run the stages into ``out`` and score them. With ``reuse``, a stage whose layer in ``out`` is
     current (same config and inputs) is kept, with the wall time its provenance recorded, unless
     it is in ``rerun`` (its code changed: staleness follows configs and inputs, not code)."""
@@ -61,17 +69,28 @@ def run_case(case: Path, out: Path, backends: dict, settings: dict, until: str |
     for stage_def in registry.closure(until) if until else registry.STAGES:
         if reuse and stage_def.name not in rerun and pipe.is_current(stage_def):
             prov = read_provenance(layer_file(out, stage_def.layer))
-            stages[stage_def.name] = {"backend": prov["backend"], "wall_time_s": prov["wall_time_s"], "peak_rss_mb": None, "reused": True}
+            stages[stage_def.name] = {
+                "backend": prov["backend"],
+                "wall_time_s": prov["wall_time_s"],
+                "peak_rss_mb": None,
+                "reused": True,
+            }
             continue
         monitor.reset()
         outcome = pipe.run_stage(stage_def)
-        stages[stage_def.name] = {"backend": outcome.backend, "wall_time_s": outcome.wall_time_s, "peak_rss_mb": round(monitor.peak_mb(), 1)}
+        stages[stage_def.name] = {
+            "backend": outcome.backend,
+            "wall_time_s": outcome.wall_time_s,
+            "peak_rss_mb": round(monitor.peak_mb(), 1),
+        }
     t0 = time.perf_counter()
     score = evaluate(case, out)
     monitor.stop()
     return {
         "stages": stages,
-        "stage_results": {name: (read_provenance(layer_file(out, registry.get(name).layer)) or {}).get("results") for name in stages},
+        "stage_results": {
+            name: (read_provenance(layer_file(out, registry.get(name).layer)) or {}).get("results") for name in stages
+        },
         "score": score.to_json(),
         "depth_scale_error": _depth_scale_error(case, out),
         "evaluate_time_s": round(time.perf_counter() - t0, 2),
@@ -105,7 +124,15 @@ def main(argv: list[str] | None = None) -> int:
     from rose_usd.errors import RoseError
 
     try:
-        result = run_case(args.case, args.out, json.loads(args.backends), json.loads(args.settings), args.until, args.reuse, tuple(filter(None, args.rerun.split(","))))
+        result = run_case(
+            args.case,
+            args.out,
+            json.loads(args.backends),
+            json.loads(args.settings),
+            args.until,
+            args.reuse,
+            tuple(filter(None, args.rerun.split(","))),
+        )
         code = 0
     except RoseError as exc:
         result = {"error": exc.one_line()}

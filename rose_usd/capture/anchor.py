@@ -22,7 +22,9 @@ def prompt_pixel(prompt: Prompt) -> tuple[float, float]:
     return prompt.point
 
 
-def anchor_from_prompt(prompt: Prompt, depth_m: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray | None:
+def anchor_from_prompt(
+    prompt: Prompt, depth_m: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray
+) -> np.ndarray | None:
     """A 3D point on the prompted object (tracking frame), or None if its depth is invalid."""
     u, v = prompt_pixel(prompt)
     h, w = depth_m.shape
@@ -43,9 +45,13 @@ def anchor_from_prompt(prompt: Prompt, depth_m: np.ndarray, K: np.ndarray, world
     return se3.transform_points(world_from_camera, point[None])[0]
 
 
-def anchor_from_view_center(plane: Plane, K: np.ndarray, width: int, height: int, world_from_camera: np.ndarray) -> np.ndarray:
+def anchor_from_view_center(
+    plane: Plane, K: np.ndarray, width: int, height: int, world_from_camera: np.ndarray
+) -> np.ndarray:
     """Where the first camera's central ray meets the support plane (tracking frame)."""
-    ray = world_from_camera[:3, :3] @ np.array([((width - 1) / 2 - K[0, 2]) / K[0, 0], ((height - 1) / 2 - K[1, 2]) / K[1, 1], 1.0])
+    ray = world_from_camera[:3, :3] @ np.array(
+        [((width - 1) / 2 - K[0, 2]) / K[0, 0], ((height - 1) / 2 - K[1, 2]) / K[1, 1], 1.0]
+    )
     origin = world_from_camera[:3, 3]
     denom = plane.normal @ ray
     if abs(denom) < 1e-6:

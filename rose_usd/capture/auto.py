@@ -9,7 +9,9 @@ from rose_usd.errors import InputError
 def choose(case: Case) -> str:
     if case.has_depth:
         return "rgbd"
-    if any((case.folder / "perception").glob("*_sgd_cvd_hr.npz")) or any((case.folder / "perception").glob("*_droid.npz")):
+    if any((case.folder / "perception").glob("*_sgd_cvd_hr.npz")) or any(
+        (case.folder / "perception").glob("*_droid.npz")
+    ):
         return "megasam"
     if (case.folder / "gt" / "scene.json").is_file():
         return "oracle"

@@ -38,10 +38,14 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
     """A function t -> metric depth (H, W) float32 [m] of frame t (0 = no depth), with a small cache."""
     source = _scale_source(stage)
     if source is None:
-        raise StageError("the world layer has no scale source", path=stage.GetRootLayer().identifier, hint="run the capture stage")
+        raise StageError(
+            "the world layer has no scale source", path=stage.GetRootLayer().identifier, hint="run the capture stage"
+        )
     if source in SENSOR_SOURCES:
         if not case.has_depth:
-            raise StageError(f"capture used {source} depth but the case has no depth/", path=case.folder, hint="re-run capture")
+            raise StageError(
+                f"capture used {source} depth but the case has no depth/", path=case.folder, hint="re-run capture"
+            )
         read = case.depth_m
     else:
         from rose_usd.capture.megasam import find_npz, metric_from_megasam

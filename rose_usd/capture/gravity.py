@@ -54,7 +54,15 @@ def camera_up_prior(world_from_camera: np.ndarray) -> np.ndarray:
     return up / np.linalg.norm(up)
 
 
-def fit_planes(points: np.ndarray, viewpoint: np.ndarray, *, max_planes: int = 6, distance_m: float = 0.01, min_points: int = 500, seed: int = 0) -> list[Plane]:
+def fit_planes(
+    points: np.ndarray,
+    viewpoint: np.ndarray,
+    *,
+    max_planes: int = 6,
+    distance_m: float = 0.01,
+    min_points: int = 500,
+    seed: int = 0,
+) -> list[Plane]:
     """Planes found by repeated RANSAC (Open3D), normals oriented toward ``viewpoint`` (the
     cameras see every surface from its front, so a support plane's normal points up).
 
@@ -131,8 +139,15 @@ def gravity_from_planes(
     right = world_from_camera[:, :3, 0].mean(axis=0)
     right /= np.linalg.norm(right)
     planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
-    planes = [Plane(p.normal, p.offset, p.inliers, float(np.degrees(np.arccos(np.clip(p.normal @ prior, -1, 1))))) for p in planes]
-    candidates = [p for p in planes if abs(p.normal @ right) < np.sin(np.radians(max_roll_deg)) and p.angle_to_prior_deg < max_pitch_deg]
+    planes = [
+        Plane(p.normal, p.offset, p.inliers, float(np.degrees(np.arccos(np.clip(p.normal @ prior, -1, 1)))))
+        for p in planes
+    ]
+    candidates = [
+        p
+        for p in planes
+        if abs(p.normal @ right) < np.sin(np.radians(max_roll_deg)) and p.angle_to_prior_deg < max_pitch_deg
+    ]
     if not candidates:
         raise InputError(
             f"no horizontal support plane among {len(planes)} planes found in the depth",
@@ -166,7 +181,13 @@ def gravity_from_planes(
 
 
 def refine_with_planes(
-    prior: GravityEstimate, points: np.ndarray, world_from_camera: np.ndarray, *, anchor: np.ndarray | None, floor_deg: float, anchor_min_height_m: float = 0.005
+    prior: GravityEstimate,
+    points: np.ndarray,
+    world_from_camera: np.ndarray,
+    *,
+    anchor: np.ndarray | None,
+    floor_deg: float,
+    anchor_min_height_m: float = 0.005,
 ) -> GravityEstimate:
     """Fuse an up estimate (GeoCalib, IMU) with the normal of the support planes that agree with
     it, by inverse-variance weights. The plane's sigma is that of a least-squares normal from its
@@ -177,7 +198,9 @@ def refine_with_planes(
     agree = [p for p in planes if np.degrees(np.arccos(np.clip(p.normal @ prior.up, -1, 1))) < tol]
     if not agree:
         return prior
-    main = plane_under(agree, anchor, max(p.inliers for p in planes), anchor_min_height_m) or max(agree, key=lambda p: p.inliers)
+    main = plane_under(agree, anchor, max(p.inliers for p in planes), anchor_min_height_m) or max(
+        agree, key=lambda p: p.inliers
+    )
     parallel = [p for p in agree if np.degrees(np.arccos(np.clip(p.normal @ main.normal, -1, 1))) < 3.0]
     weights = np.array([p.inliers for p in parallel], dtype=float)
     plane_up = (weights[:, None] * np.array([p.normal for p in parallel])).sum(axis=0)
@@ -195,7 +218,11 @@ def gravity_from_geocalib(path: Path, world_from_camera: np.ndarray) -> GravityE
 
     calib = read_geocalib(path)
     if not 0 <= calib.frame < len(world_from_camera):
-        raise InputError(f"geocalib.json is for frame {calib.frame}, the video has {len(world_from_camera)}", path=path, hint="calibrate a frame of this video")
+        raise InputError(
+            f"geocalib.json is for frame {calib.frame}, the video has {len(world_from_camera)}",
+            path=path,
+            hint="calibrate a frame of this video",
+        )
     up = world_from_camera[calib.frame, :3, :3] @ calib.up_cam
     sigma = np.degrees(max(calib.roll_uncertainty or 0.0, calib.pitch_uncertainty or 0.0)) or 1.0
     return GravityEstimate(up / np.linalg.norm(up), "geocalib", None, [], float(sigma))
@@ -206,27 +233,45 @@ def gravity_from_imu(path: Path, world_from_camera: np.ndarray) -> GravityEstima
     try:
         g = np.atleast_2d(np.loadtxt(path, dtype=float))
     except ValueError as exc:
-        raise InputError(f"not numeric ({exc})", path=path, hint="write gx gy gz per frame, in OpenCV camera axes") from None
+        raise InputError(
+            f"not numeric ({exc})", path=path, hint="write gx gy gz per frame, in OpenCV camera axes"
+        ) from None
     if g.shape[1] != 3 or len(g) not in (1, len(world_from_camera)):
-        raise InputError(f"has shape {g.shape}, expected 1 or {len(world_from_camera)} rows of 3", path=path, hint="write gx gy gz per frame, in OpenCV camera axes")
+        raise InputError(
+            f"has shape {g.shape}, expected 1 or {len(world_from_camera)} rows of 3",
+            path=path,
+            hint="write gx gy gz per frame, in OpenCV camera axes",
+        )
     g = np.broadcast_to(g, (len(world_from_camera), 3))
     norms = np.linalg.norm(g, axis=1)
     if np.any(norms <= 0) or not np.all(np.isfinite(g)):
-        raise InputError("has zero or invalid gravity vectors", path=path, hint="write gx gy gz per frame, in OpenCV camera axes")
+        raise InputError(
+            "has zero or invalid gravity vectors", path=path, hint="write gx gy gz per frame, in OpenCV camera axes"
+        )
     down = np.einsum("nij,nj->ni", world_from_camera[:, :3, :3], g / norms[:, None])
     mean = down.mean(axis=0)
     spread = float(np.degrees(np.arccos(np.clip(down @ (mean / np.linalg.norm(mean)), -1, 1))).std())
     return GravityEstimate(-mean / np.linalg.norm(mean), "imu", None, [], spread)
 
 
-def support_plane_for(up: np.ndarray, points: np.ndarray, world_from_camera: np.ndarray, anchor: np.ndarray | None = None, anchor_min_height_m: float = 0.005) -> Plane:
+def support_plane_for(
+    up: np.ndarray,
+    points: np.ndarray,
+    world_from_camera: np.ndarray,
+    anchor: np.ndarray | None = None,
+    anchor_min_height_m: float = 0.005,
+) -> Plane:
     """The support plane perpendicular to ``up`` among ``points`` (when gravity came from
     elsewhere): the one just below ``anchor``, else the largest."""
     planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
     horizontal = [p for p in planes if np.degrees(np.arccos(np.clip(p.normal @ up, -1, 1))) < 10.0]
     if not horizontal:
-        raise InputError("no support plane perpendicular to gravity in the depth", hint="film the surface the object rests on")
-    main = plane_under(horizontal, anchor, max(p.inliers for p in planes), anchor_min_height_m) or max(horizontal, key=lambda p: p.inliers)
+        raise InputError(
+            "no support plane perpendicular to gravity in the depth", hint="film the surface the object rests on"
+        )
+    main = plane_under(horizontal, anchor, max(p.inliers for p in planes), anchor_min_height_m) or max(
+        horizontal, key=lambda p: p.inliers
+    )
     return Plane(up, float(up @ (main.offset * main.normal)), main.inliers, main.angle_to_prior_deg)
 
 

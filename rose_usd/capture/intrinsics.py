@@ -14,7 +14,9 @@ def guess_K(width: int, height: int, fov_deg: float) -> np.ndarray:
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
-def resolve_K(case: Case, *, imported: np.ndarray | None = None, fov_guess_deg: float = 60.0) -> tuple[np.ndarray, str, str | None]:
+def resolve_K(
+    case: Case, *, imported: np.ndarray | None = None, fov_guess_deg: float = 60.0
+) -> tuple[np.ndarray, str, str | None]:
     """(K, rose:camera:intrinsicsSource token, warning or None), in that order of preference:
     the case's cam_K.txt, the imported tool's K (already in pixels of the case's frames), a guess."""
     if case.K_path is not None:

@@ -30,7 +30,11 @@ def find_npz(folder: Path) -> Path:
         found = sorted((folder / "perception").glob(pattern))
         if found:
             return found[0]
-    raise InputError("no MegaSaM output (perception/*_sgd_cvd_hr.npz)", path=folder / "perception", hint="run MegaSaM and copy its npz there, or choose --backend capture=rgbd")
+    raise InputError(
+        "no MegaSaM output (perception/*_sgd_cvd_hr.npz)",
+        path=folder / "perception",
+        hint="run MegaSaM and copy its npz there, or choose --backend capture=rgbd",
+    )
 
 
 def metric_from_megasam(relative: np.ndarray, alpha: float, beta: float, width: int, height: int) -> np.ndarray:
@@ -41,12 +45,17 @@ def metric_from_megasam(relative: np.ndarray, alpha: float, beta: float, width: 
     return cv2.resize(d, (width, height), interpolation=cv2.INTER_NEAREST)
 
 
-def fit_alpha_beta(relative: np.ndarray, metric: np.ndarray, *, iterations: int = 20) -> tuple[float, float, float, int]:
+def fit_alpha_beta(
+    relative: np.ndarray, metric: np.ndarray, *, iterations: int = 20
+) -> tuple[float, float, float, int]:
     """Robust fit of metric = alpha * relative + beta (Huber IRLS). Returns alpha, beta, the
     median absolute residual [m] and the number of samples."""
     x, y = np.asarray(relative, dtype=float), np.asarray(metric, dtype=float)
     if len(x) < 100:
-        raise InputError(f"only {len(x)} pixels have both MegaSaM and metric depth", hint="check that the absolute depth source covers the frames")
+        raise InputError(
+            f"only {len(x)} pixels have both MegaSaM and metric depth",
+            hint="check that the absolute depth source covers the frames",
+        )
     w = np.ones_like(x)
     alpha, beta = 1.0, 0.0
     for _ in range(iterations):
@@ -86,10 +95,15 @@ def metric_scale(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> t
         alpha, beta, res, _ = fit_alpha_beta(*_samples(out, frames, case.depth_m))
         return alpha, beta, res, "sensor"
     if choice in ("auto", "unidepth") and uni.is_dir():
+
         def unidepth(t: int) -> np.ndarray:
             path = uni / f"{case.frame_name(t)}.npz"
             if not path.is_file():
-                raise InputError(f"UniDepth output for frame {t} is missing", path=path, hint="run UniDepth on every frame (or on none)")
+                raise InputError(
+                    f"UniDepth output for frame {t} is missing",
+                    path=path,
+                    hint="run UniDepth on every frame (or on none)",
+                )
             return read_unidepth(path).depth_m
 
         alpha, beta, res, _ = fit_alpha_beta(*_samples(out, frames, unidepth))
@@ -106,7 +120,14 @@ def metric_scale(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> t
 def _size_prior(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> tuple[float, float, float]:
     """alpha from a known object size: the prompt box's width at the object's MegaSaM depth is
     the object's size in MegaSaM units. A rough scale (no offset); the residual says how rough."""
-    spec = next((o for o in ctx.case.config.objects if o.prompt is not None and o.prompt.box is not None and "size_m" in o.overrides), None)
+    spec = next(
+        (
+            o
+            for o in ctx.case.config.objects
+            if o.prompt is not None and o.prompt.box is not None and "size_m" in o.overrides
+        ),
+        None,
+    )
     if spec is None:
         raise InputError(
             "no absolute depth source: no depth/, no perception/unidepth/, no object with size_m and a prompt box",
@@ -116,7 +137,9 @@ def _size_prior(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> tu
     x0, y0, x1, y1 = spec.prompt.box
     h, w = out.depths.shape[1:]
     sx, sy = w / ctx.case.width, h / ctx.case.height
-    patch = out.depths[spec.prompt.frame][int(y0 * sy) : int(y1 * sy) + 1, int(x0 * sx) : int(x1 * sx) + 1].astype(float)
+    patch = out.depths[spec.prompt.frame][int(y0 * sy) : int(y1 * sy) + 1, int(x0 * sx) : int(x1 * sx) + 1].astype(
+        float
+    )
     z = float(np.median(patch[(patch > 0) & (patch < FAR_CLIP)]))
     extent_px = max(x1 - x0, (y1 - y0) * K_case[0, 0] / K_case[1, 1])
     size_rel = extent_px * z / K_case[0, 0]
@@ -130,11 +153,21 @@ def run(ctx: StageContext) -> None:
     out = read_megasam(path)
     n = case.n_frames
     if len(out.cam_c2w) != n:
-        raise InputError(f"MegaSaM has {len(out.cam_c2w)} frames, the video {n}", path=path, hint="run MegaSaM on every frame of this video")
+        raise InputError(
+            f"MegaSaM has {len(out.cam_c2w)} frames, the video {n}",
+            path=path,
+            hint="run MegaSaM on every frame of this video",
+        )
     h, w = out.depths.shape[1:]
     K_mega = np.asarray(out.intrinsic, dtype=float)
     sx, sy = case.width / w, case.height / h
-    imported = np.array([[K_mega[0, 0] * sx, 0.0, (K_mega[0, 2] + 0.5) * sx - 0.5], [0.0, K_mega[1, 1] * sy, (K_mega[1, 2] + 0.5) * sy - 0.5], [0.0, 0.0, 1.0]])
+    imported = np.array(
+        [
+            [K_mega[0, 0] * sx, 0.0, (K_mega[0, 2] + 0.5) * sx - 0.5],
+            [0.0, K_mega[1, 1] * sy, (K_mega[1, 2] + 0.5) * sy - 0.5],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     K, k_source, warning = resolve_K(case, imported=imported, fov_guess_deg=ctx.config.fov_guess_deg)
     if warning:
         ctx.warn(warning)
@@ -166,5 +199,12 @@ def run(ctx: StageContext) -> None:
         scale_beta=beta,
         scale_residual=0.0 if not np.isfinite(residual) else residual,
     )
-    ctx.record(megasam=str(path.name), alpha=alpha, beta_m=beta, scale_residual_m=residual, scale_source=scale_source, gravity=gravity.source, origin=how)
-
+    ctx.record(
+        megasam=str(path.name),
+        alpha=alpha,
+        beta_m=beta,
+        scale_residual_m=residual,
+        scale_source=scale_source,
+        gravity=gravity.source,
+        origin=how,
+    )

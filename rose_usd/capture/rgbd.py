@@ -29,7 +29,16 @@ from rose_usd.errors import InputError
 from rose_usd.stage_api import StageContext
 
 
-def fused_points(load_depth, frames: list[int], K: np.ndarray, poses: np.ndarray, *, stride_px: int = 4, voxel_m: float = 0.01, depth_max_m: float = 3.0) -> np.ndarray:
+def fused_points(
+    load_depth,
+    frames: list[int],
+    K: np.ndarray,
+    poses: np.ndarray,
+    *,
+    stride_px: int = 4,
+    voxel_m: float = 0.01,
+    depth_max_m: float = 3.0,
+) -> np.ndarray:
     """Back-projected depth of ``frames`` in the tracking frame, voxel-downsampled."""
     import open3d as o3d
 
@@ -45,7 +54,15 @@ def fused_points(load_depth, frames: list[int], K: np.ndarray, poses: np.ndarray
     return np.asarray(cloud.voxel_down_sample(voxel_m).points)
 
 
-def choose_gravity(ctx: StageContext, poses: np.ndarray, points: np.ndarray, anchor: np.ndarray | None, *, plane_floor_deg: float = 0.1, anchor_min_height_m: float = 0.005):
+def choose_gravity(
+    ctx: StageContext,
+    poses: np.ndarray,
+    points: np.ndarray,
+    anchor: np.ndarray | None,
+    *,
+    plane_floor_deg: float = 0.1,
+    anchor_min_height_m: float = 0.005,
+):
     """Gravity by the configured method, and the support plane (the one under ``anchor``, a point
     on the object, when given). ``auto``: the IMU; else GeoCalib fused with the support plane
     (plane sigma at least ``plane_floor_deg``); else the support plane alone."""
@@ -57,21 +74,35 @@ def choose_gravity(ctx: StageContext, poses: np.ndarray, points: np.ndarray, anc
         method = "imu" if imu.is_file() else "geocalib" if geocalib.is_file() else "plane"
     if method == "imu":
         if not imu.is_file():
-            raise InputError("gravity = imu but there is no imu/gravity.txt", path=folder, hint="add it or choose gravity = plane")
+            raise InputError(
+                "gravity = imu but there is no imu/gravity.txt", path=folder, hint="add it or choose gravity = plane"
+            )
         est = gravity_from_imu(imu, poses)
     elif method == "geocalib":
         if not geocalib.is_file():
-            raise InputError("gravity = geocalib but there is no perception/geocalib.json", path=folder, hint="add it or choose gravity = plane")
+            raise InputError(
+                "gravity = geocalib but there is no perception/geocalib.json",
+                path=folder,
+                hint="add it or choose gravity = plane",
+            )
         est = gravity_from_geocalib(geocalib, poses)
         if auto:
-            est = refine_with_planes(est, points, poses, anchor=anchor, floor_deg=plane_floor_deg, anchor_min_height_m=anchor_min_height_m)
+            est = refine_with_planes(
+                est, points, poses, anchor=anchor, floor_deg=plane_floor_deg, anchor_min_height_m=anchor_min_height_m
+            )
     else:
         est = gravity_from_planes(points, poses, anchor=anchor, anchor_min_height_m=anchor_min_height_m)
-    support = est.support if est.support is not None else support_plane_for(est.up, points, poses, anchor, anchor_min_height_m)
+    support = (
+        est.support
+        if est.support is not None
+        else support_plane_for(est.up, points, poses, anchor, anchor_min_height_m)
+    )
     return est, support
 
 
-def locate(ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K: np.ndarray, *, plane_floor_deg: float = 0.1):
+def locate(
+    ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K: np.ndarray, *, plane_floor_deg: float = 0.1
+):
     """Gravity, the support plane and the world frame (tracking -> world), and how the origin was found."""
     case = ctx.case
     prompt = next((o.prompt for o in case.config.objects if o.prompt is not None), None)
@@ -85,7 +116,9 @@ def locate(ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K
         # (a casual video frames the table, while a floor may fill more of the fused points)
         center = Prompt(frame=0, point=(case.width / 2.0, case.height / 2.0))
         look = anchor_from_prompt(center, depth_of(0), K, poses[0])
-        gravity, support = choose_gravity(ctx, poses, points, look, plane_floor_deg=plane_floor_deg, anchor_min_height_m=-0.03)
+        gravity, support = choose_gravity(
+            ctx, poses, points, look, plane_floor_deg=plane_floor_deg, anchor_min_height_m=-0.03
+        )
     how = "prompt"
     if anchor is None:
         anchor = anchor_from_view_center(support, K, case.width, case.height, poses[0])
@@ -94,7 +127,9 @@ def locate(ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K
     return gravity, support, world_from_tracking(gravity.up, support, anchor, poses[0]), how
 
 
-def author_tracked_world(ctx: StageContext, poses: np.ndarray, K: np.ndarray, world_from_track: np.ndarray, gravity, k_source: str, **scale) -> None:
+def author_tracked_world(
+    ctx: StageContext, poses: np.ndarray, K: np.ndarray, world_from_track: np.ndarray, gravity, k_source: str, **scale
+) -> None:
     """Write the world layer from cameras tracked in their own frame (``poses``) and the world
     ``locate`` found; ``scale`` holds author_world's scale_* arguments."""
     author_world(
@@ -112,7 +147,9 @@ def author_tracked_world(ctx: StageContext, poses: np.ndarray, K: np.ndarray, wo
 def run(ctx: StageContext) -> None:
     case = ctx.case
     if not case.has_depth:
-        raise InputError("the rgbd backend needs depth/", path=case.folder, hint="add depth maps or choose --backend capture=megasam")
+        raise InputError(
+            "the rgbd backend needs depth/", path=case.folder, hint="add depth maps or choose --backend capture=megasam"
+        )
     K, k_source, warning = resolve_K(case, fov_guess_deg=ctx.config.fov_guess_deg)
     if warning:
         ctx.warn(warning)
@@ -128,7 +165,9 @@ def run(ctx: StageContext) -> None:
     gravity, support, world_from_track, how = locate(ctx, poses, points, depth_of, K)
     low = int(np.sum(result.fitness < params.min_fitness))
     if low:
-        ctx.warn(f"{low} frame(s) overlap their keyframe poorly (fitness < {params.min_fitness}); their poses are less certain")
+        ctx.warn(
+            f"{low} frame(s) overlap their keyframe poorly (fitness < {params.min_fitness}); their poses are less certain"
+        )
     author_tracked_world(ctx, poses, K, world_from_track, gravity, k_source, scale_source="sensor")
     ctx.record(
         keyframes=len(result.keyframes),

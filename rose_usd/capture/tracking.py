@@ -100,7 +100,9 @@ class RgbdTracker:
             depth = cv2.resize(depth, self.size, interpolation=cv2.INTER_NEAREST)
             rgb = cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
         o3d, o3c = self.o3d, self.o3c
-        return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb))), o3d.t.geometry.Image(o3c.Tensor(depth)))
+        return o3d.t.geometry.RGBDImage(
+            o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb))), o3d.t.geometry.Image(o3c.Tensor(depth))
+        )
 
     def normal_spread(self, image) -> float:
         """Smallest over largest eigenvalue of the scatter of the surface normals seen in ``image``."""
@@ -133,13 +135,31 @@ class RgbdTracker:
         odo = self.o3d.t.pipelines.odometry
         o3c = self.o3c
         res = odo.rgbd_odometry_multi_scale(
-            source, target, self.K, o3c.Tensor(init), 1.0, self.params.depth_max_m, self.criteria, method or odo.Method.Hybrid, self.loss
+            source,
+            target,
+            self.K,
+            o3c.Tensor(init),
+            1.0,
+            self.params.depth_max_m,
+            self.criteria,
+            method or odo.Method.Hybrid,
+            self.loss,
         )
         T = res.transformation.numpy()
-        info = odo.compute_odometry_information_matrix(source.depth, target.depth, self.K, res.transformation, self.params.depth_outlier_m, 1.0, self.params.depth_max_m).numpy()
+        info = odo.compute_odometry_information_matrix(
+            source.depth,
+            target.depth,
+            self.K,
+            res.transformation,
+            self.params.depth_outlier_m,
+            1.0,
+            self.params.depth_max_m,
+        ).numpy()
         return T, float(res.fitness), info
 
-    def track(self, n_frames: int, load: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray | None]]) -> TrackResult:
+    def track(
+        self, n_frames: int, load: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray | None]]
+    ) -> TrackResult:
         """Track ``n_frames`` frames; ``load(t)`` returns (rgb uint8, depth [m], mask of pixels to ignore or None)."""
         p = self.params
         images = {}
@@ -162,7 +182,9 @@ class RgbdTracker:
                 edges.append((current, t, T, info, fit))
                 kf_pose[t] = kf_pose[current] @ T
                 earlier = [k for k in keyframes[:-1] if k != current]
-                links = ([keyframes[0]] if keyframes[0] != current else []) + earlier[::-1][: max(0, p.keyframe_links - 2)]
+                links = ([keyframes[0]] if keyframes[0] != current else []) + earlier[::-1][
+                    : max(0, p.keyframe_links - 2)
+                ]
                 for k in dict.fromkeys(links):
                     guess = se3.invert(kf_pose[k]) @ kf_pose[t]
                     Tk, fk, ik = self._register(image, images[k], guess, methods[k][0])
@@ -174,7 +196,7 @@ class RgbdTracker:
                 rel[t], owner[t] = np.eye(4), t
                 current = t
                 # keep only the images the next links can use
-                keep = {keyframes[0], *keyframes[-p.keyframe_links:]}
+                keep = {keyframes[0], *keyframes[-p.keyframe_links :]}
                 for k in list(images):
                     if k not in keep:
                         del images[k]
@@ -182,7 +204,14 @@ class RgbdTracker:
         poses = np.array([optimized[owner[t]] @ rel[t] for t in range(n_frames)])
         hybrid = sum(1 for k in keyframes if methods[k][0] == self.o3d.t.pipelines.odometry.Method.Hybrid)
         spreads = [m[1] for m in methods.values() if m[1] is not None]
-        return TrackResult(poses, fitness, keyframes, [(a, b, f) for a, b, _, _, f in edges], hybrid, float(np.median(spreads)) if spreads else None)
+        return TrackResult(
+            poses,
+            fitness,
+            keyframes,
+            [(a, b, f) for a, b, _, _, f in edges],
+            hybrid,
+            float(np.median(spreads)) if spreads else None,
+        )
 
     def _optimize(self, keyframes: list[int], kf_pose: dict, edges: list) -> dict[int, np.ndarray]:
         reg = self.o3d.pipelines.registration
@@ -196,6 +225,10 @@ class RgbdTracker:
             # Open3D's edge (source b, target a) holds T_a<-b; consecutive keyframes are certain
             uncertain = index[b] - index[a] > 1
             graph.edges.append(reg.PoseGraphEdge(index[b], index[a], T, info, uncertain=uncertain))
-        option = reg.GlobalOptimizationOption(max_correspondence_distance=self.params.depth_outlier_m, edge_prune_threshold=0.25, reference_node=0)
-        reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(), option)
+        option = reg.GlobalOptimizationOption(
+            max_correspondence_distance=self.params.depth_outlier_m, edge_prune_threshold=0.25, reference_node=0
+        )
+        reg.global_optimization(
+            graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(), option
+        )
         return {k: np.asarray(graph.nodes[index[k]].pose) for k in keyframes}

@@ -1,15 +1,15 @@
 """``rose.toml``: per-case settings (every key optional; command-line flags override it).
 
-    fps = 30
-    [[objects]]
-    name = "Mug"                      # prim name under /World/Objects
-    category = "mug"                  # picks the physics prior
-    prompt = { frame = 0, box = [212, 140, 300, 232] }   # pixels, x0 y0 x1 y1
-    # (no [[objects]]: one object named "Object"; objects = [] instead: a static scene)
-    [backends]
-    capture = "oracle"
-    [capture]                         # per-stage config overrides (fields of that stage's config)
-    ...
+fps = 30
+[[objects]]
+name = "Mug"                      # prim name under /World/Objects
+category = "mug"                  # picks the physics prior
+prompt = { frame = 0, box = [212, 140, 300, 232] }   # pixels, x0 y0 x1 y1
+# (no [[objects]]: one object named "Object"; objects = [] instead: a static scene)
+[backends]
+capture = "oracle"
+[capture]                         # per-stage config overrides (fields of that stage's config)
+...
 """
 
 from __future__ import annotations
@@ -23,7 +23,19 @@ from rose_usd.usd.paths import check_name
 
 CASE_CONFIG_FILE = "rose.toml"
 _TOP_KEYS = {"fps", "objects", "backends"}
-_OBJECT_KEYS = {"name", "category", "prompt", "mass_kg", "density_kg_m3", "friction", "restitution", "hollow", "size_m", "mesh", "mesh_up"}
+_OBJECT_KEYS = {
+    "name",
+    "category",
+    "prompt",
+    "mass_kg",
+    "density_kg_m3",
+    "friction",
+    "restitution",
+    "hollow",
+    "size_m",
+    "mesh",
+    "mesh_up",
+}
 
 
 @dataclass(frozen=True)
@@ -81,7 +93,11 @@ def load_case_config(case_root: Path, stage_names: tuple[str, ...]) -> CaseConfi
             raise ConfigError(f"[[objects]] entry {i} has no name", path=path, hint='write name = "Mug"')
         bad = set(obj) - _OBJECT_KEYS
         if bad:
-            raise ConfigError(f"object {obj['name']!r} has unknown key(s) {sorted(bad)}", path=path, hint=f"allowed: {sorted(_OBJECT_KEYS)}")
+            raise ConfigError(
+                f"object {obj['name']!r} has unknown key(s) {sorted(bad)}",
+                path=path,
+                hint=f"allowed: {sorted(_OBJECT_KEYS)}",
+            )
         try:
             check_name(obj["name"])
         except ConfigError as exc:
@@ -91,11 +107,23 @@ def load_case_config(case_root: Path, stage_names: tuple[str, ...]) -> CaseConfi
             p = obj["prompt"]
             box = tuple(float(v) for v in p["box"]) if "box" in p else None
             point = tuple(float(v) for v in p["point"]) if "point" in p else None
-            if (box is None) == (point is None) or (box is not None and len(box) != 4) or (point is not None and len(point) != 2):
-                raise ConfigError(f"object {obj['name']!r}: prompt needs box = [x0, y0, x1, y1] or point = [x, y]", path=path, hint="give one of them in pixels")
+            if (
+                (box is None) == (point is None)
+                or (box is not None and len(box) != 4)
+                or (point is not None and len(point) != 2)
+            ):
+                raise ConfigError(
+                    f"object {obj['name']!r}: prompt needs box = [x0, y0, x1, y1] or point = [x, y]",
+                    path=path,
+                    hint="give one of them in pixels",
+                )
             prompt = Prompt(frame=int(p.get("frame", 0)), box=box, point=point)
         overrides = {k: obj[k] for k in _OBJECT_KEYS - {"name", "category", "prompt"} if k in obj}
-        objects.append(ObjectSpec(name=obj["name"], category=str(obj.get("category", "generic")), prompt=prompt, overrides=overrides))
+        objects.append(
+            ObjectSpec(
+                name=obj["name"], category=str(obj.get("category", "generic")), prompt=prompt, overrides=overrides
+            )
+        )
     names = [o.name for o in objects]
     if len(set(names)) != len(names):
         raise ConfigError(f"object names repeat: {names}", path=path, hint="give each object a unique name")
@@ -104,7 +132,9 @@ def load_case_config(case_root: Path, stage_names: tuple[str, ...]) -> CaseConfi
         raise ConfigError("[backends] must be a table of stage = backend", path=path, hint='write capture = "oracle"')
     for stage in backends:
         if stage not in stage_names:
-            raise ConfigError(f"[backends] names unknown stage {stage!r}", path=path, hint=f"stages: {list(stage_names)}")
+            raise ConfigError(
+                f"[backends] names unknown stage {stage!r}", path=path, hint=f"stages: {list(stage_names)}"
+            )
     overrides = {name: dict(data[name]) for name in stage_names if name in data}
     return CaseConfig(
         fps=float(fps) if fps is not None else None,

@@ -92,9 +92,15 @@ class GroundTruth:
         try:
             data = json.loads(manifest.read_text())
         except json.JSONDecodeError as exc:
-            raise InputError(f"not valid JSON ({exc})", path=manifest, hint="regenerate the case with rose-usd bench generate") from None
+            raise InputError(
+                f"not valid JSON ({exc})", path=manifest, hint="regenerate the case with rose-usd bench generate"
+            ) from None
         if data.get("version") != GT_VERSION:
-            raise InputError(f"ground-truth version {data.get('version')} is not {GT_VERSION}", path=manifest, hint="regenerate the case")
+            raise InputError(
+                f"ground-truth version {data.get('version')} is not {GT_VERSION}",
+                path=manifest,
+                hint="regenerate the case",
+            )
         self.data = data
         self.fps = float(data["fps"])
         self.width, self.height = int(data["width"]), int(data["height"])
@@ -125,7 +131,9 @@ class GroundTruth:
     def _poses(self, rel: str) -> np.ndarray:
         _, poses = read_tum(self.root / rel)
         if len(poses) != self.n_frames:
-            raise InputError(f"has {len(poses)} poses, expected {self.n_frames}", path=self.root / rel, hint="regenerate the case")
+            raise InputError(
+                f"has {len(poses)} poses, expected {self.n_frames}", path=self.root / rel, hint="regenerate the case"
+            )
         return poses
 
     def camera_poses(self) -> np.ndarray:
@@ -136,7 +144,11 @@ class GroundTruth:
         for obj in self.objects:
             if obj.name == name:
                 return obj
-        raise InputError(f"no object named {name!r} in the ground truth", path=self.root / "scene.json", hint="check the object names in rose.toml")
+        raise InputError(
+            f"no object named {name!r} in the ground truth",
+            path=self.root / "scene.json",
+            hint="check the object names in rose.toml",
+        )
 
     def object_poses(self, name: str) -> np.ndarray:
         """world_from_object per frame, (N, 4, 4)."""

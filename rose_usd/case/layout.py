@@ -30,9 +30,17 @@ def _frame_number(path: Path) -> int | None:
 
 
 def _sorted_frames(folder: Path, suffixes: tuple[str, ...], what: str, infix: str = "") -> list[Path]:
-    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes and not p.name.startswith(".") and infix in p.name]
+    files = [
+        p
+        for p in folder.iterdir()
+        if p.is_file() and p.suffix.lower() in suffixes and not p.name.startswith(".") and infix in p.name
+    ]
     if not files:
-        raise InputError(f"no {what} files ({'/'.join(suffixes)}) in the folder", path=folder, hint=f"put the {what} frames there, one file per frame")
+        raise InputError(
+            f"no {what} files ({'/'.join(suffixes)}) in the folder",
+            path=folder,
+            hint=f"put the {what} frames there, one file per frame",
+        )
     numbers = [_frame_number(p) for p in files]
     if all(n is not None for n in numbers):
         order = sorted(range(len(files)), key=lambda i: (numbers[i], files[i].name))
@@ -65,7 +73,11 @@ class Case:
         self.flat = False
         if self.root.is_file():
             if self.root.suffix.lower() not in VIDEO_SUFFIXES:
-                raise InputError("not a video file or a case folder", path=self.root, hint=f"give a folder or one of {VIDEO_SUFFIXES}")
+                raise InputError(
+                    "not a video file or a case folder",
+                    path=self.root,
+                    hint=f"give a folder or one of {VIDEO_SUFFIXES}",
+                )
             self.video = self.root
             self.folder = self.root.parent
             self.config = CaseConfig()
@@ -101,7 +113,14 @@ class Case:
                         hint="all frames of a case must have one size",
                     )
         self.depth_paths = self._find_depth()
-        self.K_path = next((self.root / n for n in ("cam_K.txt", "camera-intrinsics.txt") if self.root.is_dir() and (self.root / n).is_file()), None)
+        self.K_path = next(
+            (
+                self.root / n
+                for n in ("cam_K.txt", "camera-intrinsics.txt")
+                if self.root.is_dir() and (self.root / n).is_file()
+            ),
+            None,
+        )
         if self.K_path is not None:
             self.K()  # validate now: a bad K fails before anything is written
 
@@ -112,7 +131,11 @@ class Case:
         cap = cv2.VideoCapture(str(self.video))
         ok, frame = cap.read() if cap.isOpened() else (False, None)
         if not ok:
-            raise InputError("cannot decode this video (corrupt or unsupported codec)", path=self.video, hint="re-encode it as H.264 MP4 or extract PNG frames into rgb/")
+            raise InputError(
+                "cannot decode this video (corrupt or unsupported codec)",
+                path=self.video,
+                hint="re-encode it as H.264 MP4 or extract PNG frames into rgb/",
+            )
         self.height, self.width = frame.shape[:2]
         self._video_fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
         count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
@@ -142,7 +165,9 @@ class Case:
                 i += 1
             cap.release()
             if i == 0:
-                raise InputError("the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4")
+                raise InputError(
+                    "the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4"
+                )
             done.write_text(str(i))
         n = int(done.read_text())
         return [cache / f"{i:06d}.png" for i in range(n)]
@@ -172,7 +197,11 @@ class Case:
         """Frame t as 8-bit RGB (H, W, 3)."""
         img = images.read_rgb(self.frames[t])
         if img.shape[1] != self.width or img.shape[0] != self.height:
-            raise InputError(f"frame is {img.shape[1]}x{img.shape[0]}, expected {self.width}x{self.height}", path=self.frames[t], hint="all frames of a case must have one size")
+            raise InputError(
+                f"frame is {img.shape[1]}x{img.shape[0]}, expected {self.width}x{self.height}",
+                path=self.frames[t],
+                hint="all frames of a case must have one size",
+            )
         return img
 
     # ------------------------------------------------------------------ depth
@@ -196,7 +225,11 @@ class Case:
                 )
             for rgb_path, depth_path in zip(self.frame_paths, paths):
                 if _frame_number(rgb_path) != _frame_number(depth_path):
-                    raise InputError(f"depth frame {depth_path.name} pairs with RGB frame {rgb_path.name}", path=depth_path, hint="name depth and RGB files with the same frame numbers")
+                    raise InputError(
+                        f"depth frame {depth_path.name} pairs with RGB frame {rgb_path.name}",
+                        path=depth_path,
+                        hint="name depth and RGB files with the same frame numbers",
+                    )
         return paths
 
     @property
@@ -206,7 +239,11 @@ class Case:
     def depth_m(self, t: int) -> np.ndarray:
         """Metric depth of frame t [m] (H, W), 0 where invalid."""
         if self.depth_paths is None:
-            raise InputError("case has no depth/ folder", path=self.folder, hint="this backend needs depth; add depth/ or choose a monocular backend")
+            raise InputError(
+                "case has no depth/ folder",
+                path=self.folder,
+                hint="this backend needs depth; add depth/ or choose a monocular backend",
+            )
         depth = images.read_depth_m(self.depth_paths[t])
         if depth.shape != (self.height, self.width):
             raise InputError(
@@ -220,11 +257,17 @@ class Case:
     def K(self) -> np.ndarray:
         """The case's 3x3 intrinsics [px] from cam_K.txt, validated against the frame size."""
         if self.K_path is None:
-            raise InputError("case has no cam_K.txt", path=self.folder, hint="write the 3x3 intrinsics (fx 0 cx / 0 fy cy / 0 0 1) to cam_K.txt")
+            raise InputError(
+                "case has no cam_K.txt",
+                path=self.folder,
+                hint="write the 3x3 intrinsics (fx 0 cx / 0 fy cy / 0 0 1) to cam_K.txt",
+            )
         try:
             K = np.loadtxt(self.K_path, dtype=float)
         except ValueError as exc:
-            raise InputError(f"not a numeric 3x3 matrix ({exc})", path=self.K_path, hint="write three rows of three numbers") from None
+            raise InputError(
+                f"not a numeric 3x3 matrix ({exc})", path=self.K_path, hint="write three rows of three numbers"
+            ) from None
         return check_K(K.reshape(3, 3) if K.size == 9 else K, self.width, self.height, path=self.K_path)
 
     # ------------------------------------------------------------------ ground truth
@@ -235,7 +278,11 @@ class Case:
 
         gt = GroundTruth(self.folder / "gt")
         if gt.n_frames != self.n_frames:
-            raise InputError(f"ground truth has {gt.n_frames} frames, the case {self.n_frames}", path=self.folder / "gt" / "scene.json", hint="regenerate the case")
+            raise InputError(
+                f"ground truth has {gt.n_frames} frames, the case {self.n_frames}",
+                path=self.folder / "gt" / "scene.json",
+                hint="regenerate the case",
+            )
         return gt
 
     def input_files(self) -> list[Path]:

@@ -54,7 +54,9 @@ def _about_origin(inertia_com: np.ndarray, mass: float, com: np.ndarray) -> np.n
     return inertia_com + mass * (float(com @ com) * np.eye(3) - np.outer(com, com))
 
 
-def shell_mass_properties(vertices: np.ndarray, faces: np.ndarray, density_kg_m3: float, thickness_m: float) -> MassProperties:
+def shell_mass_properties(
+    vertices: np.ndarray, faces: np.ndarray, density_kg_m3: float, thickness_m: float
+) -> MassProperties:
     """Mass properties of a hollow object: a wall ``thickness_m`` thick inside the closed mesh
     (the solid minus the solid shrunk along the vertex normals by the thickness)."""
     mesh = trimesh.Trimesh(vertices=np.asarray(vertices, dtype=float), faces=np.asarray(faces), process=False)
@@ -68,7 +70,9 @@ def shell_mass_properties(vertices: np.ndarray, faces: np.ndarray, density_kg_m3
         return outer
     mass = outer.mass_kg - inner.mass_kg
     com = (outer.mass_kg * outer.center_of_mass_m - inner.mass_kg * inner.center_of_mass_m) / mass
-    about_origin = _about_origin(outer.inertia_com, outer.mass_kg, outer.center_of_mass_m) - _about_origin(inner.inertia_com, inner.mass_kg, inner.center_of_mass_m)
+    about_origin = _about_origin(outer.inertia_com, outer.mass_kg, outer.center_of_mass_m) - _about_origin(
+        inner.inertia_com, inner.mass_kg, inner.center_of_mass_m
+    )
     inertia = about_origin - mass * (float(com @ com) * np.eye(3) - np.outer(com, com))
     moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
     if np.linalg.det(axes) < 0:

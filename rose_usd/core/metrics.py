@@ -89,7 +89,9 @@ def align_poses(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return se3.make_pose(rot, trans)
 
 
-def umeyama_sim3(source_points: np.ndarray, target_points: np.ndarray, *, with_scale: bool = True) -> tuple[np.ndarray, float]:
+def umeyama_sim3(
+    source_points: np.ndarray, target_points: np.ndarray, *, with_scale: bool = True
+) -> tuple[np.ndarray, float]:
     """Similarity (pose (4, 4), scale) mapping source points onto target points (Umeyama 1991);
     with ``with_scale=False`` the best rigid transform (Kabsch), scale 1."""
     x, y = np.asarray(source_points, dtype=float), np.asarray(target_points, dtype=float)
@@ -144,7 +146,8 @@ class SurfaceDistance:
         self._o3d = o3d
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)), o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32))
+            o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
         )
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
@@ -171,7 +174,9 @@ class SignedDistance(SurfaceDistance):
         return self.scene.compute_signed_distance(pts).numpy().astype(np.float64)
 
 
-def chamfer_point_surface(points_a: np.ndarray, surface_a: SurfaceDistance, points_b: np.ndarray, surface_b: SurfaceDistance) -> tuple[float, float, float]:
+def chamfer_point_surface(
+    points_a: np.ndarray, surface_a: SurfaceDistance, points_b: np.ndarray, surface_b: SurfaceDistance
+) -> tuple[float, float, float]:
     """Symmetric Chamfer between surfaces A and B, from points sampled on each and distances to the
     other surface: (symmetric mean, mean A->B, mean B->A) [m]."""
     ab = float(np.mean(surface_b(points_a))) if len(points_a) else float("nan")

@@ -17,7 +17,9 @@ def backproject(u, v, z, K: np.ndarray) -> np.ndarray:
     return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
 
 
-def masked_world_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, *, erode_px: int = 0) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+def masked_world_points(
+    depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, *, erode_px: int = 0
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """World points (N, 3) of the pixels of ``mask`` (eroded by ``erode_px``) with depth, and
     those pixels' (rows, columns)."""
     if erode_px:
@@ -33,7 +35,9 @@ def project(points_cam: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return K[0, 0] * points_cam[..., 0] / z + K[0, 2], K[1, 1] * points_cam[..., 1] / z + K[1, 2]
 
 
-def pixels_of(points_world: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 0.0):
+def pixels_of(
+    points_world: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 0.0
+):
     """Where world points (N, 3) fall in a camera: (u, v, z), the nearest pixel (integers) and the
     depth along the optical axis; u = v = -1 for points not farther than ``min_z`` or outside the
     ``width`` x ``height`` image."""
@@ -57,7 +61,9 @@ def sample_at(image: np.ndarray, u: np.ndarray, v: np.ndarray, fill=0):
     return out
 
 
-def view_counts(points_world: np.ndarray, views, *, tol_m: float, rel: float = 0.0, window: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def view_counts(
+    points_world: np.ndarray, views, *, tol_m: float, rel: float = 0.0, window: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Free-space evidence for world points (N, 3) from ``views``, an iterable of (depth, K,
     world_from_cv). Returns per point how many views (through, near, observed): observed, the views
     whose depth at its pixel is valid; through, those whose depth lies beyond it by more than
@@ -82,7 +88,17 @@ def view_counts(points_world: np.ndarray, views, *, tol_m: float, rel: float = 0
     return through, near, observed
 
 
-def silhouette(vertices_world: np.ndarray, faces: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, min_z: float = 1e-3, closed: bool = False) -> np.ndarray:
+def silhouette(
+    vertices_world: np.ndarray,
+    faces: np.ndarray,
+    world_from_cv: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    *,
+    min_z: float = 1e-3,
+    closed: bool = False,
+) -> np.ndarray:
     """The mesh's silhouette in a camera: a (height, width) bool image of the pixels whose
     centers some triangle covers. Triangles with a vertex not in front of ``min_z`` are left out
     (an object is never that close to the camera). A ``closed`` mesh (watertight, faces wound

@@ -15,7 +15,14 @@ def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: 
 
     t = np.arange(len(ssim))
     ok = np.isfinite(ssim)
-    np.savetxt(report_dir / "ssim.csv", np.stack([t[ok], ssim[ok]], axis=1), delimiter=",", header="frame,ssim", comments="", fmt=["%d", "%.6f"])
+    np.savetxt(
+        report_dir / "ssim.csv",
+        np.stack([t[ok], ssim[ok]], axis=1),
+        delimiter=",",
+        header="frame,ssim",
+        comments="",
+        fmt=["%d", "%.6f"],
+    )
 
     fig, ax = plt.subplots(figsize=(7, 2.6), dpi=120)
     ax.plot(t[ok], ssim[ok], lw=1.5, label=f"SSIM (mean {np.nanmean(ssim):.3f})")
@@ -31,7 +38,9 @@ def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: 
 
     frames = sorted(samples)
     cmap = plt.get_cmap("viridis").with_extremes(bad="0.6")  # gray: excluded pixels (the interactor)
-    fig, axes = plt.subplots(len(frames), 3, figsize=(10, 2.5 * len(frames)), dpi=100, squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(
+        len(frames), 3, figsize=(10, 2.5 * len(frames)), dpi=100, squeeze=False, layout="constrained"
+    )
     for row, frame in zip(axes, frames):
         original, rendered, ssim_map, exclude = samples[frame]
         shown = np.ma.masked_where(exclude, ssim_map) if exclude is not None else ssim_map

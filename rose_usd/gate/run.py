@@ -39,7 +39,11 @@ def _objects(stage: Usd.Stage) -> dict[str, str]:
     objects = stage.GetPrimAtPath(paths.OBJECTS)
     if not objects:
         return {}
-    return {child.GetName(): str(child.GetPath()) for child in objects.GetChildren() if child.HasAPI(UsdPhysics.RigidBodyAPI)}
+    return {
+        child.GetName(): str(child.GetPath())
+        for child in objects.GetChildren()
+        if child.HasAPI(UsdPhysics.RigidBodyAPI)
+    }
 
 
 def _geometry_check(stage: Usd.Stage) -> list[str]:
@@ -73,7 +77,9 @@ def run(ctx: StageContext) -> None:
     sample_frames = set(np.linspace(0, len(frames) - 1, 4).round().astype(int).tolist())
     for i, t in enumerate(progress(frames, "gate render", total=len(frames))):
         renderer.pose_at(t)
-        rendered = renderer.scene.render_srgb8(camera.world_from_cv[t], camera.K[t], case.width, case.height, spp=cfg.spp, seed=t)
+        rendered = renderer.scene.render_srgb8(
+            camera.world_from_cv[t], camera.K[t], case.width, case.height, spp=cfg.spp, seed=t
+        )
         original = case.rgb(t)
         exclude = _interactor_mask(stage, t, cfg.interactor_dilate_px) if cfg.exclude_interactor else None
         ssim[t], ssim_map = masked_ssim(original, rendered, exclude)
@@ -84,7 +90,9 @@ def run(ctx: StageContext) -> None:
     worst = int(np.nanargmin(ssim))
     if worst not in keep:
         renderer.pose_at(worst)
-        rendered = renderer.scene.render_srgb8(camera.world_from_cv[worst], camera.K[worst], case.width, case.height, spp=cfg.spp, seed=worst)
+        rendered = renderer.scene.render_srgb8(
+            camera.world_from_cv[worst], camera.K[worst], case.width, case.height, spp=cfg.spp, seed=worst
+        )
         exclude = _interactor_mask(stage, worst, cfg.interactor_dilate_px) if cfg.exclude_interactor else None
         keep[worst] = (case.rgb(worst), rendered, masked_ssim(case.rgb(worst), rendered, exclude)[1], exclude)
     ssim_mean = float(np.nanmean(ssim))
@@ -94,7 +102,9 @@ def run(ctx: StageContext) -> None:
     if cfg.physics and objects:
         from rose_usd.sim.rest import simulate_rest
 
-        rest = simulate_rest(stage, objects, duration_s=cfg.physics_duration_s, dt_s=cfg.physics_dt_s, iterations=cfg.physics_iterations)
+        rest = simulate_rest(
+            stage, objects, duration_s=cfg.physics_duration_s, dt_s=cfg.physics_dt_s, iterations=cfg.physics_iterations
+        )
     physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for r in rest)
     geometry_problems = _geometry_check(stage)
 
@@ -135,4 +145,6 @@ def run(ctx: StageContext) -> None:
     }
     (report_dir / "gate.json").write_text(json.dumps(summary, indent=2) + "\n")
     write_report(report_dir, ssim, cfg.ssim_threshold, keep)
-    ctx.record(ssim_mean=round(ssim_mean, 5), passed=passed, physics={r.name: round(r.max_displacement_m, 6) for r in rest})
+    ctx.record(
+        ssim_mean=round(ssim_mean, 5), passed=passed, physics={r.name: round(r.max_displacement_m, 6) for r in rest}
+    )

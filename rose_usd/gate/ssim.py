@@ -9,7 +9,9 @@ _SIGMA = 1.5
 _PAD = 5  # half the 11-pixel window: border pixels have no full window and are left out
 
 
-def masked_ssim(original: np.ndarray, rendered: np.ndarray, exclude: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+def masked_ssim(
+    original: np.ndarray, rendered: np.ndarray, exclude: np.ndarray | None = None
+) -> tuple[float, np.ndarray]:
     """Mean SSIM over non-excluded pixels and the per-pixel SSIM map (H, W).
 
     Args:
@@ -21,7 +23,14 @@ def masked_ssim(original: np.ndarray, rendered: np.ndarray, exclude: np.ndarray 
     if original.shape != rendered.shape:
         raise ValueError(f"masked_ssim: shapes differ {original.shape} vs {rendered.shape}")
     _, full = structural_similarity(
-        original, rendered, channel_axis=2, gaussian_weights=True, sigma=_SIGMA, use_sample_covariance=False, data_range=255, full=True
+        original,
+        rendered,
+        channel_axis=2,
+        gaussian_weights=True,
+        sigma=_SIGMA,
+        use_sample_covariance=False,
+        data_range=255,
+        full=True,
     )
     ssim_map = full.mean(axis=2)
     valid = np.zeros(ssim_map.shape, dtype=bool)

@@ -57,7 +57,9 @@ def read_geocalib(path: str | os.PathLike) -> GeoCalib:
         raise InputError(f"'gravity' {up.tolist()} is not a unit 3-vector", path=path, hint=hint)
     roll, pitch = data["rp"] if "rp" in data else rp_from_up(up)
     if "rp" in data and np.degrees(np.arccos(np.clip(up @ up_from_rp(roll, pitch), -1, 1))) > 0.5:
-        raise InputError("'gravity' and 'rp' disagree (is 'gravity' the UP vector in OpenCV axes?)", path=path, hint=hint)
+        raise InputError(
+            "'gravity' and 'rp' disagree (is 'gravity' the UP vector in OpenCV axes?)", path=path, hint=hint
+        )
     return GeoCalib(
         up_cam=up,
         roll=float(roll),

@@ -18,7 +18,9 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
     """8-bit RGB image (H, W, 3)."""
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
-        raise InputError("cannot read this image (missing, truncated or not an image)", path=path, hint="replace or remove the file")
+        raise InputError(
+            "cannot read this image (missing, truncated or not an image)", path=path, hint="replace or remove the file"
+        )
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
@@ -32,7 +34,9 @@ def read_mask(path: str | os.PathLike) -> np.ndarray:
     """Boolean mask (H, W): nonzero pixels of an 8-bit or paletted PNG."""
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise InputError("cannot read this mask (missing, truncated or not an image)", path=path, hint="replace or remove the file")
+        raise InputError(
+            "cannot read this mask (missing, truncated or not an image)", path=path, hint="replace or remove the file"
+        )
     if img.ndim == 3:
         img = img.max(axis=2)
     return img > 0
@@ -54,7 +58,9 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
         try:
             depth = np.load(path).astype(np.float32)
         except (OSError, ValueError) as exc:
-            raise InputError(f"cannot read this depth array ({exc})", path=path, hint="write float meters with numpy.save") from None
+            raise InputError(
+                f"cannot read this depth array ({exc})", path=path, hint="write float meters with numpy.save"
+            ) from None
     elif suffix == ".exr":
         os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
         depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -66,7 +72,11 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
     else:
         raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if raw is None:
-            raise InputError("cannot read this depth image (missing, truncated or not an image)", path=path, hint="replace or remove the file")
+            raise InputError(
+                "cannot read this depth image (missing, truncated or not an image)",
+                path=path,
+                hint="replace or remove the file",
+            )
         if raw.dtype != np.uint16 or raw.ndim != 2:
             raise InputError(
                 f"depth PNG is {raw.dtype} with {1 if raw.ndim == 2 else raw.shape[2]} channel(s), expected 16-bit single channel in millimeters",
@@ -102,4 +112,6 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
         with Image.open(path) as im:
             return im.size
     except (OSError, UnidentifiedImageError):
-        raise InputError("cannot read this image's header (truncated or not an image)", path=path, hint="replace or remove the file") from None
+        raise InputError(
+            "cannot read this image's header (truncated or not an image)", path=path, hint="replace or remove the file"
+        ) from None

@@ -41,11 +41,17 @@ def read_megasam(path: str | os.PathLike) -> MegaSamOutput:
     out = MegaSamOutput(*(data[k] for k in KEYS))
     n = len(out.cam_c2w)
     if out.images.ndim != 4 or out.images.shape[-1] != 3 or out.images.dtype != np.uint8:
-        raise InputError(f"images are {out.images.dtype} {out.images.shape}, expected uint8 [N,H,W,3]", path=path, hint=hint)
+        raise InputError(
+            f"images are {out.images.dtype} {out.images.shape}, expected uint8 [N,H,W,3]", path=path, hint=hint
+        )
     if out.depths.shape != out.images.shape[:3]:
         raise InputError(f"depths {out.depths.shape} do not match images {out.images.shape[:3]}", path=path, hint=hint)
     if out.intrinsic.shape != (3, 3) or out.cam_c2w.shape != (n, 4, 4) or len(out.images) != n:
-        raise InputError(f"intrinsic {out.intrinsic.shape} / cam_c2w {out.cam_c2w.shape} / {len(out.images)} images disagree", path=path, hint=hint)
+        raise InputError(
+            f"intrinsic {out.intrinsic.shape} / cam_c2w {out.cam_c2w.shape} / {len(out.images)} images disagree",
+            path=path,
+            hint=hint,
+        )
     if not (np.all(np.isfinite(out.cam_c2w)) and np.all(np.isfinite(out.intrinsic))):
         raise InputError("poses or intrinsics contain NaN", path=path, hint=hint)
     return out

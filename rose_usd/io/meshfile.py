@@ -56,7 +56,9 @@ def read_mesh_file(path: str | os.PathLike) -> trimesh.Trimesh:
     try:
         loaded = trimesh.load(str(path), process=False, maintain_order=True)
     except Exception as exc:  # trimesh raises many types for unreadable files
-        raise MeshError(f"cannot read the mesh ({type(exc).__name__}: {exc})", path=path, hint="export it again as OBJ, PLY or GLB") from None
+        raise MeshError(
+            f"cannot read the mesh ({type(exc).__name__}: {exc})", path=path, hint="export it again as OBJ, PLY or GLB"
+        ) from None
     if isinstance(loaded, trimesh.Scene):
         loaded = loaded.to_mesh() if hasattr(loaded, "to_mesh") else loaded.dump(concatenate=True)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:

@@ -39,7 +39,9 @@ def write_id_mask(path: str | os.PathLike, ids: np.ndarray) -> None:
 
 def _frame_index(path: Path) -> int:
     if not re.fullmatch(r"\d+", path.stem):
-        raise InputError("SAM 2 mask names must be integer frame indices", path=path, hint="name masks 00000.png, 00001.png, ...")
+        raise InputError(
+            "SAM 2 mask names must be integer frame indices", path=path, hint="name masks 00000.png, 00001.png, ..."
+        )
     return int(path.stem)
 
 
@@ -69,7 +71,11 @@ def read_object_mask(entries: dict[int, Path], object_id: int) -> np.ndarray:
     if 0 in entries:
         with Image.open(entries[0]) as img:
             if img.mode not in ("P", "L"):
-                raise InputError(f"mask is mode {img.mode}, expected a paletted (P) PNG of object ids", path=entries[0], hint="save SAM 2 masks as DAVIS paletted PNGs")
+                raise InputError(
+                    f"mask is mode {img.mode}, expected a paletted (P) PNG of object ids",
+                    path=entries[0],
+                    hint="save SAM 2 masks as DAVIS paletted PNGs",
+                )
             return np.asarray(img) == object_id
     if object_id not in entries:
         return None

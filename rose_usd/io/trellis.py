@@ -16,12 +16,23 @@ from rose_usd.errors import MeshError
 Y_UP_FROM_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
-def write_trellis_glb(path: str | os.PathLike, vertices_yup: np.ndarray, faces: np.ndarray, uv: np.ndarray, texture_rgb: np.ndarray) -> None:
+def write_trellis_glb(
+    path: str | os.PathLike, vertices_yup: np.ndarray, faces: np.ndarray, uv: np.ndarray, texture_rgb: np.ndarray
+) -> None:
     """Write a textured GLB (vertices already normalized and Y-up)."""
     from PIL import Image
 
-    material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(np.asarray(texture_rgb, dtype=np.uint8)), metallicFactor=0.0, roughnessFactor=1.0)
-    mesh = trimesh.Trimesh(vertices=vertices_yup, faces=faces, visual=trimesh.visual.TextureVisuals(uv=uv, material=material), process=False)
+    material = trimesh.visual.material.PBRMaterial(
+        baseColorTexture=Image.fromarray(np.asarray(texture_rgb, dtype=np.uint8)),
+        metallicFactor=0.0,
+        roughnessFactor=1.0,
+    )
+    mesh = trimesh.Trimesh(
+        vertices=vertices_yup,
+        faces=faces,
+        visual=trimesh.visual.TextureVisuals(uv=uv, material=material),
+        process=False,
+    )
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     mesh.export(path, file_type="glb")
 
@@ -32,11 +43,17 @@ def read_trellis_glb(path: str | os.PathLike) -> trimesh.Trimesh:
     try:
         loaded = trimesh.load(str(path), process=False, maintain_order=True)
     except Exception as exc:  # trimesh raises many types for unreadable files
-        raise MeshError(f"cannot read the GLB ({type(exc).__name__}: {exc})", path=path, hint="export it again from TRELLIS") from None
+        raise MeshError(
+            f"cannot read the GLB ({type(exc).__name__}: {exc})", path=path, hint="export it again from TRELLIS"
+        ) from None
     mesh = loaded.to_mesh() if isinstance(loaded, trimesh.Scene) else loaded
     if len(mesh.faces) == 0:
         raise MeshError("the GLB holds no triangles", path=path, hint="export it again from TRELLIS")
     extent = np.abs(mesh.vertices).max()
     if extent > 0.5 + 1e-3:
-        raise MeshError(f"vertices reach {extent:.3f}, outside TRELLIS's normalized cube [-0.5, 0.5]^3", path=path, hint="import it as a metric mesh instead")
+        raise MeshError(
+            f"vertices reach {extent:.3f}, outside TRELLIS's normalized cube [-0.5, 0.5]^3",
+            path=path,
+            hint="import it as a metric mesh instead",
+        )
     return mesh

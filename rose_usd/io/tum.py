@@ -36,7 +36,9 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         try:
             rows.append([float(f) for f in fields])
         except ValueError:
-            raise InputError(f"line {lineno} is not numeric", path=path, hint="write one pose per line in TUM format") from None
+            raise InputError(
+                f"line {lineno} is not numeric", path=path, hint="write one pose per line in TUM format"
+            ) from None
     if not rows:
         raise InputError("trajectory file has no poses", path=path, hint="write one pose per line in TUM format")
     data = np.asarray(rows)
@@ -56,7 +58,9 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     return data[:, 0].copy(), poses
 
 
-def write_tum(path: str | os.PathLike, timestamps_s: np.ndarray, world_from_sensor: np.ndarray, *, header: str = "") -> None:
+def write_tum(
+    path: str | os.PathLike, timestamps_s: np.ndarray, world_from_sensor: np.ndarray, *, header: str = ""
+) -> None:
     """Write a TUM trajectory (timestamps [s], poses (N, 4, 4) world-from-sensor [m])."""
     timestamps_s = np.asarray(timestamps_s, dtype=float)
     poses = np.asarray(world_from_sensor, dtype=float)

@@ -8,6 +8,10 @@ STAGE = StageDef(
     layer="object",
     needs=("capture", "segment", "scene"),  # objects are rested on the scene's collider
     config=ObjectConfig,
-    backends={"fusion": "rose_usd.object.fusion:run", "imported": "rose_usd.object.imported:run", "oracle": "rose_usd.object.oracle:run"},
+    backends={
+        "fusion": "rose_usd.object.fusion:run",
+        "imported": "rose_usd.object.imported:run",
+        "oracle": "rose_usd.object.oracle:run",
+    },
     summary="object meshes, mass priors, colliders, frame-0 poses -> layers/object.usda",
 )

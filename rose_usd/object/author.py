@@ -126,18 +126,36 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
     looks = paths.object_looks(model.name)
     UsdGeom.Scope.Define(stage, looks)
     visual = author_mesh(stage, paths.object_visual(model.name), model.mesh)
-    look = author_preview_material(stage, looks.AppendChild("Visual"), color=model.mesh.color, use_vertex_color=model.mesh.vertex_colors is not None)
+    look = author_preview_material(
+        stage,
+        looks.AppendChild("Visual"),
+        color=model.mesh.color,
+        use_vertex_color=model.mesh.vertex_colors is not None,
+    )
     bind_material(visual.GetPrim(), look)
-    collision = author_mesh(stage, paths.object_collision(model.name), MeshData(model.mesh.vertices, model.mesh.faces), purpose=UsdGeom.Tokens.guide)
+    collision = author_mesh(
+        stage,
+        paths.object_collision(model.name),
+        MeshData(model.mesh.vertices, model.mesh.faces),
+        purpose=UsdGeom.Tokens.guide,
+    )
     approximation, convexity = collision_approximation(model.mesh, convex_tolerance)
     if approximation is Approximation.CONVEX_DECOMPOSITION:
         cover = decomposition_coverage(model.mesh)
         if cover["collision_coverage"] < 0.98:
-            ctx.warn(f"object {model.name!r}: its convex parts cover only {100 * cover['collision_coverage']:.1f} % of its volume")
+            ctx.warn(
+                f"object {model.name!r}: its convex parts cover only {100 * cover['collision_coverage']:.1f} % of its volume"
+            )
     else:  # the hull covers the mesh
         cover = {"collision_parts": 1, "collision_coverage": 1.0, "collision_volume_ratio": round(1.0 / convexity, 4)}
     make_collider(collision.GetPrim(), approximation)
-    material = author_physics_material(stage, looks.AppendChild("PhysicsMaterial"), friction=phys.friction, restitution=phys.restitution, density=phys.density_kg_m3)
+    material = author_physics_material(
+        stage,
+        looks.AppendChild("PhysicsMaterial"),
+        friction=phys.friction,
+        restitution=phys.restitution,
+        density=phys.density_kg_m3,
+    )
     bind_physics_material(collision.GetPrim(), material)
     return {
         "mass_kg": round(model.mass.mass_kg, 6),
@@ -156,8 +174,12 @@ def author_objects(ctx: StageContext, models: list[ObjectModel], convex_toleranc
     for model in models:
         lift = lifts.get(model.name, 0.0)
         if not np.isfinite(lift):
-            ctx.warn(f"object {model.name!r} is more than 3 cm inside the scene at frame 0: left where it is (check its pose and the scene)")
+            ctx.warn(
+                f"object {model.name!r} is more than 3 cm inside the scene at frame 0: left where it is (check its pose and the scene)"
+            )
         elif lift > 0.01:
             ctx.warn(f"object {model.name!r} was {1e3 * lift:.0f} mm inside the scene at frame 0: lifted onto it")
-        facts[model.name] = author_object(ctx, model, convex_tolerance) | {"settle_lift_m": None if not np.isfinite(lift) else round(lift, 5)}
+        facts[model.name] = author_object(ctx, model, convex_tolerance) | {
+            "settle_lift_m": None if not np.isfinite(lift) else round(lift, 5)
+        }
     return facts

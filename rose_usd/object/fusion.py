@@ -74,7 +74,9 @@ from rose_usd.usd.camera import read_camera
 from rose_usd.usd.geom import MeshData
 
 
-def masked_points(depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int = 1):
+def masked_points(
+    depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int = 1
+):
     """World points and sRGB colors of the mask's pixels with depth (mask eroded by ``erode_px``:
     its border pixels mix the object's depth with what is behind it). Leaving out every pixel at a
     depth discontinuity as well was measured to shrink the object more than it helps."""
@@ -82,7 +84,9 @@ def masked_points(depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.nd
     return pts, rgb[v, u]
 
 
-def rest_frames(ref_frame: int, n: int, sample, tolerance_m: float, *, scale_drift: bool = False) -> list[tuple[int, float]]:
+def rest_frames(
+    ref_frame: int, n: int, sample, tolerance_m: float, *, scale_drift: bool = False
+) -> list[tuple[int, float]]:
     """Frames from ``ref_frame`` on in which the object is still where it was then, each with the
     ratio of its depth there to the reference frame's (1 for a sensor).
 
@@ -136,7 +140,12 @@ def _circle_fit(xy: np.ndarray, *, geometric: bool = False, scale_m: float = 0.0
     if geometric and radius > 0:
         from scipy.optimize import least_squares
 
-        fit = least_squares(lambda q: np.hypot(xy[:, 0] - q[0], xy[:, 1] - q[1]) - q[2], [*center, radius], loss="soft_l1", f_scale=scale_m)
+        fit = least_squares(
+            lambda q: np.hypot(xy[:, 0] - q[0], xy[:, 1] - q[1]) - q[2],
+            [*center, radius],
+            loss="soft_l1",
+            f_scale=scale_m,
+        )
         center, radius = fit.x[:2], float(fit.x[2])
     return center, radius
 
@@ -215,7 +224,9 @@ def _axis_fit(xy: np.ndarray, center: np.ndarray, n_sectors: int) -> tuple[np.nd
     return center, radius
 
 
-def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, toward: np.ndarray | None = None, n_sectors: int = 36):
+def revolution_profile(
+    points: np.ndarray, band_m: float, tolerance: float, *, toward: np.ndarray | None = None, n_sectors: int = 36
+):
     """(axis center (2,), heights, radii) when the points are a solid of revolution about a
     vertical axis, else None.
 
@@ -248,7 +259,9 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, t
         return None
     xy = points[:, :2]
     r, sector = _polar(xy, center, n_sectors)
-    wall_side = (points[:, 2] < ztop - 0.5 * band_m) & _facing_out(xy, toward_xy, center)  # the top face's points are not wall
+    wall_side = (points[:, 2] < ztop - 0.5 * band_m) & _facing_out(
+        xy, toward_xy, center
+    )  # the top face's points are not wall
     z = np.where(wall_side, points[:, 2], np.inf)
     edges = np.arange(0.0, ztop, band_m)
     heights, radii, spread = [], [], []
@@ -272,7 +285,17 @@ def revolution_profile(points: np.ndarray, band_m: float, tolerance: float, *, t
     return center, np.array(heights), np.array(radii)
 
 
-def vessel_cavity(points: np.ndarray, toward: np.ndarray | None, center: np.ndarray, heights: np.ndarray, radii: np.ndarray, top: float, band_m: float, *, step_m: float):
+def vessel_cavity(
+    points: np.ndarray,
+    toward: np.ndarray | None,
+    center: np.ndarray,
+    heights: np.ndarray,
+    radii: np.ndarray,
+    top: float,
+    band_m: float,
+    *,
+    step_m: float,
+):
     """(floor height, heights, inner radii, whether the floor was seen) of the cavity of a solid of
     revolution that is an open vessel (a mug, a bowl), else None.
 
@@ -296,7 +319,13 @@ def vessel_cavity(points: np.ndarray, toward: np.ndarray | None, center: np.ndar
     seen_floor = float(np.median(points[bottom, 2])) if bottom.sum() >= 30 else None
     # the inner wall above the floor (the floor's points near the wall are not wall)
     above_floor = points[:, 2] > (seen_floor + 0.5 * band_m if seen_floor is not None else -np.inf)
-    inner = below_rim & above_floor & ~_facing_out(points[:, :2], toward[:, :2], center) & (pr < outer - 1.5 * step_m) & (pr > 0.6 * outer)
+    inner = (
+        below_rim
+        & above_floor
+        & ~_facing_out(points[:, :2], toward[:, :2], center)
+        & (pr < outer - 1.5 * step_m)
+        & (pr > 0.6 * outer)
+    )
     bands = np.floor(points[inner, 2] / band_m).astype(int)
     if inner.sum() < 60 or len(np.unique(bands)) < 3:
         return None
@@ -318,7 +347,15 @@ def vessel_cavity(points: np.ndarray, toward: np.ndarray | None, center: np.ndar
     return floor, in_heights, in_radii, seen_floor is not None
 
 
-def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, tolerance: float, outline: np.ndarray | None = None, toward: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+def solid_from_points(
+    points: np.ndarray,
+    *,
+    step_m: float,
+    band_m: float,
+    tolerance: float,
+    outline: np.ndarray | None = None,
+    toward: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """The object's solid as a voxel grid built from the seen points and what completes them:
     (occupancy (X, Y, Z) float in [0, 1], grid origin (3,) = the corner of voxel 0, step, how).
     ``outline`` (bool per point, default all): the points a height field's footprint is drawn
@@ -354,7 +391,10 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
         cavity = vessel_cavity(points, toward, center, heights, radii, top_face, band_m, step_m=step_m)
         if cavity is not None:  # open at the top, down to its floor
             floor, in_heights, in_radii, floor_seen = cavity
-            empty = np.minimum(_ramp(np.interp(z, in_heights, in_radii)[None, None, :] - r[..., None], step_m), _ramp(z - floor, step_m)[None, None, :])
+            empty = np.minimum(
+                _ramp(np.interp(z, in_heights, in_radii)[None, None, :] - r[..., None], step_m),
+                _ramp(z - floor, step_m)[None, None, :],
+            )
             solid = np.minimum(solid, 1.0 - empty)
             how = "vessel" if floor_seen else "vessel (floor not seen: as thick as the wall)"
     else:
@@ -367,7 +407,13 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
         height[ids // shape[1], ids % shape[1]] = upper
         # closed with nothing beyond the grid: by default the erosion takes the border as inside,
         # and a seen cell 2 voxels from the grid's edge grew a 4 mm spike to it (a wall's height)
-        foot = cv2.morphologyEx((height > 0).astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        foot = cv2.morphologyEx(
+            (height > 0).astype(np.uint8),
+            cv2.MORPH_CLOSE,
+            np.ones((5, 5), np.uint8),
+            borderType=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
         around = points[:, :2] if outline is None or np.count_nonzero(outline) < 3 else points[outline, :2]
         hull = ConvexHull(around)
         poly = np.round((around[hull.vertices] - lo[:2]) / step_m - 0.5).astype(np.int32)[:, ::-1]
@@ -375,12 +421,16 @@ def solid_from_points(points: np.ndarray, *, step_m: float, band_m: float, toler
         # the walls at the hull's edges, not on the faces of the cells it touches (up to a voxel
         # out): the occupancy ramps across them like a top's, so the cells around the foot join in
         foot = ndimage.binary_dilation(foot.astype(bool), np.ones((3, 3), bool))
-        inside_hull = -np.max(np.einsum("ijk,nk->ijn", np.stack([x, y], axis=-1), hull.equations[:, :2]) + hull.equations[:, 2], axis=-1)
+        inside_hull = -np.max(
+            np.einsum("ijk,nk->ijn", np.stack([x, y], axis=-1), hull.equations[:, :2]) + hull.equations[:, 2], axis=-1
+        )
         # the highest point of a cell is biased up by depth noise: take the median of its neighbors'
         seen = height > 0
         with warnings.catch_warnings():  # cells with no seen neighbor: NaN, left as they are
             warnings.simplefilter("ignore", RuntimeWarning)
-            smooth = ndimage.generic_filter(np.where(seen, height, np.nan), np.nanmedian, size=5, mode="constant", cval=np.nan)
+            smooth = ndimage.generic_filter(
+                np.where(seen, height, np.nan), np.nanmedian, size=5, mode="constant", cval=np.nan
+            )
         height = np.where(seen & np.isfinite(smooth), smooth, height)
         if np.any(foot & (height <= 0)):  # cells never seen from above: the nearest seen cell's height
             seen_idx = np.argwhere(height > 0)
@@ -414,7 +464,9 @@ def _large_parts(idx: np.ndarray, shape: tuple, *, min_voxels: int) -> np.ndarra
     return (sizes >= min_voxels)[labels] & grid
 
 
-def mesh_from_solid(solid: np.ndarray, lo: np.ndarray, step_m: float, max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
+def mesh_from_solid(
+    solid: np.ndarray, lo: np.ndarray, step_m: float, max_triangles: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Marching cubes of the closed (morphologically) solid at its 0.5 level, smoothed and
     decimated, checked. ``solid``: occupancy (bool, or float in [0, 1] from ``solid_from_points``);
     voxels that closing adds are full, parts other than the largest empty."""
@@ -475,20 +527,36 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
         for t in progress(range(n), f"object {spec.name}: masked depth", total=n):
             mask = read_mask(folder / f"{t:06d}.png")
             if mask.shape != (case.height, case.width):
-                raise InputError(f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {case.width}x{case.height}", path=folder / f"{t:06d}.png", hint="re-run the segment stage")
+                raise InputError(
+                    f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {case.width}x{case.height}",
+                    path=folder / f"{t:06d}.png",
+                    hint="re-run the segment stage",
+                )
             visible[t] = mask.sum()
             masks.append(mask if visible[t] >= 50 else None)
         if not np.any(visible >= 50):
-            raise InputError(f"object {spec.name!r} is never visible (every mask is empty)", path=folder, hint="check its masks (segment stage) or its prompt")
+            raise InputError(
+                f"object {spec.name!r} is never visible (every mask is empty)",
+                path=folder,
+                hint="check its masks (segment stage) or its prompt",
+            )
         clear = np.flatnonzero(visible >= 0.5 * np.percentile(visible[visible >= 50], 90))
 
         def sample(t, masks=masks):
             return None if masks[t] is None else (depth_of(t), masks[t], cameras.K[t], cameras.world_from_cv[t])
 
         touched = first_contact(masks, ctx.out_dir / "masks" / INTERACTOR, depth_of, n)
-        rests = [(t, r) for t, r in rest_frames(int(clear[0]), n, sample, cfg.rest_tolerance_m, scale_drift=drifts) if t < touched]
+        rests = [
+            (t, r)
+            for t, r in rest_frames(int(clear[0]), n, sample, cfg.rest_tolerance_m, scale_drift=drifts)
+            if t < touched
+        ]
         if not rests:
-            raise InputError(f"object {spec.name!r} is never clearly visible", path=folder, hint="check its masks (segment stage) or its prompt")
+            raise InputError(
+                f"object {spec.name!r} is never clearly visible",
+                path=folder,
+                hint="check its masks (segment stage) or its prompt",
+            )
         frames = [t for t, _ in rests]
         typical = float(np.median([r for _, r in rests]))
         carve_at = {rests[i][0] for i in np.unique(np.linspace(0, len(rests) - 1, min(16, len(rests))).astype(int))}
@@ -506,12 +574,18 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
         keep = free_space_carve(pts, views)
         pts, cols, toward, often = pts[keep], cols[keep], toward[keep], often[keep]
         if len(pts) < 200:
-            raise InputError(f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames", path=folder, hint="check its masks and the depth")
+            raise InputError(
+                f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames",
+                path=folder,
+                hint="check its masks and the depth",
+            )
         clouds[spec.name] = RestingCloud(pts, cols, frames, masks, often, toward, ground)
     return clouds
 
 
-def free_space_carve(points: np.ndarray, views: list, *, tolerance_m: float = 0.004, fraction: float = 0.3, min_views: int = 2) -> np.ndarray:
+def free_space_carve(
+    points: np.ndarray, views: list, *, tolerance_m: float = 0.004, fraction: float = 0.3, min_views: int = 2
+) -> np.ndarray:
     """Which points no view sees through (a mask): free-space carving.
 
     A sensor's flying pixels at a silhouette land a few mm off the surface, a few per frame, and
@@ -536,11 +610,15 @@ def decimate(mesh, max_triangles: int, *, check: bool = True):
         return mesh
     # the decimator's default aggression (7) opened a vessel's thin wall (5 mm, 2.5 voxels): every
     # target failed the check and the mugs kept 31-38k triangles; at 3 they decimate closed
-    for target, aggression in itertools.product((max_triangles, int(0.75 * max_triangles), int(0.5 * max_triangles)), (7, 3)):
+    for target, aggression in itertools.product(
+        (max_triangles, int(0.75 * max_triangles), int(0.5 * max_triangles)), (7, 3)
+    ):
         simple = mesh.simplify_quadric_decimation(face_count=target, aggression=aggression)
         # the decimator may leave collapsed (two-vertex) triangles: drop them
         simple = trimesh.Trimesh(simple.vertices, simple.faces[simple.nondegenerate_faces()], process=True)
-        if not check or not (collider_problems(simple.vertices, simple.faces) or self_intersects(simple.vertices, simple.faces)):
+        if not check or not (
+            collider_problems(simple.vertices, simple.faces) or self_intersects(simple.vertices, simple.faces)
+        ):
             return simple
     return mesh
 
@@ -556,12 +634,17 @@ def run(ctx: StageContext) -> None:
     for spec in case.config.objects:
         cloud = clouds[spec.name]
         pts, cols, frames = cloud.points, cloud.colors, cloud.frames
-        support = support_height(pts, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground)
+        support = support_height(
+            pts, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground
+        )
         vertices, faces, how, above = complete(pts, cloud.toward, cloud.often, support, cfg)
         pts, cols = pts[above], cols[above]
         problems = collider_problems(vertices, faces)
         if problems or self_intersects(vertices, faces):
-            raise MeshError(f"object {spec.name!r}: the mesh is {', '.join(problems) or 'self-intersecting'}", hint="try a larger object.voxel_m")
+            raise MeshError(
+                f"object {spec.name!r}: the mesh is {', '.join(problems) or 'self-intersecting'}",
+                hint="try a larger object.voxel_m",
+            )
         # the object frame: world axes at frame 0, origin on its support under its footprint center
         foot = vertices[vertices[:, 2] < support + 0.5 * cfg.voxel_m]
         origin = np.array([*(foot[:, :2].mean(axis=0) if len(foot) else vertices[:, :2].mean(axis=0)), support])
@@ -577,23 +660,36 @@ def run(ctx: StageContext) -> None:
             "completion": how,
             "triangles": int(len(faces)),
         }
-    for name, authored in author_objects(ctx, models, cfg.convex_tolerance).items():  # everything built and checked: now author
+    for name, authored in author_objects(
+        ctx, models, cfg.convex_tolerance
+    ).items():  # everything built and checked: now author
         facts[name] |= authored
     ctx.record(objects=facts)
 
 
-def complete(points: np.ndarray, toward: np.ndarray, often: np.ndarray, support: float, cfg) -> tuple[np.ndarray, np.ndarray, str, np.ndarray]:
+def complete(
+    points: np.ndarray, toward: np.ndarray, often: np.ndarray, support: float, cfg
+) -> tuple[np.ndarray, np.ndarray, str, np.ndarray]:
     """Steps 3 and 4 for one object's cleaned world points standing on ``support``: its closed
     surface (vertices in the world, faces), how it was completed, and which points were used
     (those above the support by ``cfg.support_gap_m``)."""
     above = points[:, 2] > support + cfg.support_gap_m
     lift = np.array([0.0, 0.0, support])
-    solid, lo, step, how = solid_from_points(points[above] - lift, step_m=cfg.voxel_m, band_m=4 * cfg.voxel_m, tolerance=cfg.revolution_tolerance, outline=often[above], toward=toward[above])
+    solid, lo, step, how = solid_from_points(
+        points[above] - lift,
+        step_m=cfg.voxel_m,
+        band_m=4 * cfg.voxel_m,
+        tolerance=cfg.revolution_tolerance,
+        outline=often[above],
+        toward=toward[above],
+    )
     vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
     return vertices + lift, faces, how, above
 
 
-def support_height(points: np.ndarray, others: list[np.ndarray], *, ground: float = 0.0, margin_m: float = 0.01) -> float:
+def support_height(
+    points: np.ndarray, others: list[np.ndarray], *, ground: float = 0.0, margin_m: float = 0.01
+) -> float:
     """What the object stands on: the top of another object under its footprint (a stack), else
     the surface around it (``ground``). Another object's points count when they lie under the
     object's footprint (grown by ``margin_m``) and no higher than its lowest seen point plus ``margin_m``."""
@@ -607,7 +703,9 @@ def support_height(points: np.ndarray, others: list[np.ndarray], *, ground: floa
     return min(best, lowest)
 
 
-def seen_voxels(points: np.ndarray, values: np.ndarray, voxel_m: float, *, keep_fraction: float = 0.1, reach: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def seen_voxels(
+    points: np.ndarray, values: np.ndarray, voxel_m: float, *, keep_fraction: float = 0.1, reach: int = 2
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The points fused over many frames, one per ``voxel_m`` voxel (the mean of its points and of
     their ``values`` (N, k): colors, directions to the camera), and which of them are seen often:
     at least ``keep_fraction`` as often as the most seen voxel within ``reach`` voxels of them.
@@ -631,11 +729,21 @@ def seen_voxels(points: np.ndarray, values: np.ndarray, voxel_m: float, *, keep_
     key = np.floor(points / voxel_m).astype(np.int64)
     lo = key.min(axis=0) - reach
     dims = key.max(axis=0) + reach - lo + 1
-    ids, owner, count = np.unique(((key[:, 0] - lo[0]) * dims[1] + (key[:, 1] - lo[1])) * dims[2] + (key[:, 2] - lo[2]), return_inverse=True, return_counts=True)
+    ids, owner, count = np.unique(
+        ((key[:, 0] - lo[0]) * dims[1] + (key[:, 1] - lo[1])) * dims[2] + (key[:, 2] - lo[2]),
+        return_inverse=True,
+        return_counts=True,
+    )
     owner = owner.ravel()
-    mean = np.column_stack([np.bincount(owner, weights=points[:, a], minlength=len(ids)) for a in range(3)]) / count[:, None]
+    mean = (
+        np.column_stack([np.bincount(owner, weights=points[:, a], minlength=len(ids)) for a in range(3)])
+        / count[:, None]
+    )
     values = np.asarray(values, dtype=float).reshape(len(points), -1)
-    value = np.column_stack([np.bincount(owner, weights=values[:, a], minlength=len(ids)) for a in range(values.shape[1])]) / count[:, None]
+    value = (
+        np.column_stack([np.bincount(owner, weights=values[:, a], minlength=len(ids)) for a in range(values.shape[1])])
+        / count[:, None]
+    )
     # the most seen voxel around each: every offset looked up in the (sorted) voxel ids
     most = count.copy()
     steps = range(-reach, reach + 1)
@@ -648,14 +756,18 @@ def seen_voxels(points: np.ndarray, values: np.ndarray, voxel_m: float, *, keep_
     return mean, value, often
 
 
-def clean_cloud(points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxel_m: float, above_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def clean_cloud(
+    points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxel_m: float, above_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points higher than ``above_m`` (the table is left out), one per voxel (``seen_voxels``),
     outliers and stray clusters dropped. ``toward``: each point's unit direction to its camera.
     Returns (points, sRGB8 colors, mean unit directions to the cameras, often seen)."""
     import open3d as o3d
 
     def inliers(pts: np.ndarray) -> np.ndarray:  # Open3D's statistical outlier test, as indices
-        _, kept = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).remove_statistical_outlier(nb_neighbors=16, std_ratio=2.0)
+        _, kept = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).remove_statistical_outlier(
+            nb_neighbors=16, std_ratio=2.0
+        )
         return np.asarray(kept, dtype=np.int64)
 
     keep = points[:, 2] > above_m
@@ -664,7 +776,9 @@ def clean_cloud(points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxe
     toward = values[:, 3:] / np.maximum(np.linalg.norm(values[:, 3:], axis=1, keepdims=True), 1e-12)
     kept = inliers(pts)
     if len(kept) > 50:  # keep the largest cluster (stray mask pixels on the background)
-        labels = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[kept])).cluster_dbscan(eps=3 * voxel_m, min_points=4))
+        labels = np.asarray(
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[kept])).cluster_dbscan(eps=3 * voxel_m, min_points=4)
+        )
         if labels.max() >= 0:
             kept = kept[labels == np.bincount(labels[labels >= 0]).argmax()]
     pts, cols, toward, often = pts[kept], cols[kept], toward[kept], often[kept]
@@ -688,12 +802,23 @@ def physics_for(spec, vertices: np.ndarray, faces: np.ndarray, ctx: StageContext
     hollow = bool(o.get("hollow", prior.hollow)) and not wall_modeled
     density = float(o.get("density_kg_m3", prior.density_kg_m3))
     thickness = prior.shell_thickness_m if prior.shell_thickness_m > 0 else 0.003
-    props = shell_mass_properties(vertices, faces, density, thickness) if hollow else mass_properties(vertices, faces, density)
+    props = (
+        shell_mass_properties(vertices, faces, density, thickness)
+        if hollow
+        else mass_properties(vertices, faces, density)
+    )
     source = "table"
     mass_sigma = prior.density_sigma_kg_m3 * props.volume_m3
     if "mass_kg" in o:  # the user's mass wins: rescale (the mass distribution keeps its shape)
         k = float(o["mass_kg"]) / props.mass_kg
-        props = type(props)(props.mass_kg * k, props.volume_m3, props.center_of_mass_m, props.inertia_com * k, props.diagonal_inertia * k, props.principal_axes)
+        props = type(props)(
+            props.mass_kg * k,
+            props.volume_m3,
+            props.center_of_mass_m,
+            props.inertia_com * k,
+            props.diagonal_inertia * k,
+            props.principal_axes,
+        )
         density, mass_sigma, source = density * k, 0.0, "user"
     elif "density_kg_m3" in o:
         mass_sigma, source = 0.0, "user"

@@ -65,7 +65,11 @@ def find_mesh(case_root: Path, name: str, override: str | None, n_objects: int) 
     if override is not None:
         path = (case_root / override).resolve()
         if not path.is_file():
-            raise InputError(f"object {name!r}: the mesh named in rose.toml does not exist", path=path, hint="fix mesh = ... (relative to the case folder)")
+            raise InputError(
+                f"object {name!r}: the mesh named in rose.toml does not exist",
+                path=path,
+                hint="fix mesh = ... (relative to the case folder)",
+            )
         return path
     perception = case_root / "perception"
     for suffix in MESH_SUFFIXES:
@@ -122,14 +126,18 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
     mesh.update_faces(mesh.unique_faces())
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) < 4:
-        raise MeshError(f"the mesh has only {len(mesh.faces)} usable triangles", path=path, hint="export the object's surface")
+        raise MeshError(
+            f"the mesh has only {len(mesh.faces)} usable triangles", path=path, hint="export the object's surface"
+        )
     repairs = []
     parts = mesh.split(only_watertight=False)
     if len(parts) > 1:
         areas = np.array([p.area for p in parts])
         keep = areas >= 0.02 * areas.sum()
         if not keep.all():
-            repairs.append(f"dropped {int((~keep).sum())} loose part(s) holding {100 * areas[~keep].sum() / areas.sum():.1f} % of the surface")
+            repairs.append(
+                f"dropped {int((~keep).sum())} loose part(s) holding {100 * areas[~keep].sum() / areas.sum():.1f} % of the surface"
+            )
         if keep.sum() > 1:
             repairs.append(f"{int(keep.sum())} separate parts kept as one rigid body")
         mesh = trimesh.util.concatenate([p for p, k in zip(parts, keep) if k])
@@ -139,7 +147,9 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
         repairs.append(f"filled holes ({holes} open edges)")
     if not mesh.is_winding_consistent or mesh.volume < 0:
         trimesh.repair.fix_normals(mesh)
-    problems = collider_problems(mesh.vertices, mesh.faces) or (["self-intersecting"] if self_intersects(mesh.vertices, mesh.faces) else [])
+    problems = collider_problems(mesh.vertices, mesh.faces) or (
+        ["self-intersecting"] if self_intersects(mesh.vertices, mesh.faces) else []
+    )
     if problems:
         mesh = _remesh(mesh)
         repairs.append(f"the mesh is {', '.join(problems)}: rebuilt from its signed distance at 1/96 of its size")
@@ -155,7 +165,9 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
     if up not in ("y", "z"):
         raise MeshError(f"mesh_up = {up!r}", path=path, hint='write mesh_up = "y" or "z" in its [[objects]] entry')
     axis = np.array([0.0, 1.0, 0.0]) if up == "y" else np.array([0.0, 0.0, 1.0])
-    return ImportedMesh(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64), colors, normalized, axis, repairs)
+    return ImportedMesh(
+        np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64), colors, normalized, axis, repairs
+    )
 
 
 def _fill_holes(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -195,14 +207,20 @@ def _remesh(mesh: trimesh.Trimesh, resolution: int = 96) -> trimesh.Trimesh:
     from skimage.measure import marching_cubes
 
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32))
+    )
     step = float((mesh.bounds[1] - mesh.bounds[0]).max()) / resolution
     # off the grid by an odd fraction: flat faces exactly on grid nodes give zero distances there,
     # and marching cubes then leaves non-manifold edges
     lo = mesh.bounds[0] - (2 - 0.3819) * step
     shape = tuple(np.ceil((mesh.bounds[1] + 2 * step - lo) / step).astype(int) + 1)
     grid = np.stack(np.meshgrid(*[lo[a] + np.arange(shape[a]) * step for a in range(3)], indexing="ij"), axis=-1)
-    sdf = scene.compute_signed_distance(o3d.core.Tensor(grid.reshape(-1, 3).astype(np.float32)), nsamples=3).numpy().reshape(shape)
+    sdf = (
+        scene.compute_signed_distance(o3d.core.Tensor(grid.reshape(-1, 3).astype(np.float32)), nsamples=3)
+        .numpy()
+        .reshape(shape)
+    )
     verts, faces, _, _ = marching_cubes(sdf, 0.0, spacing=(step,) * 3)
     out = trimesh.Trimesh(verts + lo, faces[:, ::-1], process=True)
     if out.volume < 0:
@@ -268,7 +286,9 @@ def level_rotation(vertices: np.ndarray, faces: np.ndarray, *, max_tilt_deg: flo
     i = down[int(np.argmin(dist))]
     n = normals[i]
     foot = com + dist.min() * n  # the center of mass projected onto that plane
-    same = np.flatnonzero((normals @ n > np.cos(np.radians(0.5))) & (np.abs(offsets - offsets[i]) < 1e-4 * np.ptp(vertices, axis=0).max()))
+    same = np.flatnonzero(
+        (normals @ n > np.cos(np.radians(0.5))) & (np.abs(offsets - offsets[i]) < 1e-4 * np.ptp(vertices, axis=0).max())
+    )
     tris = vertices[hull.simplices[same]]
     inside = (trimesh.triangles.points_to_barycentric(tris, np.broadcast_to(foot, (len(same), 3))) >= -1e-9).all(axis=1)
     if not inside.any():
@@ -295,7 +315,18 @@ def resting_bottom(points: np.ndarray, band: float = 0.02) -> float:
     return float(np.median(low))
 
 
-def fit_yaw_xy(model: np.ndarray, tree: cKDTree, observed: np.ndarray, rho: float, support_z: float, yaw: float, xy: np.ndarray, *, bottom: float, iters: int = 25) -> Fit:
+def fit_yaw_xy(
+    model: np.ndarray,
+    tree: cKDTree,
+    observed: np.ndarray,
+    rho: float,
+    support_z: float,
+    yaw: float,
+    xy: np.ndarray,
+    *,
+    bottom: float,
+    iters: int = 25,
+) -> Fit:
     """ICP over yaw and horizontal position of the up-aligned model points (unit scale, scaled
     by ``rho``) standing by height ``bottom`` (``resting_bottom``) on z = ``support_z``, against
     the observed world points. Each observed point pairs with its nearest model point (observed
@@ -358,7 +389,15 @@ class PoseCost:
     converged to yaws 3.5 degrees apart from neighboring starts, Chamfer 2.95-3.47 mm). Together
     they agree from every start to within 0.4 degrees (Chamfer 2.73-2.77 mm)."""
 
-    def __init__(self, vertices_up: np.ndarray, faces: np.ndarray, observed: np.ndarray, support_z: float, views: list[View], depth_weight: float):
+    def __init__(
+        self,
+        vertices_up: np.ndarray,
+        faces: np.ndarray,
+        observed: np.ndarray,
+        support_z: float,
+        views: list[View],
+        depth_weight: float,
+    ):
         rng = np.random.default_rng(0)
         mesh = trimesh.Trimesh(vertices_up, faces, process=False)
         samples, face = trimesh.sample.sample_surface(mesh, 3000, seed=0)
@@ -382,11 +421,24 @@ class PoseCost:
         idx = self.tree.query(local)[1]  # to the nearest sample's plane: the samples are ~5 mm apart on a 12 cm box
         d = np.abs(np.einsum("ij,ij->i", local - self.model[idx], self.normals[idx])) * fit.rho
         fit.rms_m = float(np.sqrt(np.mean(d[d <= np.percentile(d, 90)] ** 2)))
-        fit.iou = silhouette_iou(se3.transform_points(fit.world_from_up_frame(), fit.rho * self.vertices), self.faces, self.views, closed=self.closed)
+        fit.iou = silhouette_iou(
+            se3.transform_points(fit.world_from_up_frame(), fit.rho * self.vertices),
+            self.faces,
+            self.views,
+            closed=self.closed,
+        )
         fit.cost = (1.0 - fit.iou) + self.depth_weight * 1e3 * fit.rms_m
         return fit
 
-    def refine(self, fit: Fit, *, step_rad: float = np.radians(2.0), step_m: float = 0.002, finest: float = 1 / 8, max_evaluations: int = 150) -> Fit:
+    def refine(
+        self,
+        fit: Fit,
+        *,
+        step_rad: float = np.radians(2.0),
+        step_m: float = 0.002,
+        finest: float = 1 / 8,
+        max_evaluations: int = 150,
+    ) -> Fit:
         """Pattern search over yaw and horizontal position from ``fit`` (scored) for the least
         cost: each coordinate stepped both ways, steps halved when none helps, down to
         ``finest`` of the first (0.25 degrees and 0.25 mm by default)."""
@@ -442,10 +494,16 @@ def fit_scale_and_pose(
 
     def best_mode(rho: float) -> Fit:
         found: list[Fit] = []
-        grid = [(yaw, obs_center - rho * (_rot_z(yaw)[:2, :2] @ center_xy)) for yaw in np.radians(np.arange(0, 360, 30))]
+        grid = [
+            (yaw, obs_center - rho * (_rot_z(yaw)[:2, :2] @ center_xy)) for yaw in np.radians(np.arange(0, 360, 30))
+        ]
         for yaw, xy in list(extra_starts) + grid:
             fit = cost.icp(rho, yaw, xy)
-            if all(abs(np.angle(np.exp(1j * (fit.yaw - d.yaw)))) > np.radians(2) or np.linalg.norm(fit.translation - d.translation) > 0.002 for d in found):
+            if all(
+                abs(np.angle(np.exp(1j * (fit.yaw - d.yaw)))) > np.radians(2)
+                or np.linalg.norm(fit.translation - d.translation) > 0.002
+                for d in found
+            ):
                 found.append(fit)  # starts that converged to the same pose are refined once
         return min((cost.refine(f) for f in sorted(found, key=lambda f: f.cost)[:modes]), key=lambda f: f.cost)
 
@@ -456,7 +514,13 @@ def fit_scale_and_pose(
     first = best_mode(rho0)
     if not search:
         return first, [first]
-    coarse = sorted((cost.icp(float(rho), first.yaw, first.translation[:2]) for rho in rho0 * alpha ** np.linspace(-1.0, 1.0, steps)), key=lambda f: f.cost)
+    coarse = sorted(
+        (
+            cost.icp(float(rho), first.yaw, first.translation[:2])
+            for rho in rho0 * alpha ** np.linspace(-1.0, 1.0, steps)
+        ),
+        key=lambda f: f.cost,
+    )
     tried = [first] + [cost.refine(f) for f in coarse[:3]] + coarse[3:]
     best = min(tried, key=lambda f: f.cost)
     if best.rho != rho0:  # a box's modes cost alike at a wrong scale: choose again at this one
@@ -504,12 +568,17 @@ def choose_unit(rho0: float, tolerance: float = 0.25) -> tuple[float | None, str
 def _views(ctx: StageContext, name: str, frames: list[int], masks: list, cameras, count: int = 6) -> list[View]:
     """Up to ``count`` resting frames spread over the rest, with what to leave out of each."""
     picked = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
-    return [View(masks[t], occluders(ctx, name, t, masks[t].shape, grow_px=2), cameras.K[t], cameras.world_from_cv[t]) for t in picked]
+    return [
+        View(masks[t], occluders(ctx, name, t, masks[t].shape, grow_px=2), cameras.K[t], cameras.world_from_cv[t])
+        for t in picked
+    ]
 
 
 def _foundationpose_start(ctx: StageContext, name: str, t: int, cameras, up_rot: np.ndarray):
     """(yaw, xy) of FoundationPose's pose of frame t as an ICP start, or None without one."""
-    path = foundationpose.track_folder(ctx.case.root, name, len(ctx.case.config.objects)) / f"{ctx.case.frame_name(t)}.txt"
+    path = (
+        foundationpose.track_folder(ctx.case.root, name, len(ctx.case.config.objects)) / f"{ctx.case.frame_name(t)}.txt"
+    )
     if path.is_file():
         world_from_mesh = cameras.world_from_cv[t] @ foundationpose.read_pose(path)
         rot = world_from_mesh[:3, :3] @ up_rot.T  # world from the up-aligned frame
@@ -533,7 +602,9 @@ def run(ctx: StageContext) -> None:
     for spec in specs:
         path, imp = meshes[spec.name]
         cloud = clouds[spec.name]
-        support = support_height(cloud.points, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground)
+        support = support_height(
+            cloud.points, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground
+        )
         observed = cloud.points[cloud.points[:, 2] > support + cfg.support_gap_m]
         up_rot = world_from_up(imp.up)
         level = level_rotation(imp.vertices @ up_rot.T, imp.faces)
@@ -545,23 +616,43 @@ def run(ctx: StageContext) -> None:
         if not imp.normalized:
             unit_scale, unit = choose_unit(rho0)
             if unit_scale is None:
-                ctx.warn(f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh")
+                ctx.warn(
+                    f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh"
+                )
                 how = "searched (unknown units)"
             else:
                 if unit != "meters":
-                    ctx.warn(f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} ({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}")
+                    ctx.warn(
+                        f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} ({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}"
+                    )
                 rho0, search, how = unit_scale, False, f"file units ({unit})"
         views = _views(ctx, spec.name, cloud.frames, cloud.masks, cameras)
         fp = _foundationpose_start(ctx, spec.name, cloud.frames[0], cameras, up_rot)
         say(f"object {spec.name}: fitting scale and pose to {len(observed)} points and {len(views)} silhouettes")
-        best, tried = fit_scale_and_pose(vertices_up, imp.faces, observed, support, views, rho0=rho0, alpha=cfg.scale_search_alpha, steps=cfg.scale_search_steps, search=search, depth_weight=cfg.scale_depth_weight, extra_starts=() if fp is None else (fp,))
+        best, tried = fit_scale_and_pose(
+            vertices_up,
+            imp.faces,
+            observed,
+            support,
+            views,
+            rho0=rho0,
+            alpha=cfg.scale_search_alpha,
+            steps=cfg.scale_search_steps,
+            search=search,
+            depth_weight=cfg.scale_depth_weight,
+            extra_starts=() if fp is None else (fp,),
+        )
         if best.iou < 0.5:
-            ctx.warn(f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); check that {path.name} is this object")
+            ctx.warn(
+                f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); check that {path.name} is this object"
+            )
         local = best.rho * imp.vertices
         tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), cfg.max_triangles)
         vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
         colors = transfer_colors(vertices, local, imp.colors) if imp.colors is not None else None
-        mesh = MeshData(vertices=vertices, faces=faces, vertex_colors=colors, color=None if colors is not None else (0.5, 0.5, 0.5))
+        mesh = MeshData(
+            vertices=vertices, faces=faces, vertex_colors=colors, color=None if colors is not None else (0.5, 0.5, 0.5)
+        )
         physics, mass = physics_for(spec, vertices, faces, ctx)
         pose = best.world_from_up_frame() @ se3.make_pose(up_rot, np.zeros(3))
         models.append(ObjectModel(spec.name, mesh, pose, mass, physics))
@@ -573,7 +664,10 @@ def run(ctx: StageContext) -> None:
             "silhouette_iou": round(float(best.iou), 4),
             "icp_rms_m": round(float(best.rms_m), 5),
             "cost": round(float(best.cost), 4),
-            "search": [[round(f.rho, 6), round(f.iou, 4), round(1e3 * f.rms_m, 2), round(f.cost, 4)] for f in sorted(tried, key=lambda f: f.rho)],
+            "search": [
+                [round(f.rho, 6), round(f.iou, 4), round(1e3 * f.rms_m, 2), round(f.cost, 4)]
+                for f in sorted(tried, key=lambda f: f.rho)
+            ],
             "rest_frames": [cloud.frames[0], cloud.frames[-1]],
             "support_height_m": round(float(support), 4),
             "foundationpose_start": fp is not None,
@@ -581,6 +675,8 @@ def run(ctx: StageContext) -> None:
             "repairs": imp.repairs,
             "triangles": int(len(faces)),
         }
-    for name, authored in author_objects(ctx, models, cfg.convex_tolerance).items():  # everything built and checked: now author
+    for name, authored in author_objects(
+        ctx, models, cfg.convex_tolerance
+    ).items():  # everything built and checked: now author
         facts[name] |= authored
     ctx.record(objects=facts)

@@ -42,13 +42,41 @@ class PhysicsPrior:
 PRIORS: dict[str, PhysicsPrior] = {
     p.category: p
     for p in (
-        PhysicsPrior("box", (150.0, 700.0), 0.50, 0.10, 0.10, 0.05, note="packed cardboard box or carton, contents included"),
+        PhysicsPrior(
+            "box", (150.0, 700.0), 0.50, 0.10, 0.10, 0.05, note="packed cardboard box or carton, contents included"
+        ),
         PhysicsPrior("block", (450.0, 850.0), 0.45, 0.10, 0.30, 0.10, note="wooden block"),
-        PhysicsPrior("can", (850.0, 1100.0), 0.35, 0.10, 0.10, 0.05, note="full beverage or food can (liquid dominates)"),
-        PhysicsPrior("mug", (1900.0, 2500.0), 0.50, 0.10, 0.20, 0.10, hollow=True, shell_thickness_m=0.005, note="ceramic mug"),
-        PhysicsPrior("cup", (900.0, 1200.0), 0.40, 0.10, 0.20, 0.10, hollow=True, shell_thickness_m=0.0015, note="plastic or paper cup"),
-        PhysicsPrior("bowl", (1900.0, 2500.0), 0.50, 0.10, 0.20, 0.10, hollow=True, shell_thickness_m=0.005, note="ceramic bowl"),
-        PhysicsPrior("bottle", (900.0, 1400.0), 0.40, 0.10, 0.30, 0.10, hollow=True, shell_thickness_m=0.001, note="empty plastic bottle"),
+        PhysicsPrior(
+            "can", (850.0, 1100.0), 0.35, 0.10, 0.10, 0.05, note="full beverage or food can (liquid dominates)"
+        ),
+        PhysicsPrior(
+            "mug", (1900.0, 2500.0), 0.50, 0.10, 0.20, 0.10, hollow=True, shell_thickness_m=0.005, note="ceramic mug"
+        ),
+        PhysicsPrior(
+            "cup",
+            (900.0, 1200.0),
+            0.40,
+            0.10,
+            0.20,
+            0.10,
+            hollow=True,
+            shell_thickness_m=0.0015,
+            note="plastic or paper cup",
+        ),
+        PhysicsPrior(
+            "bowl", (1900.0, 2500.0), 0.50, 0.10, 0.20, 0.10, hollow=True, shell_thickness_m=0.005, note="ceramic bowl"
+        ),
+        PhysicsPrior(
+            "bottle",
+            (900.0, 1400.0),
+            0.40,
+            0.10,
+            0.30,
+            0.10,
+            hollow=True,
+            shell_thickness_m=0.001,
+            note="empty plastic bottle",
+        ),
         PhysicsPrior("fruit", (750.0, 1000.0), 0.60, 0.15, 0.20, 0.10, note="apple, orange"),
         PhysicsPrior("book", (550.0, 950.0), 0.50, 0.10, 0.05, 0.05, note="paper book"),
         PhysicsPrior("toy", (150.0, 1100.0), 0.50, 0.15, 0.40, 0.15, note="plastic toy, solid or hollow"),
@@ -71,4 +99,6 @@ def lookup(category: str) -> tuple[PhysicsPrior, str | None]:
             f"unknown object category {category!r}",
             hint=f"did you mean {close[0]!r}? known: {', '.join(sorted(PRIORS))}",
         )
-    return PRIORS["generic"], f"unknown category {category!r}: using the generic prior (known: {', '.join(sorted(PRIORS))})"
+    return PRIORS[
+        "generic"
+    ], f"unknown category {category!r}: using the generic prior (known: {', '.join(sorted(PRIORS))})"

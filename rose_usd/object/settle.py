@@ -28,7 +28,9 @@ def scene_collider(stage) -> tuple[np.ndarray, np.ndarray] | None:
     return mesh.vertices, mesh.faces
 
 
-def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lift_m: float = 0.03, max_drop_m: float = 0.015) -> dict[str, float]:
+def settle(
+    models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lift_m: float = 0.03, max_drop_m: float = 0.015
+) -> dict[str, float]:
     """Move each model's ``world_from_object_0`` along gravity into contact; returns the move per
     object [m] (positive up).
 
@@ -39,7 +41,9 @@ def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lif
     ``TOUCHING_M`` is contact."""
     lifts: dict[str, float] = {}
     supports = [] if scene is None else [metrics.SignedDistance(*scene)]
-    order = sorted(models, key=lambda m: float(se3.transform_points(m.world_from_object_0, m.mesh.vertices)[:, 2].min()))
+    order = sorted(
+        models, key=lambda m: float(se3.transform_points(m.world_from_object_0, m.mesh.vertices)[:, 2].min())
+    )
     for model in order:
         world = se3.transform_points(model.world_from_object_0, model.mesh.vertices)
         depth = 0.0
@@ -53,7 +57,9 @@ def settle(models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lif
         if depth == 0.0 and supports:  # not touching: lowered onto what is under it
             gap = min(float(np.min(support.drop(world))) for support in supports)
             lowered = world - np.array([0.0, 0.0, gap - CLEARANCE_M])
-            if TOUCHING_M < gap <= max_drop_m and all(float(np.min(support(lowered))) >= -TOUCHING_M for support in supports):
+            if TOUCHING_M < gap <= max_drop_m and all(
+                float(np.min(support(lowered))) >= -TOUCHING_M for support in supports
+            ):
                 lift = -(gap - CLEARANCE_M)  # (a vertex-only test: lowering must not sink it)
         model.world_from_object_0[2, 3] += lift
         lifts[model.name] = lift

@@ -35,7 +35,9 @@ def read_lighting(stage: Usd.Stage) -> Lighting:
         elif prim.IsA(UsdLux.SphereLight):
             light = UsdLux.SphereLight(prim)
             intensity = float(light.GetIntensityAttr().Get()) * np.asarray(light.GetColorAttr().Get(), dtype=float)
-            pos = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float)[3, :3]
+            pos = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float)[
+                3, :3
+            ]
             points.append(PointLight(tuple(pos.tolist()), tuple(intensity.tolist())))
             found = True
     if not found:
@@ -66,7 +68,11 @@ class StageRenderer:
             else:
                 items.append(RenderItem(name, read_mesh(prim, world=True)))
         if not items:
-            raise StageError("the stage has no renderable meshes", path=stage.GetRootLayer().identifier, hint="run the scene and object stages")
+            raise StageError(
+                "the stage has no renderable meshes",
+                path=stage.GetRootLayer().identifier,
+                hint="run the scene and object stages",
+            )
         self.lighting = read_lighting(stage)
         self.scene = RenderScene(items, self.lighting)
 
@@ -74,4 +80,6 @@ class StageRenderer:
         """Move animated meshes to time code t."""
         code = Usd.TimeCode(t)
         for name, prim in self._animated.items():
-            self.scene.set_pose(name, np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(code), dtype=float).T)
+            self.scene.set_pose(
+                name, np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(code), dtype=float).T
+            )

@@ -30,11 +30,17 @@ class Lighting:
         return cls(ambient=(1.0, 1.0, 1.0), points=())
 
     def to_json(self) -> dict:
-        return {"ambient": list(self.ambient), "points": [{"position_m": list(p.position_m), "intensity": list(p.intensity)} for p in self.points]}
+        return {
+            "ambient": list(self.ambient),
+            "points": [{"position_m": list(p.position_m), "intensity": list(p.intensity)} for p in self.points],
+        }
 
     @classmethod
     def from_json(cls, data: dict) -> "Lighting":
         return cls(
             ambient=tuple(float(v) for v in data["ambient"]),
-            points=tuple(PointLight(tuple(map(float, p["position_m"])), tuple(map(float, p["intensity"]))) for p in data.get("points", [])),
+            points=tuple(
+                PointLight(tuple(map(float, p["position_m"])), tuple(map(float, p["intensity"])))
+                for p in data.get("points", [])
+            ),
         )

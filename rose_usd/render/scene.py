@@ -120,7 +120,14 @@ class RenderScene:
         props = mi.Properties()
         props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": self._reflectance(mesh)})
         has_uv = mesh.uv is not None and mesh.texture is not None
-        m = mi.Mesh(item.name, len(mesh.vertices), len(mesh.faces), props=props, has_vertex_normals=False, has_vertex_texcoords=has_uv)
+        m = mi.Mesh(
+            item.name,
+            len(mesh.vertices),
+            len(mesh.faces),
+            props=props,
+            has_vertex_normals=False,
+            has_vertex_texcoords=has_uv,
+        )
         p = mi.traverse(m)
         p["vertex_positions"] = dr.ravel(mi.Point3f(self._world_vertices(mesh.vertices, item.pose).T.copy()))
         p["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(mesh.faces, dtype=np.uint32).T.copy()))
@@ -172,12 +179,20 @@ class RenderScene:
                 "near_clip": 0.005,
                 "far_clip": 1000.0,
                 "to_world": self.mi.ScalarTransform4f(to_world.tolist()),
-                "film": {"type": "hdrfilm", "width": int(width), "height": int(height), "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                "film": {
+                    "type": "hdrfilm",
+                    "width": int(width),
+                    "height": int(height),
+                    "rfilter": {"type": "box"},
+                    "pixel_format": "rgb",
+                },
                 "sampler": {"type": "multijitter", "sample_count": int(spp)},
             }
         )
 
-    def render_linear(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0) -> np.ndarray:
+    def render_linear(
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
+    ) -> np.ndarray:
         """Linear RGB image (H, W, 3) float32 seen by an OpenCV camera."""
         K = np.asarray(K, dtype=float)
         fx, fy = K[0, 0], K[1, 1]
@@ -190,24 +205,34 @@ class RenderScene:
             K_render[1, 1] = fx
             K_render[1, 2] = (K[1, 2] + 0.5) * render_h / height - 0.5
         sensor = self._sensor(world_from_cv, K_render, width, render_h, spp)
-        img = np.asarray(self.mi.render(self.scene, sensor=sensor, integrator=self.integrator, seed=seed, spp=spp), dtype=np.float32)[..., :3]
+        img = np.asarray(
+            self.mi.render(self.scene, sensor=sensor, integrator=self.integrator, seed=seed, spp=spp), dtype=np.float32
+        )[..., :3]
         if not square:
             import cv2
 
-            img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA if render_h > height else cv2.INTER_LINEAR)
+            img = cv2.resize(
+                img, (width, height), interpolation=cv2.INTER_AREA if render_h > height else cv2.INTER_LINEAR
+            )
         return img
 
-    def render_srgb8(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0) -> np.ndarray:
+    def render_srgb8(
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
+    ) -> np.ndarray:
         """8-bit sRGB image (H, W, 3) seen by an OpenCV camera."""
         return linear_to_srgb8(self.render_linear(world_from_cv, K, width, height, spp=spp, seed=seed))
 
-    def depth_and_labels(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    def depth_and_labels(
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Z-depth [m] (0 where nothing is hit) and item labels, both (H, W), from one ray per pixel
         center (OpenCV convention: pixel (u, v) centered at integer coordinates)."""
         surface = self.surface(world_from_cv, K, width, height)
         return surface.depth, surface.labels
 
-    def surface(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, with_albedo: bool = False) -> "Surface":
+    def surface(
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, with_albedo: bool = False
+    ) -> "Surface":
         """What one ray per pixel center sees: z-depth, labels and (optionally) albedo and the
         cosine between the surface normal and the ray (for sensor models)."""
         mi, dr = self.mi, self.dr

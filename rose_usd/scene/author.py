@@ -35,7 +35,9 @@ def check_collider(vertices: np.ndarray, faces: np.ndarray, what: str) -> None:
     """Raise MeshError unless the mesh is watertight, consistently wound and encloses volume."""
     problems = collider_problems(vertices, faces)
     if problems:
-        raise MeshError(f"{what} is {', '.join(problems)}", hint="repair it (the scene backend must produce a closed 2-manifold)")
+        raise MeshError(
+            f"{what} is {', '.join(problems)}", hint="repair it (the scene backend must produce a closed 2-manifold)"
+        )
 
 
 def author_scene(ctx: StageContext, parts: list[ScenePart], collision: MeshData, lighting: Lighting) -> None:
@@ -61,9 +63,13 @@ def author_scene(ctx: StageContext, parts: list[ScenePart], collision: MeshData,
                 dst = ctx.side_dir("textures") / f"{part.name}{mesh.texture.suffix}"
                 shutil.copyfile(mesh.texture, dst)
                 textures[mesh.texture] = ctx.out_dir / "textures" / dst.name
-            material = author_preview_material(stage, look_path, texture_asset=relative_asset(textures[mesh.texture], ctx.layer_dir))
+            material = author_preview_material(
+                stage, look_path, texture_asset=relative_asset(textures[mesh.texture], ctx.layer_dir)
+            )
         else:
-            material = author_preview_material(stage, look_path, color=mesh.color, use_vertex_color=mesh.vertex_colors is not None)
+            material = author_preview_material(
+                stage, look_path, color=mesh.color, use_vertex_color=mesh.vertex_colors is not None
+            )
         bind_material(usd_mesh.GetPrim(), material)
     collider = author_mesh(stage, paths.SCENE_COLLISION, collision, purpose=UsdGeom.Tokens.guide)
     make_collider(collider.GetPrim(), Approximation.NONE)

@@ -29,11 +29,23 @@ def run(ctx: StageContext) -> None:
     for part in parts:
         m = manifold_of(part.mesh.vertices, part.mesh.faces)
         if m.status() != manifold3d.Error.NoError:
-            raise MeshError(f"ground-truth part {part.name!r} is not a manifold ({m.status().name})", path=gt.root / "meshes", hint="regenerate the case")
+            raise MeshError(
+                f"ground-truth part {part.name!r} is not a manifold ({m.status().name})",
+                path=gt.root / "meshes",
+                hint="regenerate the case",
+            )
         union = m if union is None else union + m
     mesh = union.to_mesh()
-    collision = MeshData(vertices=np.asarray(mesh.vert_properties, dtype=float)[:, :3], faces=np.asarray(mesh.tri_verts, dtype=np.int64))
+    collision = MeshData(
+        vertices=np.asarray(mesh.vert_properties, dtype=float)[:, :3], faces=np.asarray(mesh.tri_verts, dtype=np.int64)
+    )
     lighting = Lighting.from_json(gt.lighting)
-    lighting = Lighting(lighting.ambient, tuple(PointLight(tuple(se3.transform_points(to_world, np.array([light.position_m]))[0].tolist()), light.intensity) for light in lighting.points))
+    lighting = Lighting(
+        lighting.ambient,
+        tuple(
+            PointLight(tuple(se3.transform_points(to_world, np.array([light.position_m]))[0].tolist()), light.intensity)
+            for light in lighting.points
+        ),
+    )
     author_scene(ctx, parts, collision, lighting)
     ctx.record(collision_triangles=int(len(collision.faces)), parts=len(parts))

@@ -70,12 +70,18 @@ def _read_frame_masks(files: list[Path], case) -> list[tuple[Path, np.ndarray]]:
     for f in files:
         m = read_mask(f)
         if m.shape != (case.height, case.width):
-            raise InputError(f"mask is {m.shape[1]}x{m.shape[0]}, frames are {case.width}x{case.height}", path=f, hint="re-run the segment stage")
+            raise InputError(
+                f"mask is {m.shape[1]}x{m.shape[0]}, frames are {case.width}x{case.height}",
+                path=f,
+                hint="re-run the segment stage",
+            )
         out.append((f, m))
     return out
 
 
-def _static_pixels(t: int, depth: np.ndarray, frame_masks: list, background: StaticBackground, kernel: np.ndarray) -> np.ndarray:
+def _static_pixels(
+    t: int, depth: np.ndarray, frame_masks: list, background: StaticBackground, kernel: np.ndarray
+) -> np.ndarray:
     """The static pixels of frame t: with depth, under no mask grown by ``kernel``, and not in
     front of the static world (what the scene is fused and textured from)."""
     moving = np.zeros(depth.shape, np.uint8)
@@ -157,10 +163,14 @@ class Fusion:
         return vertices[order], faces
 
 
-def seen_through(points: np.ndarray, depth_of, cameras, frames, *, tol_m: float = 0.02, rel: float = 0.03) -> np.ndarray:
+def seen_through(
+    points: np.ndarray, depth_of, cameras, frames, *, tol_m: float = 0.02, rel: float = 0.03
+) -> np.ndarray:
     """Points (N, 3) that more of ``frames`` see through (the depth at their pixel lies beyond
     them by more than ``tol_m`` + ``rel`` x depth) than see (depth within that of them)."""
-    through, near, _ = view_counts(points, ((depth_of(t), cameras.K[t], cameras.world_from_cv[t]) for t in frames), tol_m=tol_m, rel=rel)
+    through, near, _ = view_counts(
+        points, ((depth_of(t), cameras.K[t], cameras.world_from_cv[t]) for t in frames), tol_m=tol_m, rel=rel
+    )
     return through > near
 
 
@@ -168,7 +178,9 @@ CARVE_ABOVE_M = 0.015
 """Carving never touches the support: only fused points this high above it [m]."""
 
 
-def fuse_static(ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_px: int, depth_max_m: float, carve_m: float):
+def fuse_static(
+    ctx: StageContext, *, voxel_m: float, frame_stride: int, margin_px: int, depth_max_m: float, carve_m: float
+):
     """TSDF-fuse the static pixels. Returns the fused surface's points (V, 3), their linear colors
     (V, 3), their outward normals (V, 3), the number of frames fused and the number of points
     carved away."""
@@ -251,7 +263,9 @@ def self_intersects(vertices: np.ndarray, faces: np.ndarray) -> bool:
         trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(path)
         poly = Polyhedron_3(path)
     if poly.size_of_facets() != len(faces):
-        raise MeshError(f"CGAL read {poly.size_of_facets()} of {len(faces)} triangles", hint="the mesh is not a valid polygon mesh")
+        raise MeshError(
+            f"CGAL read {poly.size_of_facets()} of {len(faces)} triangles", hint="the mesh is not a valid polygon mesh"
+        )
     return bool(pmp.does_self_intersect(poly))
 
 
@@ -262,7 +276,9 @@ def transfer_colors(vertices: np.ndarray, points: np.ndarray, colors: np.ndarray
     return (colors[idx] * w[..., None]).sum(axis=1) / w.sum(axis=1, keepdims=True)
 
 
-def bake_texture(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, colors: np.ndarray, size: int, texel_colors=None):
+def bake_texture(
+    vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, colors: np.ndarray, size: int, texel_colors=None
+):
     """xatlas UVs and a texture whose every texel takes the 3-NN color of the fused points at its
     3D position (sharper than interpolating vertex colors), or, with ``texel_colors`` (texel
     positions (N, 3), normals (N, 3) -> linear colors (N, 3), seen (N,) bool), that color where
@@ -329,7 +345,9 @@ def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     u, v = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
     u0, v0 = np.minimum(u.astype(int), w - 2), np.minimum(v.astype(int), h - 2)
     a, b = (u - u0)[:, None], (v - v0)[:, None]
-    return (image[v0, u0] * (1 - a) + image[v0, u0 + 1] * a) * (1 - b) + (image[v0 + 1, u0] * (1 - a) + image[v0 + 1, u0 + 1] * a) * b
+    return (image[v0, u0] * (1 - a) + image[v0, u0 + 1] * a) * (1 - b) + (
+        image[v0 + 1, u0] * (1 - a) + image[v0 + 1, u0 + 1] * a
+    ) * b
 
 
 class FrameColors:
@@ -341,12 +359,23 @@ class FrameColors:
     through (a hand, its shadow). The TSDF's colors are averages over its voxels (``voxel_m``, 8 mm);
     the frames hold the texture's own detail (a tablecloth's weave)."""
 
-    def __init__(self, ctx: StageContext, *, count: int, margin_px: int, tol_m: float = 0.01, min_cos: float = 0.15, chunk: int = 400_000):
+    def __init__(
+        self,
+        ctx: StageContext,
+        *,
+        count: int,
+        margin_px: int,
+        tol_m: float = 0.01,
+        min_cos: float = 0.15,
+        chunk: int = 400_000,
+    ):
         case, n = ctx.case, ctx.time_info.n_frames
         self.cameras = read_camera(ctx.stage, paths.CAMERA, n)
         self.depth_of = metric_depth_reader(ctx.stage, case, cache=4)
         self.frames = np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int)).tolist()
-        background = StaticBackground(self.depth_of, self.cameras.world_from_cv, self.cameras.K, case.width, case.height)
+        background = StaticBackground(
+            self.depth_of, self.cameras.world_from_cv, self.cameras.K, case.width, case.height
+        )
         masks = _mask_files(ctx, n)
         kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
         self.static, self.rgb = {}, {}
@@ -374,7 +403,9 @@ class FrameColors:
                 if not ok.any():
                     continue
                 cam = se3.transform_points(se3.invert(pose), p[ok])
-                samples[k, ok] = _bilinear(self.rgb[t], K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2])
+                samples[k, ok] = _bilinear(
+                    self.rgb[t], K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+                )
             got = ~np.isnan(samples[..., 0]).all(axis=0)
             with warnings.catch_warnings():  # texels no frame sees: all-NaN slices, left unseen
                 warnings.simplefilter("ignore", RuntimeWarning)
@@ -397,7 +428,9 @@ def _dilate_ids(ids: np.ndarray, steps: int) -> np.ndarray:
     return ids
 
 
-def fill_support_holes(points: np.ndarray, *, cell_m: float = 0.01, max_area_m2: float = 0.25, flat_m: float = 0.01) -> np.ndarray:
+def fill_support_holes(
+    points: np.ndarray, *, cell_m: float = 0.01, max_area_m2: float = 0.25, flat_m: float = 0.01
+) -> np.ndarray:
     """Points that close the holes of the support surface: what an object that never moved hid
     (the table under it) is never fused, and a wrap spans only gaps narrower than its alpha.
 
@@ -453,7 +486,9 @@ class SupportPad:
         return 0.75 * self.cell_m
 
 
-def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, max_gap_m: float = 0.015, count: int = 8) -> tuple[list[SupportPad], dict[str, str]]:
+def support_pads(
+    ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, max_gap_m: float = 0.015, count: int = 8
+) -> tuple[list[SupportPad], dict[str, str]]:
     """Where each object rests before the interactor first touches it, the support under it as a
     flat pad at the height the object stage stands it on (``segment.contact.ring_height``).
 
@@ -488,7 +523,9 @@ def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, m
         height = ring_height(ctx, spec.name, [(t, 1.0) for t in frames], masks, depth_of, cameras, count=count)
         seen = []
         for t in [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]:
-            seen.append(masked_world_points(depth_of(t), masks[t], cameras.K[t], cameras.world_from_cv[t], erode_px=2)[0])
+            seen.append(
+                masked_world_points(depth_of(t), masks[t], cameras.K[t], cameras.world_from_cv[t], erode_px=2)[0]
+            )
         pts = np.concatenate(seen)
         pts = pts[pts[:, 2] > height + 0.005]
         if len(pts) < 50:
@@ -496,7 +533,9 @@ def support_pads(ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, m
             continue
         gap = float(np.percentile(pts[:, 2], 2)) - height
         if gap > max_gap_m:
-            skipped[spec.name] = f"its lowest points are {1000 * gap:.0f} mm above the surface around it (held, or on another object)"
+            skipped[spec.name] = (
+                f"its lowest points are {1000 * gap:.0f} mm above the surface around it (held, or on another object)"
+            )
             continue
         pads.append(SupportPad(spec.name, height, _footprint(pts[:, :2], margin_m, cell_m), cell_m))
     return pads, skipped
@@ -516,7 +555,9 @@ def _footprint(xy: np.ndarray, margin_m: float, cell_m: float) -> np.ndarray:
     return np.column_stack([cols, rows]) * cell_m + lo
 
 
-def lay_pads(points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: list[SupportPad], *, band_m: float = 0.03):
+def lay_pads(
+    points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: list[SupportPad], *, band_m: float = 0.03
+):
     """The fused surface with each pad laid in: fused points over a pad's footprint within
     ``band_m`` of its height replaced by its grid points (normals up, colors of their 3 nearest
     remaining fused points). Returns points, colors, normals and the number of points replaced."""
@@ -535,7 +576,16 @@ def lay_pads(points: np.ndarray, colors: np.ndarray, normals: np.ndarray, pads: 
     return points, colors, normals, replaced
 
 
-def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad], *, band_m: float, over_band_m: float, up_deg: float = 20.0, over_up_deg: float = 45.0) -> tuple[np.ndarray, int]:
+def flatten_pads(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    pads: list[SupportPad],
+    *,
+    band_m: float,
+    over_band_m: float,
+    up_deg: float = 20.0,
+    over_up_deg: float = 45.0,
+) -> tuple[np.ndarray, int]:
     """The wrapped collider with its top flat at each pad's height over the pad's footprint.
 
     The wrap of a flat pad is flat only to its vertices' scatter about its offset surface: on
@@ -585,7 +635,12 @@ def flatten_pads(vertices: np.ndarray, faces: np.ndarray, pads: list[SupportPad]
 def run(ctx: StageContext) -> None:
     cfg = ctx.config
     points, colors, normals, used, carved = fuse_static(
-        ctx, voxel_m=cfg.voxel_m, frame_stride=cfg.frame_stride, margin_px=cfg.mask_margin_px, depth_max_m=cfg.depth_max_m, carve_m=cfg.carve_m
+        ctx,
+        voxel_m=cfg.voxel_m,
+        frame_stride=cfg.frame_stride,
+        margin_px=cfg.mask_margin_px,
+        depth_max_m=cfg.depth_max_m,
+        carve_m=cfg.carve_m,
     )
     pads, no_pad = support_pads(ctx, margin_m=cfg.pad_margin_m) if cfg.pad_margin_m > 0 else ([], {})
     points, colors, normals, padded = lay_pads(points, colors, normals, pads)
@@ -607,27 +662,42 @@ def run(ctx: StageContext) -> None:
         # coarser wrap rather than decimation: the wrap's guarantees (no self-intersection) hold
         alpha *= 1.5
         vertices, faces = alpha_wrap(slab, alpha, cfg.offset_m)
-    vertices, flattened = flatten_pads(vertices, faces, pads, band_m=2 * cfg.offset_m, over_band_m=0.5 * cfg.thickness_m)
+    vertices, flattened = flatten_pads(
+        vertices, faces, pads, band_m=2 * cfg.offset_m, over_band_m=0.5 * cfg.thickness_m
+    )
     problems = collider_problems(vertices, faces)
     if problems:
         raise MeshError(f"the wrapped scene mesh is {', '.join(problems)}", hint="try a larger scene.alpha_m")
     if self_intersects(vertices, faces):
         raise MeshError("the wrapped scene mesh intersects itself", hint="try a larger scene.alpha_m or max_triangles")
-    frame_colors = FrameColors(ctx, count=cfg.texture_frames, margin_px=cfg.mask_margin_px) if cfg.texture_frames > 0 else None
+    frame_colors = (
+        FrameColors(ctx, count=cfg.texture_frames, margin_px=cfg.mask_margin_px) if cfg.texture_frames > 0 else None
+    )
     # only the triangles that face one of the video's cameras take texels: the slab's underside
     # and the wrap's far sides (about a third of its area) are never seen, and textured with the
     # rest they left the seen surface 62-72 % of a texture whose packing varied between runs
     # (place-can's SSIM 0.862 -> 0.838 with 0.688 -> 0.617 of the texture used)
-    facing = faces_facing(vertices, faces, read_camera(ctx.stage, paths.CAMERA, ctx.time_info.n_frames).world_from_cv[:, :3, 3])
+    facing = faces_facing(
+        vertices, faces, read_camera(ctx.stage, paths.CAMERA, ctx.time_info.n_frames).world_from_cv[:, :3, 3]
+    )
     seen_v, seen_f = submesh(vertices, faces, facing)
     tv, tf, uv, tcols, tex = bake_texture(seen_v, seen_f, points, colors, cfg.texture_size, frame_colors)
     with tempfile.TemporaryDirectory() as tmp:
         tex_path = Path(tmp) / "Reconstruction.png"
         cv2.imwrite(str(tex_path), cv2.cvtColor(tex, cv2.COLOR_RGB2BGR))
-        parts = [ScenePart("Reconstruction", MeshData(vertices=tv, faces=tf, vertex_colors=tcols, uv=uv, texture=tex_path))]
+        parts = [
+            ScenePart("Reconstruction", MeshData(vertices=tv, faces=tf, vertex_colors=tcols, uv=uv, texture=tex_path))
+        ]
         if not facing.all():  # what no camera faces: colored per vertex (3-NN), in its own part
             unseen_v, unseen_f = submesh(vertices, faces, ~facing)
-            parts.append(ScenePart("Unseen", MeshData(vertices=unseen_v, faces=unseen_f, vertex_colors=transfer_colors(unseen_v, points, colors))))
+            parts.append(
+                ScenePart(
+                    "Unseen",
+                    MeshData(
+                        vertices=unseen_v, faces=unseen_f, vertex_colors=transfer_colors(unseen_v, points, colors)
+                    ),
+                )
+            )
         collision = MeshData(vertices=vertices, faces=faces)
         author_scene(ctx, parts, collision, Lighting.unlit())
     ctx.record(

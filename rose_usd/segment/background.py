@@ -45,7 +45,9 @@ class StaticBackground:
             d = depth_of(r)[: self.h * stride : stride, : self.w * stride : stride]
             v, u = np.nonzero((d > 0) & (d < depth_max_m))
             z = d[v, u].astype(np.float64)
-            self._ref_points.append(se3.transform_points(self.poses[r], backproject(u * stride, v * stride, z, self._K(r))))
+            self._ref_points.append(
+                se3.transform_points(self.poses[r], backproject(u * stride, v * stride, z, self._K(r)))
+            )
 
     def _K(self, t: int) -> np.ndarray:
         return self.K[t] if len(self.K) > 1 else self.K[0]
@@ -79,7 +81,9 @@ class StaticBackground:
         bg = np.nan_to_num(bg, nan=0.0).reshape(self.h, self.w).astype(np.float32)
         return cv2.resize(bg, (self.width, self.height), interpolation=cv2.INTER_NEAREST)
 
-    def foreground(self, t: int, depth: np.ndarray, *, tau_m: float = 0.015, window_px: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    def foreground(
+        self, t: int, depth: np.ndarray, *, tau_m: float = 0.015, window_px: int = 9
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(foreground, static): pixels nearer than the static surface by more than ``tau_m``
         (plus 1 % of the depth), and pixels that agree with it. Pixels without a reference are neither."""
         bg = self.depth(t)

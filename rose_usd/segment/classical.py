@@ -124,7 +124,13 @@ class ObjectTrack:
 
     def copy(self) -> "ObjectTrack":
         """An independent copy (propagation updates tracks in place)."""
-        return replace(self, points=self.points.copy(), color=self.color.copy(), velocity=self.velocity.copy(), first_color=self.first_color.copy())
+        return replace(
+            self,
+            points=self.points.copy(),
+            color=self.color.copy(),
+            velocity=self.velocity.copy(),
+            first_color=self.first_color.copy(),
+        )
 
 
 def _subsample(points: np.ndarray, k: int = 4000, seed: int = 0) -> np.ndarray:
@@ -160,7 +166,12 @@ def separate(regions: list[np.ndarray], cidx: np.ndarray, *, sure: float = 2.0) 
     ranked = np.sort(likely, axis=0)
     by_color = np.argmax(likely, axis=0)
     distance = np.stack(
-        [np.where(regions[i][cy, cx], cv2.distanceTransform((~alone[i]).astype(np.uint8), cv2.DIST_L2, 5)[cy, cx], np.inf) for i in range(k)]
+        [
+            np.where(
+                regions[i][cy, cx], cv2.distanceTransform((~alone[i]).astype(np.uint8), cv2.DIST_L2, 5)[cy, cx], np.inf
+            )
+            for i in range(k)
+        ]
     )
     winner = np.where(ranked[-1] - ranked[-2] >= np.log(sure), by_color, np.argmin(distance, axis=0))
     out = []
@@ -219,7 +230,11 @@ class Segmenter:
         n, labels, areas = components(standing & inside)
         areas[0] = 0
         if n <= 1 or areas.max() < max(0.1 * inside.sum(), MIN_REGION_PX * self.scale_px / 4):
-            raise InputError(f"nothing stands on the support inside the prompt of {name!r} on frame {t}", path=where, hint="draw the box around the object on a frame where it is visible")
+            raise InputError(
+                f"nothing stands on the support inside the prompt of {name!r} on frame {t}",
+                path=where,
+                hint="draw the box around the object on a frame where it is visible",
+            )
         if prompt.box is not None:
             label = 1 + int(np.argmax(areas[1:]))
         else:
@@ -232,7 +247,9 @@ class Segmenter:
     def _new_track(self, name: str, t: int, mask: np.ndarray) -> ObjectTrack:
         rgb, depth, pts, edges, cidx = self.frame(t)
         obj_pts = pts[mask & (depth > 0)]
-        return ObjectTrack(name, _subsample(obj_pts), histogram(cidx[mask]), max(_diameter(obj_pts), 0.02), float(mask.sum()))
+        return ObjectTrack(
+            name, _subsample(obj_pts), histogram(cidx[mask]), max(_diameter(obj_pts), 0.02), float(mask.sum())
+        )
 
     def discover(self, names: list[str], interactor_of, n_frames: int, where) -> list[ObjectTrack]:
         """Objects with no prompt: regions standing on the support at frame 0, ranked by how near
@@ -251,7 +268,11 @@ class Segmenter:
                 continue
             regions.append((label, cKDTree(_subsample(p, 2000))))
         if not regions:
-            raise InputError("no object stands on the support in the first frame", path=where, hint="give a prompt box in rose.toml ([[objects]] prompt = { frame = F, box = [x0, y0, x1, y1] })")
+            raise InputError(
+                "no object stands on the support in the first frame",
+                path=where,
+                hint="give a prompt box in rose.toml ([[objects]] prompt = { frame = F, box = [x0, y0, x1, y1] })",
+            )
         nearest = np.full(len(regions), np.inf)
         for t in range(0, n_frames, max(1, n_frames // 40)):
             hand = interactor_of(t)
@@ -283,7 +304,9 @@ class Segmenter:
             )
         return [self._new_track(name, 0, labels == regions[order[i]][0]) for i, name in enumerate(names)]
 
-    def _split_by_motion(self, region: np.ndarray, n_frames: int, *, leave_m: float = 0.02) -> tuple[np.ndarray, np.ndarray] | None:
+    def _split_by_motion(
+        self, region: np.ndarray, n_frames: int, *, leave_m: float = 0.02
+    ) -> tuple[np.ndarray, np.ndarray] | None:
         """Split a frame-0 region into the pixels whose point later leaves its place (a later
         frame sees past it, by more than ``leave_m``) and the rest; None unless both parts are
         sizable regions."""
@@ -373,7 +396,9 @@ class Segmenter:
             return mask
         kernel = np.ones((3, 3), np.uint8)
         outer = cv2.dilate(mask.astype(np.uint8), np.ones((2 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask
-        around_px = cv2.dilate(mask.astype(np.uint8), np.ones((6 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask & ~outer
+        around_px = (
+            cv2.dilate(mask.astype(np.uint8), np.ones((6 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask & ~outer
+        )
         if not around_px.any():
             return mask
         around = histogram(cidx[around_px])
@@ -420,7 +445,9 @@ class Segmenter:
         behind = (u >= 0) & (d > 0) & (d < z - 0.01)
         track.points = _subsample(np.concatenate([new, moved[behind]]), 4000, seed=t)
         track.hidden = 0
-        track.color = 0.5 * track.first_color + 0.5 * (0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask]))
+        track.color = 0.5 * track.first_color + 0.5 * (
+            0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask])
+        )
 
 
 def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
@@ -505,7 +532,11 @@ def run(ctx: StageContext) -> None:
         hand = _interactor(seg, t, objs, hand_hist)
         # the hand's colors, from its pixels away from the objects (a missed bit of an object
         # must not teach the hand model the object's colors)
-        near_obj = cv2.dilate(np.any(objs, axis=0).astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool) if objs else np.zeros_like(hand)
+        near_obj = (
+            cv2.dilate(np.any(objs, axis=0).astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
+            if objs
+            else np.zeros_like(hand)
+        )
         far_hand = hand & ~near_obj
         if far_hand.sum() > MIN_REGION_PX * seg.scale_px:
             hh = histogram(seg.frame(t)[4][far_hand])
@@ -519,7 +550,12 @@ def run(ctx: StageContext) -> None:
         typical = float(np.median(area[area > 0])) if np.any(area > 0) else 1.0
         tracks_out.append(MaskTrack(spec.name, iter(masks[spec.name]), np.clip(area / typical, 0.0, 1.0)))
     tracks_out.append(MaskTrack(INTERACTOR, iter(hands)))
-    author_and_check(ctx, tracks_out, lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"), start=how)
+    author_and_check(
+        ctx,
+        tracks_out,
+        lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"),
+        start=how,
+    )
 
 
 def parse_prompts(text: str, specs) -> list:
@@ -555,7 +591,11 @@ def check_prompts(specs, width: int, height: int, n: int, where) -> list:
     prompted = [s for s in specs if s.prompt is not None]
     for s in prompted:
         if not 0 <= s.prompt.frame < n:
-            raise InputError(f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has {n}", path=where, hint="prompt a frame of this video")
+            raise InputError(
+                f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has {n}",
+                path=where,
+                hint="prompt a frame of this video",
+            )
         _check_prompt_inside(s, width, height, where)
     if prompted and len(prompted) != len(specs):
         raise InputError("some objects have a prompt and some do not", path=where, hint="prompt every object, or none")
@@ -567,8 +607,16 @@ def _check_prompt_inside(spec, width: int, height: int, where) -> None:
     if p.box is not None:
         x0, y0, x1, y1 = p.box
         if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
-            raise InputError(f"prompt box of {spec.name!r} {list(p.box)} is not inside the {width}x{height} image", path=where, hint="give x0 < x1 <= width, y0 < y1 <= height in pixels")
+            raise InputError(
+                f"prompt box of {spec.name!r} {list(p.box)} is not inside the {width}x{height} image",
+                path=where,
+                hint="give x0 < x1 <= width, y0 < y1 <= height in pixels",
+            )
     elif p.point is not None:
         x, y = p.point
         if not (0 <= x < width and 0 <= y < height):
-            raise InputError(f"prompt point of {spec.name!r} {list(p.point)} is outside the {width}x{height} image", path=where, hint="give the point in pixels of the prompt frame")
+            raise InputError(
+                f"prompt point of {spec.name!r} {list(p.point)} is outside the {width}x{height} image",
+                path=where,
+                hint="give the point in pixels of the prompt frame",
+            )

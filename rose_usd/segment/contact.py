@@ -21,7 +21,9 @@ the can 4 cm over the table while it was set down (APE 16.2 mm; 3.6 mm with 5 px
 that fusion uses ends at 3 px (``first_contact``)."""
 
 
-def first_contact(masks: list, hand_folder, depth_of, n: int, *, reach_px: int = 3, depth_m: float = 0.02, min_px: int = 20) -> int:
+def first_contact(
+    masks: list, hand_folder, depth_of, n: int, *, reach_px: int = 3, depth_m: float = 0.02, min_px: int = 20
+) -> int:
     """The first frame in which the interactor touches the object: its mask comes within
     ``reach_px`` of the object's with depths within ``depth_m`` over ``min_px`` pixels (n if never).
     Nothing moves an object before that. Closer than the tracker's ``TOUCH_REACH_PX``: here a
@@ -31,12 +33,27 @@ def first_contact(masks: list, hand_folder, depth_of, n: int, *, reach_px: int =
     for t in range(n):
         if masks[t] is None or not (hand_folder / f"{t:06d}.png").is_file():
             continue
-        if touches(read_mask(hand_folder / f"{t:06d}.png"), masks[t], depth_of(t), reach_px=reach_px, depth_m=depth_m, min_px=min_px):
+        if touches(
+            read_mask(hand_folder / f"{t:06d}.png"),
+            masks[t],
+            depth_of(t),
+            reach_px=reach_px,
+            depth_m=depth_m,
+            min_px=min_px,
+        ):
             return t
     return n
 
 
-def touches(hand: np.ndarray, mask: np.ndarray, depth: np.ndarray, *, reach_px: int = TOUCH_REACH_PX, depth_m: float = 0.02, min_px: int = 20) -> bool:
+def touches(
+    hand: np.ndarray,
+    mask: np.ndarray,
+    depth: np.ndarray,
+    *,
+    reach_px: int = TOUCH_REACH_PX,
+    depth_m: float = 0.02,
+    min_px: int = 20,
+) -> bool:
     """Whether the interactor's mask ``hand`` comes within ``reach_px`` of the object's ``mask``
     with depths within ``depth_m`` (plus half the object's extent) over ``min_px`` pixels."""
     kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
@@ -44,7 +61,10 @@ def touches(hand: np.ndarray, mask: np.ndarray, depth: np.ndarray, *, reach_px: 
     if near.sum() < min_px:
         return False
     obj_depth = np.median(depth[mask & (depth > 0)]) if np.any(mask & (depth > 0)) else 0.0
-    return bool(np.count_nonzero(near & (depth > 0) & (np.abs(depth - obj_depth) < depth_m + 0.5 * _extent_m(mask, depth))) >= min_px)
+    return bool(
+        np.count_nonzero(near & (depth > 0) & (np.abs(depth - obj_depth) < depth_m + 0.5 * _extent_m(mask, depth)))
+        >= min_px
+    )
 
 
 def _extent_m(mask: np.ndarray, depth: np.ndarray) -> float:
@@ -64,7 +84,9 @@ def occluders(ctx: StageContext, name: str, t: int, shape: tuple[int, int], *, g
     return cv2.dilate(out, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8)).astype(bool)
 
 
-def ring_height(ctx: StageContext, name: str, views: list[tuple[int, float]], masks, depth_of, cameras, *, count: int = 8) -> float:
+def ring_height(
+    ctx: StageContext, name: str, views: list[tuple[int, float]], masks, depth_of, cameras, *, count: int = 8
+) -> float:
     """The height of the surface around object ``name``: the median z of a ring of pixels 3-12 px
     outside its mask (other objects and the interactor left out) in up to ``count`` of ``views``
     ((frame, depth scale): each frame's depth is multiplied by its scale), spread over them; 0
@@ -75,7 +97,9 @@ def ring_height(ctx: StageContext, name: str, views: list[tuple[int, float]], ma
     zs = []
     for t, scale in [views[i] for i in np.unique(np.linspace(0, len(views) - 1, min(count, len(views))).astype(int))]:
         mask = masks[t].astype(np.uint8)
-        ring = cv2.dilate(mask, np.ones((25, 25), np.uint8)).astype(bool) & ~cv2.dilate(mask, np.ones((7, 7), np.uint8)).astype(bool)
+        ring = cv2.dilate(mask, np.ones((25, 25), np.uint8)).astype(bool) & ~cv2.dilate(
+            mask, np.ones((7, 7), np.uint8)
+        ).astype(bool)
         ring &= ~occluders(ctx, name, t, mask.shape, grow_px=3)
         pts, _ = masked_world_points(depth_of(t) * np.float32(scale), ring, cameras.K[t], cameras.world_from_cv[t])
         zs.append(pts[:, 2])

@@ -72,7 +72,9 @@ class FlowTracker:
         self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
 
     # ----------------------------------------------------------------- start
-    def start(self, name: str, t: int, box: tuple[int, int, int, int] | None, point: tuple[int, int] | None) -> tuple[Track2D, np.ndarray]:
+    def start(
+        self, name: str, t: int, box: tuple[int, int, int, int] | None, point: tuple[int, int] | None
+    ) -> tuple[Track2D, np.ndarray]:
         """GrabCut of the prompt; returns the track and the background color model of its surroundings."""
         rgb = self.frame_of(t)
         if box is None:  # a point: a box around it, a tenth of the image wide
@@ -81,11 +83,16 @@ class FlowTracker:
         x0, y0, x1, y1 = (int(np.clip(v, 0, lim)) for v, lim in zip(box, (self.w, self.h, self.w, self.h)))
         gc = np.zeros((self.h, self.w), np.uint8)
         bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
-        cv2.grabCut(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), gc, (x0, y0, x1 - x0, y1 - y0), bgd, fgd, 5, cv2.GC_INIT_WITH_RECT)
+        cv2.grabCut(
+            cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), gc, (x0, y0, x1 - x0, y1 - y0), bgd, fgd, 5, cv2.GC_INIT_WITH_RECT
+        )
         mask = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
         n, labels, areas = components(mask)
         if n < 2:
-            raise InputError(f"GrabCut found nothing inside the prompt of {name!r} on frame {t}", hint="draw the box tightly around the object")
+            raise InputError(
+                f"GrabCut found nothing inside the prompt of {name!r} on frame {t}",
+                hint="draw the box tightly around the object",
+            )
         mask = labels == 1 + int(np.argmax(areas[1:]))
         bw, bh = x1 - x0, y1 - y0
         ring = np.zeros_like(mask)
@@ -101,14 +108,18 @@ class FlowTracker:
         claimed = np.zeros_like(taken)
         for tr in tracks:
             claimed |= tr.fg[idx] > 2.0 * bg[idx]
-        claimed = cv2.morphologyEx((claimed & ~taken).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+        claimed = cv2.morphologyEx(
+            (claimed & ~taken).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)
+        ).astype(bool)
         n, labels, areas = components(claimed)
         smallest = min(tr.typical_px for tr in tracks)
         out = []
         for label in range(1, n):
             if areas[label] >= 0.3 * smallest:
                 m = labels == label
-                out.append(Track2D(f"look-alike {len(out) + 1}", m, histogram(idx[m]), float(areas[label]), is_object=False))
+                out.append(
+                    Track2D(f"look-alike {len(out) + 1}", m, histogram(idx[m]), float(areas[label]), is_object=False)
+                )
         return out
 
     # ----------------------------------------------------------------- propagate
@@ -171,7 +182,9 @@ class FlowTracker:
             tr.last_visible = m if frac >= 0.05 else np.zeros_like(m)
         return visible, flow
 
-    def _refine(self, bgr: np.ndarray, claimed: np.ndarray, mine: np.ndarray, moved: np.ndarray, others: list[np.ndarray]) -> np.ndarray:
+    def _refine(
+        self, bgr: np.ndarray, claimed: np.ndarray, mine: np.ndarray, moved: np.ndarray, others: list[np.ndarray]
+    ) -> np.ndarray:
         """GrabCut around a track: claimed pixels are probable object, its moved mask's core sure
         object where claimed, other tracks sure background."""
         if claimed.sum() < 20:
@@ -252,7 +265,14 @@ class MotionForeground:
         return keep[labels]
 
 
-def segment_video(frame_of, n: int, size: tuple[int, int], prompts: list[tuple[str, int, tuple | None, tuple | None]], *, interactor: bool = True):
+def segment_video(
+    frame_of,
+    n: int,
+    size: tuple[int, int],
+    prompts: list[tuple[str, int, tuple | None, tuple | None]],
+    *,
+    interactor: bool = True,
+):
     """Masks of each prompted object and of the interactor over ``n`` frames (working resolution).
 
     ``prompts``: (name, frame, box, point) with box/point in working-resolution pixels. Returns
@@ -296,7 +316,9 @@ def segment_video(frame_of, n: int, size: tuple[int, int], prompts: list[tuple[s
             # tracks lost is still not the hand)
             idx = color_index(tracker.frame_of(t))
             claimed = np.any([tr.fg[idx] > 2.0 * bg[idx] for tr in tracks if tr.is_object], axis=0)
-            hands[t] = motion(t, flow) & ~cv2.dilate((everything | claimed).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+            hands[t] = motion(t, flow) & ~cv2.dilate(
+                (everything | claimed).astype(np.uint8), np.ones((5, 5), np.uint8)
+            ).astype(bool)
     return masks, hands, visible
 
 
@@ -308,7 +330,11 @@ def run(ctx: StageContext) -> None:
     specs = parse_prompts(cfg.prompts, list(case.config.objects))
     check_prompts(specs, case.width, case.height, n, where)
     if any(s.prompt is None for s in specs) or not specs:
-        raise InputError("the flow backend needs a prompt (box or point) for every object", path=where, hint="add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml, or pass --prompt NAME=FRAME:x0,y0,x1,y1")
+        raise InputError(
+            "the flow backend needs a prompt (box or point) for every object",
+            path=where,
+            hint="add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml, or pass --prompt NAME=FRAME:x0,y0,x1,y1",
+        )
     w, h, s = _work_size(case.width, case.height, cfg.flow_max_side_px)
 
     @functools.lru_cache(maxsize=64)
@@ -326,8 +352,20 @@ def run(ctx: StageContext) -> None:
 
     def full(frames):
         for m in frames:
-            yield m if s == 1.0 else cv2.resize(m.astype(np.uint8), (case.width, case.height), interpolation=cv2.INTER_NEAREST).astype(bool)
+            yield (
+                m
+                if s == 1.0
+                else cv2.resize(m.astype(np.uint8), (case.width, case.height), interpolation=cv2.INTER_NEAREST).astype(
+                    bool
+                )
+            )
 
     tracks = [MaskTrack(spec.name, full(masks[spec.name]), visible[spec.name]) for spec in specs]
     tracks.append(MaskTrack(INTERACTOR, full(hands)))
-    author_and_check(ctx, tracks, lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"), start="prompt", working_size=[w, h])
+    author_and_check(
+        ctx,
+        tracks,
+        lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"),
+        start="prompt",
+        working_size=[w, h],
+    )

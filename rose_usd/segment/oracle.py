@@ -15,7 +15,11 @@ def _read_all(folder: Path, n: int, width: int, height: int):
     files = [folder / f"{t:06d}.png" for t in range(n)]
     missing = [f for f in files if not f.is_file()]
     if missing:
-        raise InputError(f"{len(missing)} ground-truth mask(s) missing, first {missing[0].name}", path=folder, hint="regenerate the case")
+        raise InputError(
+            f"{len(missing)} ground-truth mask(s) missing, first {missing[0].name}",
+            path=folder,
+            hint="regenerate the case",
+        )
     return _masks(files, width, height)
 
 
@@ -23,7 +27,11 @@ def _masks(files: list[Path], width: int, height: int):
     for f in files:
         mask = read_mask(f)
         if mask.shape != (height, width):
-            raise InputError(f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {width}x{height}", path=f, hint="regenerate the case")
+            raise InputError(
+                f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {width}x{height}",
+                path=f,
+                hint="regenerate the case",
+            )
         yield mask
 
 
@@ -37,4 +45,10 @@ def run(ctx: StageContext) -> None:
         tracks.append(MaskTrack(spec.name, _read_all(gt.mask_dir(spec.name), n, case.width, case.height)))
     if gt.interactor is not None:
         tracks.append(MaskTrack(INTERACTOR, _read_all(gt.mask_dir("interactor"), n, case.width, case.height)))
-    author_and_check(ctx, tracks, lambda name: InputError(f"object {name!r} is never visible in the ground-truth masks", path=gt.mask_dir(name), hint="check the case"))
+    author_and_check(
+        ctx,
+        tracks,
+        lambda name: InputError(
+            f"object {name!r} is never visible in the ground-truth masks", path=gt.mask_dir(name), hint="check the case"
+        ),
+    )

@@ -28,11 +28,16 @@ def object_ids(spec: str, names: list[str]) -> dict[str, int]:
         name, _, value = item.partition("=")
         name = name.strip()
         if name not in names or not value.strip().isdigit():
-            raise ConfigError(f"segment.sam2_ids item {item!r} is not Name=id for an object of rose.toml", hint=f"objects: {', '.join(names)}")
+            raise ConfigError(
+                f"segment.sam2_ids item {item!r} is not Name=id for an object of rose.toml",
+                hint=f"objects: {', '.join(names)}",
+            )
         ids[name] = int(value)
     missing = [n for n in names if n not in ids]
     if missing:
-        raise ConfigError(f"segment.sam2_ids names no id for {', '.join(missing)}", hint="give every object of rose.toml an id")
+        raise ConfigError(
+            f"segment.sam2_ids names no id for {', '.join(missing)}", hint="give every object of rose.toml an id"
+        )
     return ids
 
 
@@ -43,7 +48,11 @@ def run(ctx: StageContext) -> None:
     frames = read_masks(folder)
     bad = sorted(t for t in frames if not 0 <= t < n)
     if bad:
-        raise InputError(f"SAM 2 masks name frame {bad[0]}, the video has frames 0..{n - 1}", path=folder, hint="run SAM 2 on this video's frames")
+        raise InputError(
+            f"SAM 2 masks name frame {bad[0]}, the video has frames 0..{n - 1}",
+            path=folder,
+            hint="run SAM 2 on this video's frames",
+        )
     names = [o.name for o in case.config.objects]
     ids = object_ids(ctx.config.sam2_ids, names)
     hand_id = int(ctx.config.sam2_interactor_id)
@@ -57,28 +66,44 @@ def run(ctx: StageContext) -> None:
             return np.zeros((case.height, case.width), bool)
         if m.shape != (case.height, case.width):
             f = next(iter(entries.values()))
-            raise InputError(f"SAM 2 mask is {m.shape[1]}x{m.shape[0]}, the video is {case.width}x{case.height}", path=f, hint="export SAM 2's masks at the video's resolution")
+            raise InputError(
+                f"SAM 2 mask is {m.shape[1]}x{m.shape[0]}, the video is {case.width}x{case.height}",
+                path=f,
+                hint="export SAM 2's masks at the video's resolution",
+            )
         return m
 
     # read every frame once, checking sizes before anything is written
     obj_masks = {name: [mask_of(t, ids[name]) for t in range(n)] for name in names}
     missing = sorted(set(range(n)) - set(frames))
     if missing:
-        ctx.warn(f"SAM 2 gave no mask for {len(missing)} frame(s) (first {missing[0]}): the objects count as not visible there")
+        ctx.warn(
+            f"SAM 2 gave no mask for {len(missing)} frame(s) (first {missing[0]}): the objects count as not visible there"
+        )
     if hand_id:
         hands = [mask_of(t, hand_id) for t in range(n)]
         interactor_source = "sam2"
     else:
         cameras = read_camera(ctx.stage, paths.CAMERA, n)
         depth_of = metric_depth_reader(ctx.stage, case, cache=24)
-        seg = Segmenter(case.rgb, depth_of, cameras, ctx.config, StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height))
+        seg = Segmenter(
+            case.rgb,
+            depth_of,
+            cameras,
+            ctx.config,
+            StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height),
+        )
         hands = [_interactor(seg, t, [obj_masks[name][t] for name in names]) for t in range(n)]
         interactor_source = "static-world residual"
     tracks = [MaskTrack(name, iter(obj_masks[name])) for name in names] + [MaskTrack(INTERACTOR, iter(hands))]
     author_and_check(
         ctx,
         tracks,
-        lambda name: InputError(f"object {name!r} (SAM 2 id {ids[name]}) is in no mask", path=folder, hint="check segment.sam2_ids against the ids SAM 2 used"),
+        lambda name: InputError(
+            f"object {name!r} (SAM 2 id {ids[name]}) is in no mask",
+            path=folder,
+            hint="check segment.sam2_ids against the ids SAM 2 used",
+        ),
         object_ids=ids,
         interactor=interactor_source,
     )

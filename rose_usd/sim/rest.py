@@ -26,7 +26,14 @@ RIGID_CONTACT_MAX = 16384
 """Contacts the rest simulation has room for (objects of a few dozen convex parts on a scene mesh)."""
 
 
-def simulate_rest(stage: Usd.Stage, object_paths: dict[str, str], *, duration_s: float = 1.0, dt_s: float = 1.0 / 600.0, iterations: int = 10) -> list[RestResult]:
+def simulate_rest(
+    stage: Usd.Stage,
+    object_paths: dict[str, str],
+    *,
+    duration_s: float = 1.0,
+    dt_s: float = 1.0 / 600.0,
+    iterations: int = 10,
+) -> list[RestResult]:
     """Simulate ``duration_s`` with Newton's XPBD solver from the stage's default (frame-0) state.
 
     Args:
@@ -42,7 +49,11 @@ def simulate_rest(stage: Usd.Stage, object_paths: dict[str, str], *, duration_s:
     body_of = dict(result.get("path_body_map", {}))
     missing = [name for name, path in object_paths.items() if path not in body_of]
     if missing:
-        raise ValidationError(f"Newton built no body for object(s) {missing}", path=stage.GetRootLayer().identifier, hint="check RigidBodyAPI on the object prims")
+        raise ValidationError(
+            f"Newton built no body for object(s) {missing}",
+            path=stage.GetRootLayer().identifier,
+            hint="check RigidBodyAPI on the object prims",
+        )
     model = builder.finalize(device=wp.get_preferred_device())
     solver = newton.solvers.SolverXPBD(model, iterations=iterations)
     state_0, state_1 = model.state(), model.state()
@@ -54,7 +65,9 @@ def simulate_rest(stage: Usd.Stage, object_paths: dict[str, str], *, duration_s:
     # object corners in the body frame (the prim frame: Newton bodies are the rigid-body prims)
     corners = {}
     for name, path in object_paths.items():
-        bbox = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.guide])
+        bbox = UsdGeom.BBoxCache(
+            Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.guide]
+        )
         box = bbox.ComputeUntransformedBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
         lo, hi = np.asarray(box.GetMin()), np.asarray(box.GetMax())
         corners[name] = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -90,7 +103,9 @@ def simulate_rest(stage: Usd.Stage, object_paths: dict[str, str], *, duration_s:
             name=n,
             max_displacement_m=max_disp[n],
             max_rotation_deg=max_rot[n],
-            final_displacement_m=float(np.linalg.norm(se3.transform_points(final[n], corners[n]) - start_pts[n], axis=1).max()),
+            final_displacement_m=float(
+                np.linalg.norm(se3.transform_points(final[n], corners[n]) - start_pts[n], axis=1).max()
+            ),
         )
         for n in object_paths
     ]

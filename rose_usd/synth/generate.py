@@ -108,19 +108,37 @@ def _static_scene(rng: np.random.Generator, keep_clear_m: float) -> tuple[list[_
     cx, cy = rng.uniform(-0.12, 0.12), rng.uniform(-0.06, 0.06)  # table center (the object is at the origin)
     top = shapes.box((top_x, top_y, thickness), center=(cx, cy, -thickness / 2))
     kind = str(rng.choice(list(textures.TABLE_TEXTURES)))
-    parts.append(_Part("TableTop", top, texture=textures.TABLE_TEXTURES[kind](rng), uv=_planar_uv(top.vertices, (0, 1), rng.uniform(0.5, 0.8))))
+    parts.append(
+        _Part(
+            "TableTop",
+            top,
+            texture=textures.TABLE_TEXTURES[kind](rng),
+            uv=_planar_uv(top.vertices, (0, 1), rng.uniform(0.5, 0.8)),
+        )
+    )
     leg_color = tuple(srgb_to_linear(np.array([60, 48, 40]) / 255.0).tolist())
     legs = []
     for sx in (-1, 1):
         for sy in (-1, 1):
-            legs.append(shapes.box((0.05, 0.05, height - thickness), center=(cx + sx * (top_x / 2 - 0.06), cy + sy * (top_y / 2 - 0.06), -thickness - (height - thickness) / 2)))
+            legs.append(
+                shapes.box(
+                    (0.05, 0.05, height - thickness),
+                    center=(
+                        cx + sx * (top_x / 2 - 0.06),
+                        cy + sy * (top_y / 2 - 0.06),
+                        -thickness - (height - thickness) / 2,
+                    ),
+                )
+            )
     parts.append(_Part("TableLegs", trimesh.util.concatenate(legs), color_linear=leg_color))
     room = 5.0
     floor = shapes.box((room, room, 0.05), center=(cx, cy, -height - 0.025))
     parts.append(_Part("Floor", floor, texture=textures.tiles(rng), uv=_planar_uv(floor.vertices, (0, 1), 1.2)))
     wall_tex = textures.plaster(rng)
     wall_h = 2.6
-    for i, (dx, dy, ex, ey) in enumerate(((room / 2, 0, 0.1, room), (-room / 2, 0, 0.1, room), (0, room / 2, room, 0.1), (0, -room / 2, room, 0.1))):
+    for i, (dx, dy, ex, ey) in enumerate(
+        ((room / 2, 0, 0.1, room), (-room / 2, 0, 0.1, room), (0, room / 2, room, 0.1), (0, -room / 2, room, 0.1))
+    ):
         wall = shapes.box((ex, ey, wall_h), center=(cx + dx, cy + dy, -height + wall_h / 2))
         axes = (1, 2) if ex < ey else (0, 2)
         parts.append(_Part(f"Wall{i}", wall, texture=wall_tex, uv=_planar_uv(wall.vertices, axes, 1.5)))
@@ -147,7 +165,12 @@ def _static_scene(rng: np.random.Generator, keep_clear_m: float) -> tuple[list[_
             mesh = shapes.sphere(radius, (x, y, radius))
         placed.append((x, y, radius))
         parts.append(_Part(f"Clutter{k}", mesh, color_linear=_random_color(rng, saturated=bool(rng.random() < 0.5))))
-    layout = {"table_center": (cx, cy), "table_half_extent": (top_x / 2, top_y / 2), "table_height": height, "table_texture": kind}
+    layout = {
+        "table_center": (cx, cy),
+        "table_half_extent": (top_x / 2, top_y / 2),
+        "table_height": height,
+        "table_texture": kind,
+    }
     return parts, layout
 
 
@@ -167,11 +190,23 @@ def _intrinsics(rng: np.random.Generator, width: int, height: int) -> np.ndarray
     hfov = np.radians(rng.uniform(58.0, 66.0))
     f = width / (2.0 * np.tan(hfov / 2.0))
     scale = width / 640.0
-    return np.array([[f, 0.0, (width - 1) / 2.0 + rng.uniform(-4, 4) * scale], [0.0, f, (height - 1) / 2.0 + rng.uniform(-4, 4) * scale], [0.0, 0.0, 1.0]])
+    return np.array(
+        [
+            [f, 0.0, (width - 1) / 2.0 + rng.uniform(-4, 4) * scale],
+            [0.0, f, (height - 1) / 2.0 + rng.uniform(-4, 4) * scale],
+            [0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def _mesh_data(part: _Part, texture_path: Path | None) -> MeshData:
-    return MeshData(vertices=np.asarray(part.mesh.vertices, dtype=float), faces=np.asarray(part.mesh.faces, dtype=np.int64), color=part.color_linear, uv=part.uv, texture=texture_path)
+    return MeshData(
+        vertices=np.asarray(part.mesh.vertices, dtype=float),
+        faces=np.asarray(part.mesh.faces, dtype=np.int64),
+        color=part.color_linear,
+        uv=part.uv,
+        texture=texture_path,
+    )
 
 
 def _write_part(gt_dir: Path, rel_mesh: str, part: _Part) -> tuple[gtfmt.Appearance, Path | None]:
@@ -244,7 +279,15 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
         base.poses = np.repeat(base_pose[None], n, axis=0)
         top = _make_object(rng, config.shape, "Top", 2)
         top_start = se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-np.pi, np.pi)), [0.0, 0.0, ext[2]])
-        motion = task_motion(config.task, n, top_start, top.spec.size_m, rng, support=(np.zeros(2), 0.5 * float(np.hypot(ext[0], ext[1]))), **table)
+        motion = task_motion(
+            config.task,
+            n,
+            top_start,
+            top.spec.size_m,
+            rng,
+            support=(np.zeros(2), 0.5 * float(np.hypot(ext[0], ext[1]))),
+            **table,
+        )
         top.poses = motion.world_from_object
         objects = [base, top]
         manipulated = top
@@ -305,17 +348,34 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
             shell_thickness_m=PRIORS[obj.category].shell_thickness_m,
         )
         mp = mass_properties(obj.spec.mesh.vertices, obj.spec.mesh.faces, obj.density)
-        object_entries.append(dict(gtfmt.object_json(truth), mass_kg=mp.mass_kg, size_m=list(obj.spec.size_m), specular=obj.specular, label=obj.label))
+        object_entries.append(
+            dict(
+                gtfmt.object_json(truth),
+                mass_kg=mp.mass_kg,
+                size_m=list(obj.spec.size_m),
+                specular=obj.specular,
+                label=obj.label,
+            )
+        )
     hand_appearance, _ = _write_part(gt_dir, "interactor.obj", hand_part)
     # the interactor proxy casts no shadow: the reconstruction does not contain the hand, and a
     # shadow of it (often of an arm outside the image) is not something a perfect reconstruction
     # could reproduce, so it would only blur what the SSIM gate measures
-    items.append(RenderItem("Interactor", _mesh_data(hand_part, None), label=INTERACTOR_LABEL, pose=hand_poses[0], casts_shadow=False))
+    items.append(
+        RenderItem(
+            "Interactor", _mesh_data(hand_part, None), label=INTERACTOR_LABEL, pose=hand_poses[0], casts_shadow=False
+        )
+    )
     write_tum(gt_dir / "camera.tum", timestamps, cam_poses, header="world_from_camera, OpenCV camera axes")
     write_tum(gt_dir / "interactor.tum", timestamps, hand_poses, header="world_from_interactor")
     np.savetxt(gt_dir / "K.txt", K, fmt="%.9f")
     np.savetxt(tmp_dir / "cam_K.txt", K, fmt="%.9f")
-    np.savetxt(gt_dir / "gravity.txt", np.array([[0.0, 0.0, -1.0]]), fmt="%.9f", header="unit gravity (down) direction in the world frame")
+    np.savetxt(
+        gt_dir / "gravity.txt",
+        np.array([[0.0, 0.0, -1.0]]),
+        fmt="%.9f",
+        header="unit gravity (down) direction in the world frame",
+    )
     color_from_depth = sample_depth_extrinsic(rng)
     gtfmt.write_manifest(
         gt_dir,
@@ -340,7 +400,9 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
             "layout": {k: list(v) if isinstance(v, tuple) else v for k, v in layout.items()},
             "parts": part_entries,
             "objects": object_entries,
-            "interactor": gtfmt.interactor_json(gtfmt.GtInteractor("interactor.obj", "interactor.tum", hand_appearance)),
+            "interactor": gtfmt.interactor_json(
+                gtfmt.GtInteractor("interactor.obj", "interactor.tum", hand_appearance)
+            ),
             "depth": "depth",
             "interactor_label": INTERACTOR_LABEL,
         },
@@ -361,7 +423,9 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
         stem = f"{t:06d}"
         images.write_rgb(tmp_dir / "rgb" / f"{stem}.png", rgb)
         images.write_depth_mm(gt_dir / "depth" / f"{stem}.png", surface.depth)
-        images.write_depth_mm(tmp_dir / "depth" / f"{stem}.png", sensor_depth(seen_by_sensor, rng, specular_labels=specular))
+        images.write_depth_mm(
+            tmp_dir / "depth" / f"{stem}.png", sensor_depth(seen_by_sensor, rng, specular_labels=specular)
+        )
         for obj in objects:
             mask = surface.labels == obj.label
             images.write_mask(gt_dir / "masks" / obj.name / f"{stem}.png", mask)
@@ -375,10 +439,20 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
     if missing:
         raise RuntimeError(f"generator bug: object(s) {missing} never visible (seed {config.seed})")
 
-    toml = [f"# synthetic case: task {config.task.value}, shape {config.shape.value}, seed {config.seed}", f"fps = {config.fps:g}", ""]
+    toml = [
+        f"# synthetic case: task {config.task.value}, shape {config.shape.value}, seed {config.seed}",
+        f"fps = {config.fps:g}",
+        "",
+    ]
     for obj in objects:
         frame, box = first_box[obj.name]
-        toml += ["[[objects]]", f'name = "{obj.name}"', f'category = "{obj.category}"', f"prompt = {{ frame = {frame}, box = [{box[0]}, {box[1]}, {box[2]}, {box[3]}] }}", ""]
+        toml += [
+            "[[objects]]",
+            f'name = "{obj.name}"',
+            f'category = "{obj.category}"',
+            f"prompt = {{ frame = {frame}, box = [{box[0]}, {box[1]}, {box[2]}, {box[3]}] }}",
+            "",
+        ]
     (tmp_dir / "rose.toml").write_text("\n".join(toml))
     tmp_dir.rename(out_dir)
     seen = ", ".join(f"{k} visible in {v} frames" for k, v in visible.items())

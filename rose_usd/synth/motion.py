@@ -90,8 +90,14 @@ def _carry_poses(carry: _Carry, n_frames: int, start_pose: np.ndarray) -> np.nda
     airborne = np.sin(np.pi * _progress(n_frames, t0, t1)) if carry.lift_m > 0 else np.zeros(n_frames)
     poses = np.empty((n_frames, 4, 4))
     for t in range(n_frames):
-        rot = se3.rotation_about([0, 0, 1], carry.yaw_rad * horizontal[t]) @ se3.rotation_about([1, 0, 0], carry.tilt_rad * airborne[t]) @ start_pose[:3, :3]
-        pos = start_pose[:3, 3] + np.array([carry.displacement[0] * horizontal[t], carry.displacement[1] * horizontal[t], 0.0])
+        rot = (
+            se3.rotation_about([0, 0, 1], carry.yaw_rad * horizontal[t])
+            @ se3.rotation_about([1, 0, 0], carry.tilt_rad * airborne[t])
+            @ start_pose[:3, :3]
+        )
+        pos = start_pose[:3, 3] + np.array(
+            [carry.displacement[0] * horizontal[t], carry.displacement[1] * horizontal[t], 0.0]
+        )
         pos[2] = z[t]
         poses[t] = se3.make_pose(rot, pos)
     return poses
@@ -137,18 +143,37 @@ def task_motion(
         carry = _Carry(d, 0.0, start_pose[2, 3], np.radians(rng.uniform(-20, 20)))
     elif task is Task.LIFT:
         d = rng.uniform(-0.03, 0.03, size=2)
-        carry = _Carry(d, rng.uniform(0.08, 0.14), start_pose[2, 3], np.radians(rng.uniform(-10, 10)), np.radians(rng.uniform(-8, 8)))
+        carry = _Carry(
+            d,
+            rng.uniform(0.08, 0.14),
+            start_pose[2, 3],
+            np.radians(rng.uniform(-10, 10)),
+            np.radians(rng.uniform(-8, 8)),
+        )
     elif task is Task.PLACE:
         d = _direction_on_table(rng, xy, (0.15, 0.25), center, table_half_extent, margin)
-        carry = _Carry(d, rng.uniform(0.06, 0.10), start_pose[2, 3], np.radians(rng.uniform(-30, 30)), np.radians(rng.uniform(-5, 5)))
+        carry = _Carry(
+            d,
+            rng.uniform(0.06, 0.10),
+            start_pose[2, 3],
+            np.radians(rng.uniform(-30, 30)),
+            np.radians(rng.uniform(-5, 5)),
+        )
     elif task is Task.ROTATE:
-        carry = _Carry(rng.uniform(-0.015, 0.015, size=2), 0.0, start_pose[2, 3], np.radians(rng.choice([-1, 1]) * rng.uniform(60, 120)))
+        carry = _Carry(
+            rng.uniform(-0.015, 0.015, size=2),
+            0.0,
+            start_pose[2, 3],
+            np.radians(rng.choice([-1, 1]) * rng.uniform(60, 120)),
+        )
     elif task is Task.UNSTACK:
         if support is None:
             raise ValueError("UNSTACK needs the support object's position and radius")
         avoid = (np.asarray(support[0]), support[1] + radius + 0.03)
         d = _direction_on_table(rng, xy, (0.15, 0.24), center, table_half_extent, margin, avoid=avoid)
-        carry = _Carry(d, rng.uniform(0.04, 0.07), 0.0, np.radians(rng.uniform(-25, 25)), np.radians(rng.uniform(-5, 5)))
+        carry = _Carry(
+            d, rng.uniform(0.04, 0.07), 0.0, np.radians(rng.uniform(-25, 25)), np.radians(rng.uniform(-5, 5))
+        )
     else:  # pragma: no cover - the enum is closed
         raise ValueError(task)
     poses = _carry_poses(carry, n_frames, start_pose)
@@ -232,7 +257,11 @@ def handheld_camera(
     poses = np.empty((n_frames, 4, 4))
     for i in range(n_frames):
         eye = target + np.array(
-            [radius[i] * np.cos(el) * np.cos(az[i]), radius[i] * np.cos(el) * np.sin(az[i]), radius[i] * np.sin(el) + height_drift[i]]
+            [
+                radius[i] * np.cos(el) * np.cos(az[i]),
+                radius[i] * np.cos(el) * np.sin(az[i]),
+                radius[i] * np.sin(el) + height_drift[i],
+            ]
         )
         pose = se3.look_at(eye + trans_shake[i], target)
         pose[:3, :3] = pose[:3, :3] @ Rotation.from_rotvec(rot_shake[i]).as_matrix()

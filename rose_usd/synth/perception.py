@@ -130,7 +130,9 @@ def simulate_unidepth(case_dir: Path, gt: GroundTruth, rng: np.random.Generator,
         depth = np.where(clean > 0, clean, np.max(clean)) * bias * jitter * rel_err
         depth = cv2.GaussianBlur(depth.astype(np.float32), (0, 0), sigmaX=1.5)  # networks blur depth edges
         conf = np.clip(1.0 - 5.0 * np.abs(cv2.Laplacian(depth, cv2.CV_32F)), 0.05, 1.0)
-        unidepth.write_unidepth(case_dir / PERCEPTION_DIR / "unidepth" / f"{t:06d}.npz", unidepth.UniDepthFrame(depth, fov, K, conf))
+        unidepth.write_unidepth(
+            case_dir / PERCEPTION_DIR / "unidepth" / f"{t:06d}.npz", unidepth.UniDepthFrame(depth, fov, K, conf)
+        )
     return {"scale_bias": bias, "fov_deg": fov}
 
 
@@ -144,7 +146,9 @@ def simulate_geocalib(case_dir: Path, gt: GroundTruth, rng: np.random.Generator,
     roll, pitch = geocalib.rp_from_up(noisy)
     vfov = float(2 * np.arctan(gt.height / (2 * gt.K[1, 1])))
     sigma = np.radians(errors.geocalib_error_deg)
-    geocalib.write_geocalib(case_dir / PERCEPTION_DIR / "geocalib.json", geocalib.GeoCalib(noisy, roll, pitch, 0, None, vfov, sigma, sigma))
+    geocalib.write_geocalib(
+        case_dir / PERCEPTION_DIR / "geocalib.json", geocalib.GeoCalib(noisy, roll, pitch, 0, None, vfov, sigma, sigma)
+    )
     return {"error_deg": err_deg}
 
 
@@ -158,7 +162,9 @@ def _perturb_mask(mask: np.ndarray, rng: np.random.Generator, boundary_px: float
     return signed > wobble
 
 
-def simulate_sam2(case_dir: Path, gt: GroundTruth, names: list[str], rng: np.random.Generator, errors: PerceptionErrors) -> dict:
+def simulate_sam2(
+    case_dir: Path, gt: GroundTruth, names: list[str], rng: np.random.Generator, errors: PerceptionErrors
+) -> dict:
     boundary_px = errors.sam2_boundary_px * gt.width / 640.0  # the error is ~1.5 px at 640 px wide
     for t in range(gt.n_frames):
         ids = np.zeros((gt.height, gt.width), np.uint8)
@@ -182,7 +188,9 @@ def trellis_frame(mesh: trimesh.Trimesh, yaw_rad: float) -> tuple[np.ndarray, fl
     return se3.make_pose(rot, center), size
 
 
-def simulate_trellis(case_dir: Path, gt: GroundTruth, name: str, rng: np.random.Generator, errors: PerceptionErrors) -> tuple[np.ndarray, dict]:
+def simulate_trellis(
+    case_dir: Path, gt: GroundTruth, name: str, rng: np.random.Generator, errors: PerceptionErrors
+) -> tuple[np.ndarray, dict]:
     """Write the TRELLIS GLB of one object; returns object_from_trellis (metric) for FoundationPose."""
     import xatlas
 
@@ -205,14 +213,25 @@ def simulate_trellis(case_dir: Path, gt: GroundTruth, name: str, rng: np.random.
     unit = (verts - center) / scale
     object_from_trellis = object_from_trellis @ se3.make_pose(np.eye(3), center)
     vmapping, indices, uvs = xatlas.parametrize(unit.astype(np.float32), mesh.faces.astype(np.uint32))
-    color = np.asarray(linear_to_srgb8(np.asarray(truth.color if truth.color is not None else (0.5, 0.5, 0.5))), dtype=np.uint8)
+    color = np.asarray(
+        linear_to_srgb8(np.asarray(truth.color if truth.color is not None else (0.5, 0.5, 0.5))), dtype=np.uint8
+    )
     texture = np.tile(color, (64, 64, 1))
     path = case_dir / PERCEPTION_DIR / f"{name}.glb"
     trellis.write_trellis_glb(path, unit[vmapping], indices, uvs, texture)
     return object_from_trellis, {"scale_m_per_unit": scale, "yaw_rad": yaw}
 
 
-def simulate_foundationpose(case_dir: Path, gt: GroundTruth, name: str, object_from_trellis: np.ndarray, rng: np.random.Generator, errors: PerceptionErrors, *, one_object: bool) -> dict:
+def simulate_foundationpose(
+    case_dir: Path,
+    gt: GroundTruth,
+    name: str,
+    object_from_trellis: np.ndarray,
+    rng: np.random.Generator,
+    errors: PerceptionErrors,
+    *,
+    one_object: bool,
+) -> dict:
     n = gt.n_frames
     cams = gt.camera_poses()
     objs = gt.object_poses(name)
@@ -231,7 +250,10 @@ def simulate_foundationpose(case_dir: Path, gt: GroundTruth, name: str, object_f
         # the translation error moves it in the camera frame: a pose estimator given depth and a
         # mask errs in the object's orientation and position, not by turning it about the camera
         # (which would move it sideways by the angle times its distance)
-        noisy = cam_from_trellis @ se3.make_pose(Rotation.from_rotvec(np.radians(errors.foundationpose_rot_sigma_deg) * gain[t] * rot[t]).as_matrix(), np.zeros(3))
+        noisy = cam_from_trellis @ se3.make_pose(
+            Rotation.from_rotvec(np.radians(errors.foundationpose_rot_sigma_deg) * gain[t] * rot[t]).as_matrix(),
+            np.zeros(3),
+        )
         noisy[:3, 3] += errors.foundationpose_trans_sigma_m * gain[t] * trans[t]
         foundationpose.write_pose(folder / f"{t:06d}.txt", noisy)
     return {"hidden_frames": int((hidden > 0.5).sum())}
@@ -251,7 +273,9 @@ def write_mono_imported(case_dir: Path, seed: int, errors: PerceptionErrors = Pe
     }
     for name in names:
         object_from_trellis, info = simulate_trellis(case_dir, gt, name, rng, errors)
-        info.update(simulate_foundationpose(case_dir, gt, name, object_from_trellis, rng, errors, one_object=len(names) == 1))
+        info.update(
+            simulate_foundationpose(case_dir, gt, name, object_from_trellis, rng, errors, one_object=len(names) == 1)
+        )
         record["objects"][name] = info
     record["errors"] = errors.__dict__
     (case_dir / PERCEPTION_DIR / "simulated.json").write_text(json.dumps(record, indent=2, default=float) + "\n")

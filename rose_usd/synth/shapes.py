@@ -37,7 +37,9 @@ def to_manifold(mesh: trimesh.Trimesh) -> manifold3d.Manifold:
 
 def from_manifold(m: manifold3d.Manifold) -> trimesh.Trimesh:
     mesh = m.to_mesh()
-    return trimesh.Trimesh(vertices=np.asarray(mesh.vert_properties)[:, :3], faces=np.asarray(mesh.tri_verts), process=True)
+    return trimesh.Trimesh(
+        vertices=np.asarray(mesh.vert_properties)[:, :3], faces=np.asarray(mesh.tri_verts), process=True
+    )
 
 
 def box(extents, center=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
@@ -60,7 +62,9 @@ def sphere(radius: float, center, *, subdivisions: int = 3) -> trimesh.Trimesh:
     return mesh
 
 
-def mug(radius: float, height: float, wall: float, *, handle_radius: float | None = None, sections: int = 48) -> trimesh.Trimesh:
+def mug(
+    radius: float, height: float, wall: float, *, handle_radius: float | None = None, sections: int = 48
+) -> trimesh.Trimesh:
     """A mug: a cylinder hollowed from the top (bottom thickness = wall) with a ring handle on +X."""
     outer = manifold3d.Manifold.cylinder(height, radius, radius, sections)
     inner = manifold3d.Manifold.cylinder(height, radius - wall, radius - wall, sections).translate([0.0, 0.0, wall])

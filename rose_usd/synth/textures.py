@@ -34,7 +34,9 @@ def tiles(rng: np.random.Generator, size: int = 512, n: int = 4) -> np.ndarray:
     ix, iy = np.floor(x * n).astype(int), np.floor(y * n).astype(int)
     tint = rng.uniform(0.88, 1.06, size=(n, n))[iy, ix]
     grain = 0.94 + 0.06 * value_noise(rng, size, 32)
-    grout = (np.minimum((x * n) % 1.0, 1 - (x * n) % 1.0) < 0.02) | (np.minimum((y * n) % 1.0, 1 - (y * n) % 1.0) < 0.02)
+    grout = (np.minimum((x * n) % 1.0, 1 - (x * n) % 1.0) < 0.02) | (
+        np.minimum((y * n) % 1.0, 1 - (y * n) % 1.0) < 0.02
+    )
     img = base[None, None] * (tint * grain)[..., None]
     img[grout] = base * 0.55
     return np.clip(img, 0, 255).astype(np.uint8)
@@ -69,11 +71,13 @@ def marble(rng: np.random.Generator, size: int = 512) -> np.ndarray:
 
 def cloth(rng: np.random.Generator, size: int = 512) -> np.ndarray:
     """A woven tablecloth: two-color weave with a plaid: sRGB uint8 (size, size, 3)."""
-    palette = rng.choice([[[178, 52, 48], [236, 228, 214]], [[52, 88, 150], [230, 230, 226]], [[70, 120, 80], [228, 222, 200]]])
+    palette = rng.choice(
+        [[[178, 52, 48], [236, 228, 214]], [[52, 88, 150], [230, 230, 226]], [[70, 120, 80], [228, 222, 200]]]
+    )
     a, b = (np.array(c, dtype=float) for c in palette)
     y, x = np.mgrid[0:size, 0:size] / size
     n = int(rng.integers(5, 9))
-    stripes = (((np.floor(x * n * 2) % 2) + (np.floor(y * n * 2) % 2)) / 2.0)
+    stripes = ((np.floor(x * n * 2) % 2) + (np.floor(y * n * 2) % 2)) / 2.0
     weave = 0.9 + 0.1 * np.sin(x * size * np.pi / 2) * np.sin(y * size * np.pi / 2)
     img = (a[None, None] * stripes[..., None] + b[None, None] * (1 - stripes[..., None])) * weave[..., None]
     return np.clip(img, 0, 255).astype(np.uint8)

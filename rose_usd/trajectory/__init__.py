@@ -8,7 +8,11 @@ STAGE = StageDef(
     layer="trajectory",
     needs=("capture", "segment", "object"),
     config=TrajectoryConfig,
-    backends={"foundationpose": "rose_usd.trajectory.foundationpose:run", "tracker": "rose_usd.trajectory.tracker:run", "oracle": "rose_usd.trajectory.oracle:run"},
+    backends={
+        "foundationpose": "rose_usd.trajectory.foundationpose:run",
+        "tracker": "rose_usd.trajectory.tracker:run",
+        "oracle": "rose_usd.trajectory.oracle:run",
+    },
     summary="object poses per frame (time samples) and TUM export -> layers/trajectory.usda",
     side_dirs=("trajectory",),
 )

@@ -14,14 +14,18 @@ from rose_usd.usd import paths, schema
 from rose_usd.usd.physics import set_pose_ops
 
 
-def author_trajectory(ctx: StageContext, name: str, world_from_object: np.ndarray, confidence: np.ndarray, source: str) -> None:
+def author_trajectory(
+    ctx: StageContext, name: str, world_from_object: np.ndarray, confidence: np.ndarray, source: str
+) -> None:
     """Time-sample ``world_from_object`` (N, 4, 4) and ``confidence`` (N,) on the object prim."""
     n = ctx.time_info.n_frames
     if world_from_object.shape != (n, 4, 4) or confidence.shape != (n,):
         raise ValueError(f"author_trajectory: expected {n} poses and confidences")
     prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
     if not prim:
-        raise StageError(f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)")
+        raise StageError(
+            f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)"
+        )
     xform = UsdGeom.Xformable(prim)
     for t in range(n):
         set_pose_ops(xform, world_from_object[t], Usd.TimeCode(t))
@@ -47,7 +51,9 @@ def from_default_pose(ctx: StageContext, name: str, world_from_object: np.ndarra
     origin by that disagreement."""
     prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
     if not prim:
-        raise StageError(f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)")
+        raise StageError(
+            f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)"
+        )
     default = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T
     offset = np.linalg.inv(world_from_object[0]) @ default
     return np.einsum("nij,jk->nik", world_from_object, offset)

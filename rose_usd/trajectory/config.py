@@ -5,8 +5,12 @@ from dataclasses import dataclass
 
 
 class TrajectoryBackend(enum.Enum):
-    FOUNDATIONPOSE = "foundationpose"  # import FoundationPose's ob_in_cam/ (T_cam<-mesh per frame) through the recovered cameras
-    TRACKER = "tracker"  # classical model-based tracker: the object mesh registered to its masked metric depth frame by frame
+    FOUNDATIONPOSE = (
+        "foundationpose"  # import FoundationPose's ob_in_cam/ (T_cam<-mesh per frame) through the recovered cameras
+    )
+    TRACKER = (
+        "tracker"  # classical model-based tracker: the object mesh registered to its masked metric depth frame by frame
+    )
     ORACLE = "oracle"  # ground-truth object poses from gt/ (benchmark cases)
 
 

@@ -67,13 +67,23 @@ def run(ctx: StageContext) -> None:
     for spec in specs:  # every file read and checked before anything is written
         folder = foundationpose.track_folder(case.root, spec.name, len(specs))
         if not folder.is_dir():
-            raise InputError(f"no FoundationPose poses of object {spec.name!r}", path=folder, hint="put FoundationPose's ob_in_cam/ there (one folder per object when there are several)")
+            raise InputError(
+                f"no FoundationPose poses of object {spec.name!r}",
+                path=folder,
+                hint="put FoundationPose's ob_in_cam/ there (one folder per object when there are several)",
+            )
         cam_from_object, present = foundationpose.read_track(folder, frame_ids)
         if not present.any():
-            raise InputError(f"no pose file of object {spec.name!r} matches a frame (expected e.g. {frame_ids[0]}.txt)", path=folder, hint="name the files by the RGB frames' stems")
+            raise InputError(
+                f"no pose file of object {spec.name!r} matches a frame (expected e.g. {frame_ids[0]}.txt)",
+                path=folder,
+                hint="name the files by the RGB frames' stems",
+            )
         poses, confidence = fill_gaps(np.einsum("nij,njk->nik", cameras.world_from_cv, cam_from_object), present)
         if not present.all():
-            ctx.warn(f"object {spec.name!r}: no FoundationPose pose for {int((~present).sum())} of {n} frames ({_gaps(~present)}): interpolated between neighbors (confidence 0.5) or held at the ends (0)")
+            ctx.warn(
+                f"object {spec.name!r}: no FoundationPose pose for {int((~present).sum())} of {n} frames ({_gaps(~present)}): interpolated between neighbors (confidence 0.5) or held at the ends (0)"
+            )
         tracks[spec.name] = (poses, confidence, int(present.sum()))
     facts = {}
     for name, (poses, confidence, read) in tracks.items():

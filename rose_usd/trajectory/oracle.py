@@ -13,6 +13,8 @@ from rose_usd.trajectory.author import author_trajectory, from_default_pose
 def run(ctx: StageContext) -> None:
     gt = ctx.case.gt
     to_world = world_from_gt(ctx)
-    tracks = {spec.name: np.einsum("ij,njk->nik", to_world, gt.object_poses(spec.name)) for spec in ctx.case.config.objects}
+    tracks = {
+        spec.name: np.einsum("ij,njk->nik", to_world, gt.object_poses(spec.name)) for spec in ctx.case.config.objects
+    }
     for name, poses in tracks.items():
         author_trajectory(ctx, name, from_default_pose(ctx, name, poses), np.ones(len(poses)), "oracle")

@@ -108,7 +108,15 @@ def _exp(xi: np.ndarray) -> np.ndarray:
     return se3.make_pose(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
 
 
-def register(model: Model, observed: np.ndarray, camera: np.ndarray, start: np.ndarray, *, prior_weight: float = 0.0, schedule=SCHEDULE) -> Fit:
+def register(
+    model: Model,
+    observed: np.ndarray,
+    camera: np.ndarray,
+    start: np.ndarray,
+    *,
+    prior_weight: float = 0.0,
+    schedule=SCHEDULE,
+) -> Fit:
     """Point-to-plane ICP of ``observed`` (world points of frame t) onto ``model`` from motion
     ``start``; ``camera`` is the frame's camera center (for the facing test). ``prior_weight``
     pulls toward ``start``, as a fraction of the depth's mean stiffness (trace / 6). Returns the
@@ -158,11 +166,15 @@ def evaluate(model: Model, observed: np.ndarray, motion: np.ndarray) -> Fit:
     return Fit(motion, float(inl.mean()) if len(d) else 0.0, rms)
 
 
-def silhouette_iou(model: Model, motion: np.ndarray, mask: np.ndarray, ignore: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray) -> float:
+def silhouette_iou(
+    model: Model, motion: np.ndarray, mask: np.ndarray, ignore: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray
+) -> float:
     """IoU of the model's silhouette at ``motion`` with ``mask``, pixels of ``ignore`` (hand and
     other objects: they may hide the object) left out."""
     h, w = mask.shape
-    sil = silhouette(se3.transform_points(motion, model.vertices), model.faces, world_from_cv, K, w, h, closed=model.closed)
+    sil = silhouette(
+        se3.transform_points(motion, model.vertices), model.faces, world_from_cv, K, w, h, closed=model.closed
+    )
     keep = ~ignore
     inter = np.sum(sil & mask & keep)
     union = np.sum((sil | mask) & keep)
@@ -194,7 +206,9 @@ def smooth(motions: np.ndarray, good: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-def _observed(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int, max_points: int) -> np.ndarray:
+def _observed(
+    depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int, max_points: int
+) -> np.ndarray:
     if erode_px:
         mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1,) * 2, np.uint8)).astype(bool)
     v, u = np.nonzero(mask & (depth > 0))
@@ -215,7 +229,9 @@ def _predict(motions: list[np.ndarray], damping: float = 0.7) -> np.ndarray:
     return step @ motions[-1]
 
 
-def _reacquire(model: Model, observed: np.ndarray, camera: np.ndarray, last: np.ndarray, score, *, margin: float = 0.05) -> Fit:
+def _reacquire(
+    model: Model, observed: np.ndarray, camera: np.ndarray, last: np.ndarray, score, *, margin: float = 0.05
+) -> Fit:
     """The fit from ``last`` (an object hidden for a while has often not moved), unless a start
     moved so the model's center meets the observed points' (pushed back by half the object along
     the view) and turned about the vertical in 45 deg steps scores ``margin`` better (a solid of
@@ -237,7 +253,15 @@ def _reacquire(model: Model, observed: np.ndarray, camera: np.ndarray, last: np.
     return best
 
 
-def weak_axis(model: Model, observed: np.ndarray, motion: np.ndarray, camera: np.ndarray, *, radius_m: float = 0.008, ratio: float = 0.05) -> np.ndarray | None:
+def weak_axis(
+    model: Model,
+    observed: np.ndarray,
+    motion: np.ndarray,
+    camera: np.ndarray,
+    *,
+    radius_m: float = 0.008,
+    ratio: float = 0.05,
+) -> np.ndarray | None:
     """The world direction along which moving the model barely changes its point-to-plane fit
     to ``observed`` (the smallest eigenvector of the matched camera-facing normals' scatter),
     when its stiffness is under ``ratio`` of the largest; else None. A can seen only by its
@@ -254,7 +278,17 @@ def weak_axis(model: Model, observed: np.ndarray, motion: np.ndarray, camera: np
     return vectors[:, 0] if values[0] < ratio * values[-1] else None
 
 
-def slide(model: Model, observed: np.ndarray, here: Fit, axis: np.ndarray, score, *, span_m: float, step_m: float, margin: float) -> Fit:
+def slide(
+    model: Model,
+    observed: np.ndarray,
+    here: Fit,
+    axis: np.ndarray,
+    score,
+    *,
+    span_m: float,
+    step_m: float,
+    margin: float,
+) -> Fit:
     """``here`` (a fit of ``observed``) moved along ``axis`` by the offset (within +-``span_m``,
     ``step_m`` steps, then 1 mm steps around the best) that ``score`` rates best, when it beats
     ``here`` by at least ``margin``; else ``here``."""
@@ -262,7 +296,10 @@ def slide(model: Model, observed: np.ndarray, here: Fit, axis: np.ndarray, score
     def at(offset: float) -> Fit:
         return evaluate(model, observed, se3.make_pose(np.eye(3), offset * axis) @ here.motion)
 
-    top_score, top, best_offset = max(((score(f), f, o) for o in np.arange(-span_m, span_m + 1e-9, step_m) for f in (at(float(o)),)), key=lambda c: c[0])
+    top_score, top, best_offset = max(
+        ((score(f), f, o) for o in np.arange(-span_m, span_m + 1e-9, step_m) for f in (at(float(o)),)),
+        key=lambda c: c[0],
+    )
     for offset in best_offset + np.arange(-step_m + 0.001, step_m - 1e-9, 0.001):
         f = at(float(offset))
         sc = score(f)
@@ -271,7 +308,16 @@ def slide(model: Model, observed: np.ndarray, here: Fit, axis: np.ndarray, score
     return top if top_score > score(here) + margin else here
 
 
-def settle_along_gravity(model: Model, observed: np.ndarray, here: Fit, score, *, span_m: float = 0.08, step_m: float = 0.004, margin: float = 0.02) -> Fit:
+def settle_along_gravity(
+    model: Model,
+    observed: np.ndarray,
+    here: Fit,
+    score,
+    *,
+    span_m: float = 0.08,
+    step_m: float = 0.004,
+    margin: float = 0.02,
+) -> Fit:
     """``here`` slid along gravity to where ``score`` (fitness + silhouette IoU) is best. Depth
     cannot tell where along its axis a can seen from the side is: its wall matches the model at
     any height, and a hand on its top hides the one face that could. Put down, the can was held
@@ -292,19 +338,29 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
     def silhouette_score(t: int, mask: np.ndarray):
         """Fitness plus silhouette IoU at frame t, the hand and other objects left out (read once)."""
         ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
-        return lambda f: f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t])
+        return lambda f: (
+            f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t])
+        )
 
     motions, tracked, fitness = [np.eye(4)], np.zeros(n, bool), np.zeros(n)
     lost_since, reacquired, iou0, last_touch, moved_untouched, settled, slid = None, 0, float("nan"), -n, 0, 0, 0
     for t in progress(range(n), f"trajectory {name}: tracking", total=n):
         mask = read_mask(folder / f"{t:06d}.png")
         if mask.shape != (ctx.case.height, ctx.case.width):
-            raise InputError(f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {ctx.case.width}x{ctx.case.height}", path=folder / f"{t:06d}.png", hint="re-run the segment stage")
+            raise InputError(
+                f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {ctx.case.width}x{ctx.case.height}",
+                path=folder / f"{t:06d}.png",
+                hint="re-run the segment stage",
+            )
         cam, K, depth = cameras.world_from_cv[t], cameras.K[t], depth_of(t)
         hand = hands / f"{t:06d}.png"
         if not hands.is_dir() or (hand.is_file() and mask.any() and touches(read_mask(hand), mask, depth)):
             last_touch = t
-        observed = _observed(depth, mask, K, cam, cfg.erode_px, cfg.max_points) if mask.sum() >= cfg.min_points else np.zeros((0, 3))
+        observed = (
+            _observed(depth, mask, K, cam, cfg.erode_px, cfg.max_points)
+            if mask.sum() >= cfg.min_points
+            else np.zeros((0, 3))
+        )
         prev = motions[-1] if t else np.eye(4)
         if len(observed) < cfg.min_points:
             motions.append(prev) if t else None
@@ -328,7 +384,16 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
             axis = weak_axis(model, observed, fit.motion, cam[:3, 3]) if t and cfg.slide_span_m > 0 else None
             if axis is not None:  # depth leaves a direction free: the silhouette decides (step 3)
                 registered = fit
-                fit = slide(model, observed, fit, axis, silhouette_score(t, mask), span_m=cfg.slide_span_m, step_m=0.004, margin=0.005)
+                fit = slide(
+                    model,
+                    observed,
+                    fit,
+                    axis,
+                    silhouette_score(t, mask),
+                    span_m=cfg.slide_span_m,
+                    step_m=0.004,
+                    margin=0.005,
+                )
                 slid += fit is not registered
         if t == 0:
             iou0 = silhouette_iou(model, fit.motion, mask, occluders(ctx, name, 0, mask.shape, grow_px=2), cam, K)
@@ -346,7 +411,11 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
         tracked[t], fitness[t] = True, fit.fitness
     motions = np.stack(motions)
     if not tracked.any():
-        raise InputError(f"object {name!r} was never tracked: no frame has {cfg.min_points} masked depth points fitting its mesh", path=folder, hint="check its masks (segment stage) and the object mesh")
+        raise InputError(
+            f"object {name!r} was never tracked: no frame has {cfg.min_points} masked depth points fitting its mesh",
+            path=folder,
+            hint="check its masks (segment stage) and the object mesh",
+        )
     motions = smooth(motions, tracked, cfg.smooth_window)
     filled, confidence = fill_gaps(motions, tracked)
     confidence[tracked] = np.clip(fitness[tracked], 0.0, 1.0)
@@ -371,7 +440,10 @@ def run(ctx: StageContext) -> None:
     for spec in ctx.case.config.objects:  # every object tracked before anything is written
         prim = ctx.stage.GetPrimAtPath(paths.object_visual(spec.name))
         if not prim:
-            raise StageError(f"object {spec.name!r} has no visual mesh in the stage", hint="run the object stage first (rose-usd run object ...)")
+            raise StageError(
+                f"object {spec.name!r} has no visual mesh in the stage",
+                hint="run the object stage first (rose-usd run object ...)",
+            )
         mesh = read_mesh(prim)  # world coordinates at the default (frame-0) pose
         model = Model.from_mesh(mesh.vertices, mesh.faces, ctx.config.model_points)
         start = time.perf_counter()
@@ -379,7 +451,9 @@ def run(ctx: StageContext) -> None:
         fact["frames_per_s"] = round(n / (time.perf_counter() - start), 1)
         lost = fact["frames_lost"]
         if lost:
-            ctx.warn(f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): interpolated between tracked frames (confidence 0.5) or held at the ends (0)")
+            ctx.warn(
+                f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): interpolated between tracked frames (confidence 0.5) or held at the ends (0)"
+            )
         world0 = _default_pose(ctx, spec.name)
         results[spec.name] = (np.einsum("nij,jk->nik", motions, world0), confidence)
         facts[spec.name] = fact

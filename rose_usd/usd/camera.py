@@ -211,4 +211,3 @@ def read_camera(stage: Usd.Stage, path: Sdf.Path, n_frames: int) -> CameraTrack:
                 height,
             )
     return CameraTrack(cv_camera_from_usd(poses), Ks, width, height)
-

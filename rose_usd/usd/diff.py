@@ -19,7 +19,11 @@ def load_dump(path: str | os.PathLike) -> dict[str, Any]:
         try:
             return normalize(json.loads(path.read_text()))
         except json.JSONDecodeError as exc:
-            raise InputError(f"not a JSON dump ({exc})", path=path, hint="give a stage file or the output of `rose-usd inspect --json`") from None
+            raise InputError(
+                f"not a JSON dump ({exc})",
+                path=path,
+                hint="give a stage file or the output of `rose-usd inspect --json`",
+            ) from None
     return normalize(dump(path))
 
 
@@ -49,7 +53,9 @@ def _close(a: Any, b: Any, rtol: float, atol: float) -> bool:
     return a == b
 
 
-def _tolerance(key: str, tolerances: dict[str, tuple[float, float]] | None, rtol: float, atol: float) -> tuple[float, float]:
+def _tolerance(
+    key: str, tolerances: dict[str, tuple[float, float]] | None, rtol: float, atol: float
+) -> tuple[float, float]:
     for pattern, tol in (tolerances or {}).items():
         if pattern in key:
             return tol

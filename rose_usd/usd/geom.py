@@ -67,7 +67,9 @@ def author_mesh(stage: Usd.Stage, path: Sdf.Path, mesh: MeshData, *, purpose: st
         primvar = usd_mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant)
         primvar.Set(Vt.Vec3fArray([Gf.Vec3f(*mesh.mean_color)]))
     if mesh.uv is not None:
-        st = UsdGeom.PrimvarsAPI(usd_mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+        st = UsdGeom.PrimvarsAPI(usd_mesh).CreatePrimvar(
+            "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex
+        )
         st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(mesh.uv, dtype=np.float32)))
     return usd_mesh
 
@@ -104,7 +106,9 @@ def author_preview_material(
         reader = UsdShade.Shader.Define(stage, path.AppendChild("ColorReader"))
         reader.CreateIdAttr("UsdPrimvarReader_float3")
         reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("displayColor")
-        diffuse.ConnectToSource(reader.ConnectableAPI(), "result", UsdShade.AttributeType.Output, Sdf.ValueTypeNames.Float3)
+        diffuse.ConnectToSource(
+            reader.ConnectableAPI(), "result", UsdShade.AttributeType.Output, Sdf.ValueTypeNames.Float3
+        )
     else:
         diffuse.Set(Gf.Vec3f(*(color if color is not None else (0.5, 0.5, 0.5))))
     material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")

@@ -74,7 +74,9 @@ def _mesh_info(prim: Usd.Prim) -> dict[str, Any]:
         "winding_consistent": bool(tm.is_winding_consistent),
         "volume_m3": float(tm.volume) if watertight else None,
         "bounds_local_m": np.round(tm.bounds, 6).tolist(),
-        "color": "texture" if mesh.texture is not None else ("vertex" if mesh.vertex_colors is not None else "constant"),
+        "color": "texture"
+        if mesh.texture is not None
+        else ("vertex" if mesh.vertex_colors is not None else "constant"),
     }
     if mesh.texture is not None:
         info["texture"] = os.path.basename(str(mesh.texture))
@@ -125,7 +127,9 @@ def _xform_info(prim: Usd.Prim) -> dict[str, Any] | None:
     out["default_translation_m"] = pose[:3, 3].tolist()
     times = sorted({t for op in ops for t in op.GetAttr().GetTimeSamples()})
     if times:
-        positions = np.array([np.array(xformable.ComputeLocalToWorldTransform(Usd.TimeCode(t))).T[:3, 3] for t in times])
+        positions = np.array(
+            [np.array(xformable.ComputeLocalToWorldTransform(Usd.TimeCode(t))).T[:3, 3] for t in times]
+        )
         out["time_samples"] = len(times)
         out["first_translation_m"] = positions[0].tolist()
         out["last_translation_m"] = positions[-1].tolist()
@@ -262,11 +266,15 @@ def to_text(data: dict[str, Any]) -> str:
         if "mesh" in p:
             m = p["mesh"]
             vol = f", volume {m['volume_m3'] * 1e6:.1f} cm^3" if m.get("volume_m3") else ""
-            lines.append(f"{pad}mesh: {m['points']} points, {m['triangles']} triangles, {'watertight' if m['watertight'] else 'NOT watertight'}{vol}, color {m['color']}")
+            lines.append(
+                f"{pad}mesh: {m['points']} points, {m['triangles']} triangles, {'watertight' if m['watertight'] else 'NOT watertight'}{vol}, color {m['color']}"
+            )
         if "physics" in p:
             ph = p["physics"]
             if "mass_kg" in ph:
-                lines.append(f"{pad}mass {ph['mass_kg']:.4g} kg, inertia {np.round(ph.get('diagonal_inertia', []), 8).tolist()} kg m^2, CoM {np.round(ph.get('center_of_mass_m', []), 4).tolist()} m")
+                lines.append(
+                    f"{pad}mass {ph['mass_kg']:.4g} kg, inertia {np.round(ph.get('diagonal_inertia', []), 8).tolist()} kg m^2, CoM {np.round(ph.get('center_of_mass_m', []), 4).tolist()} m"
+                )
             if "approximation" in ph:
                 mat = ph.get("material")
                 fr = f", friction {mat['dynamic_friction']:.3g}, restitution {mat['restitution']:.3g}" if mat else ""
@@ -275,13 +283,19 @@ def to_text(data: dict[str, Any]) -> str:
                 lines.append(f"{pad}gravity {ph['gravity_magnitude']:g} m/s^2 along {ph['gravity_direction']}")
         if "xform" in p and "time_samples" in p["xform"]:
             xf = p["xform"]
-            lines.append(f"{pad}trajectory: {xf['time_samples']} samples, path {xf['path_length_m'] * 100:.1f} cm, from {np.round(xf['first_translation_m'], 3).tolist()} to {np.round(xf['last_translation_m'], 3).tolist()} m")
+            lines.append(
+                f"{pad}trajectory: {xf['time_samples']} samples, path {xf['path_length_m'] * 100:.1f} cm, from {np.round(xf['first_translation_m'], 3).tolist()} to {np.round(xf['last_translation_m'], 3).tolist()} m"
+            )
         if "camera" in p:
             c = p["camera"]
             K = c["K_frame0"]
-            lines.append(f"{pad}camera: {c['resolution'][0]}x{c['resolution'][1]}, fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}, {c['frames']} frames, path {c['path_length_m'] * 100:.1f} cm")
+            lines.append(
+                f"{pad}camera: {c['resolution'][0]}x{c['resolution'][1]}, fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}, {c['frames']} frames, path {c['path_length_m'] * 100:.1f} cm"
+            )
         if "light" in p:
-            lines.append(f"{pad}light: intensity {p['light']['intensity']:.3g}, color {np.round(p['light']['color'], 3).tolist()}")
+            lines.append(
+                f"{pad}light: intensity {p['light']['intensity']:.3g}, color {np.round(p['light']['color'], 3).tolist()}"
+            )
     if "gate" in data:
         g = data["gate"]
         ssim = g.get("rose:gate:ssim", {})
@@ -293,8 +307,11 @@ def to_text(data: dict[str, Any]) -> str:
         objs = g.get("rose:gate:physics:objects", [])
         disp = g.get("rose:gate:physics:displacement", [])
         moves = ", ".join(f"{o} {d * 1000:.2f} mm" for o, d in zip(objs, disp))
-        lines.append(f"  physics: rest check over {g.get('rose:gate:physics:duration', 0):g} s: {moves or 'not run'}: {'pass' if g.get('rose:gate:physics:passed') else 'FAIL'}")
-        lines.append(f"  geometry: {'pass' if g.get('rose:gate:geometry:passed') else 'FAIL: ' + g.get('rose:gate:geometry:report', '')}")
+        lines.append(
+            f"  physics: rest check over {g.get('rose:gate:physics:duration', 0):g} s: {moves or 'not run'}: {'pass' if g.get('rose:gate:physics:passed') else 'FAIL'}"
+        )
+        lines.append(
+            f"  geometry: {'pass' if g.get('rose:gate:geometry:passed') else 'FAIL: ' + g.get('rose:gate:geometry:report', '')}"
+        )
         lines.append(f"  overall: {'PASS' if g.get('rose:gate:passed') else 'FAIL'}")
     return "\n".join(lines)
-

@@ -53,7 +53,9 @@ def register_schemas() -> None:
 
     if not (schema_dir() / "plugInfo.json").is_file():
         # only while bootstrapping the generated files; stages written now would fail validation
-        warnings.warn(f"{schema_dir()}/plugInfo.json is missing: run python -m rose_usd.usd.schema --regenerate", stacklevel=2)
+        warnings.warn(
+            f"{schema_dir()}/plugInfo.json is missing: run python -m rose_usd.usd.schema --regenerate", stacklevel=2
+        )
         return
 
     Plug.Registry().RegisterPlugins([schema_dir().as_posix()])

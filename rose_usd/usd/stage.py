@@ -136,7 +136,17 @@ def file_hash(path: Path) -> str:
 def package_versions() -> dict[str, str]:
     """Versions of the packages a stage's output depends on."""
     out = {}
-    for pkg in ("rose-usd", "usd-core", "numpy", "mitsuba", "newton", "warp-lang", "trimesh", "open3d", "opencv-python-headless"):
+    for pkg in (
+        "rose-usd",
+        "usd-core",
+        "numpy",
+        "mitsuba",
+        "newton",
+        "warp-lang",
+        "trimesh",
+        "open3d",
+        "opencv-python-headless",
+    ):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:

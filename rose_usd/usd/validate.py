@@ -43,7 +43,10 @@ def usd_validation(stage: Usd.Stage) -> tuple[int, list[str], list[str]]:
     for item in found:
         if item.HasNoError():
             continue
-        sites = ", ".join(str(site.GetPrim().GetPath()) if site.IsPrim() else str(site.GetLayer().identifier) for site in item.GetSites())
+        sites = ", ".join(
+            str(site.GetPrim().GetPath()) if site.IsPrim() else str(site.GetLayer().identifier)
+            for site in item.GetSites()
+        )
         text = f"{item.GetValidator().GetMetadata().name}: {item.GetMessage()}" + (f" [{sites}]" if sites else "")
         (errors if item.GetType() == UsdValidation.ValidationErrorType.Error else warnings).append(text)
     return len(validators), errors, warnings
