@@ -6,12 +6,16 @@ from __future__ import annotations
 
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
 
+from rose_usd import registry
 from rose_usd.bench.evaluate import evaluate
+from rose_usd.case.config import ObjectSpec
 from rose_usd.case.gt import GroundTruth
+from rose_usd.case.layout import load_case
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
 from rose_usd.core.watertight import collider_problems
@@ -203,19 +207,32 @@ def test_unreadable_and_empty_meshes_are_clear_errors(tmp_path):
         read_imported(nan)
 
 
+def _one_frame_case(folder, toml: str):
+    (folder / "rgb").mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(folder / "rgb" / "000000.png"), np.zeros((8, 8, 3), np.uint8))
+    (folder / "rose.toml").write_text(toml)
+    return load_case(folder, registry.STAGE_NAMES)
+
+
 def test_find_mesh_looks_where_the_tools_write(tmp_path):
+    one = '[[objects]]\nname = "Mug"\n'
+    two = one + '[[objects]]\nname = "Cup"\n'
     (tmp_path / "perception").mkdir()
+    mug = ObjectSpec(name="Mug")
     with pytest.raises(InputError, match="no mesh of object 'Mug'"):
-        find_mesh(tmp_path, "Mug", None, 1)
-    (tmp_path / "mesh").mkdir()
-    (tmp_path / "mesh" / "textured.obj").write_text("v 0 0 0\n")  # FoundationPose's demo layout
-    assert find_mesh(tmp_path, "Mug", None, 1).name == "textured.obj"
+        find_mesh(_one_frame_case(tmp_path / "a", one), mug)
+    for name in ("a", "b"):
+        (tmp_path / name / "mesh").mkdir(parents=True)
+        (tmp_path / name / "mesh" / "textured.obj").write_text("v 0 0 0\n")  # FoundationPose's demo layout
+    assert find_mesh(_one_frame_case(tmp_path / "a", one), mug).name == "textured.obj"
+    several = _one_frame_case(tmp_path / "b", two)
     with pytest.raises(InputError):
-        find_mesh(tmp_path, "Mug", None, 2)  # several objects: no guessing
-    (tmp_path / "perception" / "Mug.glb").write_bytes(b"")
-    assert find_mesh(tmp_path, "Mug", None, 2).name == "Mug.glb"
+        find_mesh(several, mug)  # several objects: no guessing
+    (tmp_path / "b" / "perception").mkdir()
+    (tmp_path / "b" / "perception" / "Mug.glb").write_bytes(b"")
+    assert find_mesh(several, mug).name == "Mug.glb"
     with pytest.raises(InputError, match="rose.toml"):
-        find_mesh(tmp_path, "Mug", "scans/mug.ply", 1)
+        find_mesh(several, ObjectSpec(name="Mug", overrides={"mesh": "scans/mug.ply"}))
 
 
 def test_convex_decomposition_covers_a_non_convex_object():

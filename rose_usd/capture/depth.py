@@ -54,7 +54,7 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
         world = stage.GetPrimAtPath(paths.WORLD)
         alpha = float(world.GetAttribute("rose:world:scaleAlpha").Get())
         beta = float(world.GetAttribute("rose:world:scaleBeta").Get())
-        depths = read_megasam(find_npz(case.folder)).depths
+        depths = read_megasam(find_npz(case)).depths
 
         def read(t: int) -> np.ndarray:
             return metric_from_megasam(depths[t], alpha, beta, case.width, case.height)

@@ -16,6 +16,7 @@ import numpy as np
 
 from rose_usd.capture.intrinsics import resolve_K
 from rose_usd.capture.rgbd import author_tracked_world, fused_points, locate
+from rose_usd.case.layout import Case
 from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.io.megasam import MegaSamOutput, read_megasam
@@ -25,16 +26,15 @@ from rose_usd.stage_api import StageContext
 FAR_CLIP = 99.0  # MegaSaM clips 1/disparity at 1e2: treat the clip as "no depth"
 
 
-def find_npz(folder: Path) -> Path:
-    for pattern in ("*_sgd_cvd_hr.npz", "*_droid.npz"):
-        found = sorted((folder / "perception").glob(pattern))
-        if found:
-            return found[0]
-    raise InputError(
-        "no MegaSaM output (perception/*_sgd_cvd_hr.npz)",
-        path=folder / "perception",
-        hint="run MegaSaM and copy its npz there, or choose --backend capture=rgbd",
-    )
+def find_npz(case: Case) -> Path:
+    path = case.megasam_file()
+    if path is None:
+        raise InputError(
+            "no MegaSaM output (perception/*_sgd_cvd_hr.npz)",
+            path=case.perception_dir,
+            hint="run MegaSaM and copy its npz there, or choose --backend capture=rgbd",
+        )
+    return path
 
 
 def metric_from_megasam(relative: np.ndarray, alpha: float, beta: float, width: int, height: int) -> np.ndarray:
@@ -149,7 +149,7 @@ def _size_prior(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> tu
 
 def run(ctx: StageContext) -> None:
     case = ctx.case
-    path = find_npz(case.folder)
+    path = find_npz(case)
     out = read_megasam(path)
     n = case.n_frames
     if len(out.cam_c2w) != n:

@@ -14,12 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from rose_usd.case.config import CaseConfig, load_case_config
+from rose_usd.case.config import CaseConfig, ObjectSpec, load_case_config
 from rose_usd.errors import InputError
 from rose_usd.io import images
 from rose_usd.usd.camera import check_K
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm")
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
+MEGASAM_PATTERNS = ("*_sgd_cvd_hr.npz", "*_droid.npz")
 DEFAULT_FPS = 30.0
 _NUMBER = re.compile(r"(\d+)")
 
@@ -284,6 +286,71 @@ class Case:
                 hint="regenerate the case",
             )
         return gt
+
+    # ------------------------------------------------------------------ what other tools left
+    @property
+    def perception_dir(self) -> Path:
+        """``perception/``: what other tools (MegaSaM, SAM 2, TRELLIS, FoundationPose) wrote."""
+        return self.folder / "perception"
+
+    @property
+    def has_gt(self) -> bool:
+        """Whether the case carries ground truth (benchmark cases only)."""
+        return (self.folder / "gt" / "scene.json").is_file()
+
+    def megasam_file(self) -> Path | None:
+        """MegaSaM's npz (its final ``*_sgd_cvd_hr.npz``, else the tracking step's ``*_droid.npz``)."""
+        for pattern in MEGASAM_PATTERNS:
+            found = sorted(self.perception_dir.glob(pattern))
+            if found:
+                return found[0]
+        return None
+
+    @property
+    def sam2_dir(self) -> Path:
+        return self.perception_dir / "masks"
+
+    def has_sam2_masks(self) -> bool:
+        """Whether ``perception/masks/`` holds SAM 2 PNGs (paletted frames or per-id folders)."""
+        return self.sam2_dir.is_dir() and any(self.sam2_dir.rglob("*.png"))
+
+    def mesh_file(self, spec: ObjectSpec) -> Path | None:
+        """The mesh another tool made of object ``spec``: rose.toml's ``mesh``, else
+        ``perception/<Name>.<glb|gltf|obj|ply|stl>``, else, for a case with one object, the only mesh
+        in ``perception/`` or in ``mesh/`` (FoundationPose's demo layout). A ``mesh`` that rose.toml
+        names and that is missing is an error, not a fallback."""
+        override = spec.overrides.get("mesh")
+        if override is not None:
+            path = (self.folder / override).resolve()
+            if not path.is_file():
+                raise InputError(
+                    f"object {spec.name!r}: the mesh named in rose.toml does not exist",
+                    path=path,
+                    hint="fix mesh = ... (relative to the case folder)",
+                )
+            return path
+        for suffix in MESH_SUFFIXES:
+            if (self.perception_dir / f"{spec.name}{suffix}").is_file():
+                return self.perception_dir / f"{spec.name}{suffix}"
+        if len(self.config.objects) == 1:
+            for folder in (self.perception_dir, self.folder / "mesh"):
+                found = (
+                    sorted(p for p in folder.glob("*") if p.suffix.lower() in MESH_SUFFIXES) if folder.is_dir() else []
+                )
+                if len(found) == 1:
+                    return found[0]
+        return None
+
+    def pose_dir(self, name: str) -> Path:
+        """Where FoundationPose's poses of object ``name`` go: ``perception/ob_in_cam/<name>/`` when
+        there are several objects or that folder exists, else ``perception/ob_in_cam/``."""
+        root = self.perception_dir / "ob_in_cam"
+        return root / name if len(self.config.objects) > 1 or (root / name).is_dir() else root
+
+    def has_poses(self, name: str) -> bool:
+        """Whether FoundationPose's pose files of object ``name`` are there."""
+        folder = self.pose_dir(name)
+        return folder.is_dir() and any(folder.glob("*.txt"))
 
     def input_files(self) -> list[Path]:
         """Every input file a stage may read (for provenance hashes), ground truth excluded."""

@@ -34,14 +34,6 @@ def read_pose(path: str | os.PathLike) -> np.ndarray:
     return pose
 
 
-def track_folder(case_root: str | os.PathLike, name: str, n_objects: int) -> Path:
-    """Where a case keeps FoundationPose's poses of object ``name`` (architecture amendment 10):
-    ``perception/ob_in_cam/<name>/`` when there are several objects or that folder exists, else
-    ``perception/ob_in_cam/``."""
-    root = Path(case_root) / "perception" / "ob_in_cam"
-    return root / name if n_objects > 1 or (root / name).is_dir() else root
-
-
 def read_track(folder: str | os.PathLike, frame_ids: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Poses of the listed frames: (N, 4, 4) and a boolean (N,) of which frames had a file."""
     folder = Path(folder)

@@ -38,6 +38,8 @@ import trimesh
 from scipy.spatial import ConvexHull, cKDTree
 
 from rose_usd.capture.depth import metric_depth_reader
+from rose_usd.case.config import ObjectSpec
+from rose_usd.case.layout import Case
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.pinhole import silhouette
@@ -55,36 +57,20 @@ from rose_usd.usd import paths
 from rose_usd.usd.camera import read_camera
 from rose_usd.usd.geom import MeshData
 
-MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
 UNITS = {"millimeters": 1e-3, "centimeters": 1e-2, "inches": 0.0254}
 """Units a metric-looking mesh may be in by mistake, and meters per unit."""
 
 
-def find_mesh(case_root: Path, name: str, override: str | None, n_objects: int) -> Path:
-    """The mesh file of object ``name`` (see the module's step 1); InputError naming where to put one."""
-    if override is not None:
-        path = (case_root / override).resolve()
-        if not path.is_file():
-            raise InputError(
-                f"object {name!r}: the mesh named in rose.toml does not exist",
-                path=path,
-                hint="fix mesh = ... (relative to the case folder)",
-            )
-        return path
-    perception = case_root / "perception"
-    for suffix in MESH_SUFFIXES:
-        if (perception / f"{name}{suffix}").is_file():
-            return perception / f"{name}{suffix}"
-    if n_objects == 1:
-        for folder in (perception, case_root / "mesh"):
-            found = sorted(p for p in folder.glob("*") if p.suffix.lower() in MESH_SUFFIXES) if folder.is_dir() else []
-            if len(found) == 1:
-                return found[0]
-    raise InputError(
-        f"no mesh of object {name!r}",
-        path=perception / f"{name}.glb",
-        hint='put it there, set mesh = "..." in its [[objects]] entry of rose.toml, or use --backend object=fusion',
-    )
+def find_mesh(case: Case, spec: ObjectSpec) -> Path:
+    """The mesh file of object ``spec`` (:meth:`Case.mesh_file`); InputError naming where to put one."""
+    path = case.mesh_file(spec)
+    if path is None:
+        raise InputError(
+            f"no mesh of object {spec.name!r}",
+            path=case.perception_dir / f"{spec.name}.glb",
+            hint='put it there, set mesh = "..." in its [[objects]] entry of rose.toml, or use --backend object=fusion',
+        )
+    return path
 
 
 @dataclass
@@ -576,9 +562,7 @@ def _views(ctx: StageContext, name: str, frames: list[int], masks: list, cameras
 
 def _foundationpose_start(ctx: StageContext, name: str, t: int, cameras, up_rot: np.ndarray):
     """(yaw, xy) of FoundationPose's pose of frame t as an ICP start, or None without one."""
-    path = (
-        foundationpose.track_folder(ctx.case.root, name, len(ctx.case.config.objects)) / f"{ctx.case.frame_name(t)}.txt"
-    )
+    path = ctx.case.pose_dir(name) / f"{ctx.case.frame_name(t)}.txt"
     if path.is_file():
         world_from_mesh = cameras.world_from_cv[t] @ foundationpose.read_pose(path)
         rot = world_from_mesh[:3, :3] @ up_rot.T  # world from the up-aligned frame
@@ -593,7 +577,7 @@ def run(ctx: StageContext) -> None:
     specs = case.config.objects
     meshes = {}
     for spec in specs:  # every file read and repaired before any depth work: bad files fail fast
-        path = find_mesh(case.root, spec.name, spec.overrides.get("mesh"), len(specs))
+        path = find_mesh(case, spec)
         meshes[spec.name] = (path, read_imported(path, spec.overrides.get("mesh_up")))
         for repair in meshes[spec.name][1].repairs:
             ctx.warn(f"object {spec.name!r} ({path.name}): {repair}")

@@ -44,7 +44,7 @@ def object_ids(spec: str, names: list[str]) -> dict[str, int]:
 def run(ctx: StageContext) -> None:
     case = ctx.case
     n = ctx.time_info.n_frames
-    folder = case.folder / "perception" / "masks"
+    folder = case.sam2_dir
     frames = read_masks(folder)
     bad = sorted(t for t in frames if not 0 <= t < n)
     if bad:

@@ -65,7 +65,7 @@ def run(ctx: StageContext) -> None:
     frame_ids = [case.frame_name(t) for t in range(n)]
     tracks = {}
     for spec in specs:  # every file read and checked before anything is written
-        folder = foundationpose.track_folder(case.root, spec.name, len(specs))
+        folder = case.pose_dir(spec.name)
         if not folder.is_dir():
             raise InputError(
                 f"no FoundationPose poses of object {spec.name!r}",
