@@ -48,7 +48,7 @@ def sections(case_dir: Path, run: Path, seed: int = 0):
 
 
 def main() -> None:
-    ap = kept_runs_parser(__doc__)
+    ap = kept_runs_parser(__doc__, cases=Path(__file__).resolve().parent / "cases")
     ap.add_argument("--only", default=None, help="only cases whose name contains this")
     args = ap.parse_args()
     plt = pyplot()

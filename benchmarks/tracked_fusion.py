@@ -92,7 +92,7 @@ def compare(case_dir: Path, run: Path, stride: int, cfg: ObjectConfig = ObjectCo
 
 
 def main() -> None:
-    ap = kept_runs_parser(__doc__)
+    ap = kept_runs_parser(__doc__, cases=Path(__file__).resolve().parent / "cases")
     ap.add_argument("--stride", type=int, default=3, help="every this many frames after the rest (default 3)")
     args = ap.parse_args()
     plt = pyplot()

@@ -9,14 +9,21 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 import traceback
 from pathlib import Path
 
 from rose_usd.errors import ConfigError, RoseError
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SAMPLE_CASE = REPO_ROOT / "samples" / "push-box"
+
+def _sample_case() -> Path:
+    """The bundled sample (package data)."""
+    return Path(__file__).resolve().parent / "samples" / "push-box"
+
+
+def _bench_dir(*parts: str) -> Path:
+    from rose_usd.bench.runner import BENCH_DIR
+
+    return BENCH_DIR.joinpath("results", *parts)
 
 
 def _parse_assignments(values: list[str] | None, what: str) -> dict:
@@ -47,58 +54,70 @@ def _size(text: str) -> tuple[int, int]:
     return width, height
 
 
-def _options(args):
-    from rose_usd.pipeline import Options
-
+def _api_args(args) -> dict:
     settings = _parse_assignments(args.set, "--set")
     if getattr(args, "prompt", None):
         settings.setdefault("segment", {})["prompts"] = ";".join(args.prompt)
-    return Options(backends=_parse_assignments(args.backend, "--backend"), settings=settings, force=args.force)
-
-
-def _finish(out_dir: Path, validate: bool) -> int:
-    """Validate the stage and print its summary; exit status 0 if valid."""
-    from rose_usd.usd import inspect as usd_inspect
-    from rose_usd.usd.validate import validate as validate_stage
-
-    root = out_dir / "rose.usda"
-    print(usd_inspect.to_text(usd_inspect.dump(root)))
-    if validate:
-        report = validate_stage(root)
-        newton = report.newton or {}
-        print(
-            f"validation: {report.validators} UsdValidation validators, {len(report.errors)} error(s), {len(report.warnings)} warning(s); "
-            f"Newton add_usd: {newton.get('bodies', '?')} bodies, {newton.get('shapes', '?')} shapes"
-        )
-        for line in report.errors:
-            print(f"  error: {line}")
-        report.raise_if_invalid()
-    return 0
+    return {"backends": _parse_assignments(args.backend, "--backend"), "settings": settings, "force": args.force}
 
 
 def cmd_reconstruct(args) -> int:
-    from rose_usd.pipeline import Pipeline
+    from rose_usd.api import reconstruct
 
-    t0 = time.perf_counter()
-    pipe = Pipeline(args.case, args.output, _options(args))
-    pipe.run()
-    print(f"reconstructed {args.case} -> {args.output}/rose.usda in {time.perf_counter() - t0:.1f} s")
-    return _finish(Path(args.output), not args.no_validate)
+    result = reconstruct(args.case, args.output, validate=not args.no_validate, **_api_args(args))
+    _print_result(result)
+    return 0
+
+
+def _print_result(result) -> None:
+    from rose_usd.usd import inspect as usd_inspect
+
+    print(usd_inspect.to_text(usd_inspect.dump(result.path)))
+    print(f"reconstructed {result.case} -> {result.path} in {result.wall_time_s:.1f} s")
+    print(result.summary())
 
 
 def cmd_run(args) -> int:
-    from rose_usd.pipeline import Pipeline
+    from rose_usd.api import reconstruct
 
-    pipe = Pipeline(args.case, args.output, _options(args))
-    pipe.run(args.stage)
+    result = reconstruct(args.case, args.output, until=args.stage, validate=False, **_api_args(args))
+    print(result.summary())
     return 0
 
 
 def cmd_demo(args) -> int:
-    if not SAMPLE_CASE.is_dir():
-        raise RoseError("the bundled sample is missing", path=SAMPLE_CASE, hint="run from a full checkout of rose_usd")
-    args.case = str(SAMPLE_CASE)
-    return cmd_reconstruct(args)
+    from rose_usd.api import reconstruct
+
+    case = Path(args.case) if args.case else _sample_case()
+    if not case.exists():
+        raise RoseError("the sample case is missing", path=case, hint="reinstall rose_usd, or give --case FOLDER")
+    result = reconstruct(case, args.output, validate=not args.no_validate, **_api_args(args))
+    _print_result(result)
+    if (case / "gt" / "scene.json").is_file():
+        print(_accuracy(case, result.out_dir))
+    return 0
+
+
+def _accuracy(case: Path, out: Path) -> str:
+    """How close the reconstruction came to the case's ground truth (benchmark metrics)."""
+    from rose_usd.bench.evaluate import evaluate
+
+    score = evaluate(case, out, scene=False, rest=False)
+    lines = [
+        "accuracy against the sample's ground truth:",
+        f"  cameras: APE {1e3 * score.camera_ape_translation_m:.2f} mm, {score.camera_ape_rotation_deg:.3f} deg; "
+        f"gravity {score.gravity_error_deg:.2f} deg",
+    ]
+    for o in score.objects:
+        mass = f", mass {o.mass_kg:.3f} kg (true {o.true_mass_kg:.3f})" if o.mass_kg and o.true_mass_kg else ""
+        lines.append(
+            f"  {o.name}: shape Chamfer {1e3 * o.shape_chamfer_m:.2f} mm, size {100 * o.size_error:+.1f} %{mass}; "
+            f"trajectory APE {1e3 * o.ape_translation_m:.1f} mm, {o.ape_rotation_deg:.2f} deg; "
+            f"mask IoU {o.mask_iou:.3f}"
+        )
+    if score.ssim_mean is not None:
+        lines.append(f"  re-render SSIM {score.ssim_mean:.4f}")
+    return "\n".join(lines)
 
 
 def cmd_inspect(args) -> int:
@@ -189,9 +208,7 @@ def cmd_bench_run(args) -> int:
         tag += "-unprompted"
     if args.until:
         tag += f"-until-{args.until}"
-    out = (
-        Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"{args.suite}-{mode.value}-{tag}"
-    )
+    out = Path(args.output) if args.output else _bench_dir(f"{args.suite}-{mode.value}-{tag}")
     command = (
         "rose-usd " + " ".join(sys.argv[1:])
         if sys.argv and sys.argv[0].endswith("rose-usd")
@@ -222,7 +239,7 @@ def cmd_bench_run(args) -> int:
 def cmd_bench_real(args) -> int:
     from rose_usd.bench.real import evaluate_seven_scenes
 
-    out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / f"real-{args.dataset}"
+    out = Path(args.output) if args.output else _bench_dir(f"real-{args.dataset}")
     if args.dataset == "sam2-cups":
         from rose_usd.bench.real import evaluate_sam2_cups
 
@@ -244,7 +261,7 @@ def cmd_bench_speed(args) -> int:
 
     width, height = _size(args.size)
     backends = _parse_assignments(args.backend, "--backend") or {}
-    out = Path(args.output) if args.output else REPO_ROOT / "benchmarks" / "results" / "speed"
+    out = Path(args.output) if args.output else _bench_dir("speed")
     result = measure(args.stage, backends, frames=args.frames, width=width, height=height, out_dir=out)
     print(json.dumps({k: v for k, v in result.items() if k != "all_stages"}, indent=1))
     return 1 if "error" in result else 0
@@ -311,10 +328,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_pipeline_flags(p)
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("demo", help="reconstruct the bundled sample case (samples/push-box)")
+    p = sub.add_parser(
+        "demo", help="reconstruct the bundled sample (auto backends), then score it against its ground truth"
+    )
     p.add_argument("-o", "--output", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help=argparse.SUPPRESS)
-    p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help=argparse.SUPPRESS)
+    p.add_argument("--case", help="another case folder instead of the bundled sample")
+    p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backend of a stage (as for reconstruct)")
+    p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="override a stage setting")
     p.add_argument("--force", action="store_true", help="re-run every stage")
     p.add_argument("--no-validate", action="store_true", help="skip validation at the end")
     p.set_defaults(func=cmd_demo)

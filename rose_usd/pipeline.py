@@ -1,21 +1,28 @@
-"""Running stages: configs from defaults, rose.toml and the command line; make-like skipping of
-stages whose config and inputs are unchanged; provenance for every layer."""
+"""Running stages: configs from defaults, rose.toml and the caller; the plan (``auto`` resolved) and
+its preflight before anything is written; make-like skipping of stages whose config, inputs and
+code are unchanged; provenance for every layer."""
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import hashlib
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from rose_usd import plan as planning
 from rose_usd import registry
 from rose_usd.case.layout import Case, load_case
-from rose_usd.errors import ConfigError, StageError
+from rose_usd.errors import ConfigError, RoseError, StageError
 from rose_usd.progress import say
 from rose_usd.stage_api import (
     StageContext,
     StageDef,
     build_config,
+    code_version,
     config_hash,
     config_to_dict,
 )
@@ -40,12 +47,18 @@ def _files_hash(files: list[Path], root: Path) -> str:
     return h.hexdigest()[:16]
 
 
+BackendChoice = str | enum.Enum | Any
+"""A backend's name, its member of the stage's backend enum, or a whole config instance."""
+
+
 @dataclass
 class Options:
-    """What the user chose on the command line (strongest) on top of rose.toml and defaults."""
+    """What the caller chose (strongest) on top of rose.toml and the configs' defaults."""
 
-    backends: Mapping[str, str] = field(default_factory=dict)
-    """stage -> backend; key ``all`` applies to every stage that has that backend."""
+    backends: Mapping[str, BackendChoice] = field(default_factory=dict)
+    """stage -> backend name, backend enum member, or an instance of the stage's config (which
+    then is the stage's whole config: rose.toml's section and ``settings`` are not applied to
+    it); key ``all`` applies a name to every stage that has that backend."""
     settings: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
     """stage -> {field: value}."""
     force: bool = False
@@ -54,10 +67,20 @@ class Options:
 
 @dataclass(frozen=True)
 class StageOutcome:
+    """What happened to one stage of a run."""
+
     name: str
-    ran: bool
+    status: str
+    """``ran``, ``skipped`` (its layer was up to date), ``failed`` or ``not run`` (a stage before
+    it failed)."""
     wall_time_s: float
     backend: str
+    error: str | None = None
+    """The failure's one-line message."""
+
+    @property
+    def ran(self) -> bool:
+        return self.status == "ran"
 
 
 class Pipeline:
@@ -71,29 +94,66 @@ class Pipeline:
             if stage != "all":
                 registry.get(stage)
         self.time_info = usd_stage.TimeInfo(fps=self.case.fps, n_frames=self.case.n_frames)
+        self._configs: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ config
+    def _backend_choice(self, stage_def: StageDef) -> BackendChoice | None:
+        choice = self.options.backends.get(stage_def.name)
+        if choice is None:
+            choice = self.case.config.backends.get(stage_def.name)
+        if choice is None and isinstance(self.options.backends.get("all"), str | enum.Enum):
+            everyone = self.options.backends["all"]
+            everyone = everyone.value if isinstance(everyone, enum.Enum) else everyone
+            if everyone in stage_def.backends:
+                choice = everyone
+        return choice
+
     def config(self, stage_def: StageDef):
-        case_cfg = self.case.config
-        values: dict[str, object] = dict(case_cfg.stage_overrides.get(stage_def.name, {}))
+        """The stage's config with ``auto`` resolved (the layer records the backend that ran)."""
+        if stage_def.name not in self._configs:
+            self._configs[stage_def.name] = self._build_config(stage_def)
+        return self._configs[stage_def.name]
+
+    def _build_config(self, stage_def: StageDef):
         source = str(self.case.folder / "rose.toml")
-        backend = self.options.backends.get(stage_def.name) or case_cfg.backends.get(stage_def.name)
-        if backend is None and "all" in self.options.backends and self.options.backends["all"] in stage_def.backends:
-            backend = self.options.backends["all"]
-        if backend is not None:
-            if backend not in stage_def.backends and not (backend == "auto" and stage_def.auto_backend):
-                raise ConfigError(
-                    f"stage {stage_def.name!r} has no backend {backend!r}",
-                    hint=f"backends of {stage_def.name}: {', '.join(stage_def.backends)}"
-                    + (", auto" if stage_def.auto_backend else ""),
-                )
-            values["backend"] = backend
-        values.update(self.options.settings.get(stage_def.name, {}))
+        choice = self._backend_choice(stage_def)
+        if isinstance(choice, stage_def.config):
+            values = config_to_dict(choice)
+        else:
+            values = dict(self.case.config.stage_overrides.get(stage_def.name, {}))
+            if choice is not None:
+                if isinstance(choice, enum.Enum):
+                    choice = choice.value
+                if not isinstance(choice, str) or (choice not in stage_def.backends and choice != planning.AUTO):
+                    given = f"{type(choice).__name__} instance" if dataclasses.is_dataclass(choice) else repr(choice)
+                    raise ConfigError(
+                        f"stage {stage_def.name!r} has no backend {given}",
+                        path=source if choice == self.case.config.backends.get(stage_def.name) else None,
+                        hint=f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}"
+                        f" (or a {stage_def.config.__name__})",
+                    )
+                values["backend"] = choice
+            values.update(self.options.settings.get(stage_def.name, {}))
         config = build_config(stage_def, values, source=source)
-        if config.backend.value == "auto":
-            # the layer records the backend that ran, never "auto"
-            config = build_config(stage_def, {**values, "backend": stage_def.resolve_auto(self.case)}, source=source)
+        if config.backend.value == planning.AUTO:
+            backend = planning.resolve_auto(stage_def.name, self.case)
+            config = dataclasses.replace(config, backend=type(config.backend)(backend))
         return config
+
+    # ------------------------------------------------------------------ plan
+    def plan(self, target: str | None = None) -> list[StageDef]:
+        """The stages a run of ``target`` (or of everything) involves, in run order, after checking
+        that every one of them has what its backend requires (nothing is written before)."""
+        if target is None:
+            stages = list(registry.STAGES)
+        else:
+            stages = registry.closure(target, lambda s: self.config(s).backend.value)
+        backends = {s.name: self.config(s).backend.value for s in stages}
+        planning.preflight(self.case, backends, {s.name: s.requires_of(backends[s.name]) for s in stages})
+        return stages
+
+    def plan_line(self, stages: list[StageDef]) -> str:
+        return "plan: " + " ".join(f"{s.name}={self.config(s).backend.value}" for s in stages)
 
     # ------------------------------------------------------------------ staleness
     def input_hashes(self, stage_def: StageDef, config) -> dict[str, str]:
@@ -108,7 +168,7 @@ class Pipeline:
         return inputs
 
     def is_current(self, stage_def: StageDef) -> bool:
-        """Whether the stage's layer exists and was made from the same config and inputs."""
+        """Whether the stage's layer exists and was made from the same config, inputs and code."""
         prov = usd_stage.read_provenance(usd_stage.layer_file(self.out_dir, stage_def.layer))
         if prov is None:
             return False
@@ -116,6 +176,7 @@ class Pipeline:
         time_info = usd_stage.read_time_info(self.out_dir)
         return (
             prov.get("config_hash") == config_hash(config)
+            and prov.get("code") == code_version(stage_def, config.backend.value)
             and prov.get("inputs") == self.input_hashes(stage_def, config)
             and time_info == self.time_info
         )
@@ -135,6 +196,7 @@ class Pipeline:
             "backend": config.backend.value,
             "config": config_to_dict(config),
             "config_hash": config_hash(config),
+            "code": code_version(stage_def, config.backend.value),
             "inputs": self.input_hashes(stage_def, config),
             "case": str(self.case.root.resolve()),
         }
@@ -145,24 +207,40 @@ class Pipeline:
             func(StageContext(stage_def, config, self.case, self.out_dir, self.time_info, writer))
         wall = float(writer.provenance["wall_time_s"])
         say(f"[{stage_def.name}] wrote {usd_stage.layer_file(self.out_dir, stage_def.layer)} in {wall:.1f} s")
-        return StageOutcome(stage_def.name, True, wall, config.backend.value)
+        return StageOutcome(stage_def.name, "ran", wall, config.backend.value)
 
-    def run(self, target: str | None = None) -> list[StageOutcome]:
-        """Run ``target`` (or every stage) and whatever it needs that is missing or stale."""
-        stages = registry.closure(target, lambda s: self.config(s).backend.value) if target else list(registry.STAGES)
-        for stage_def in stages:  # every config is checked before any stage runs
-            self.config(stage_def)
-        outcomes = []
+    def run(self, target: str | None = None, *, check: bool = True) -> list[StageOutcome]:
+        """Run ``target`` (or every stage) and whatever it needs that is missing or stale.
+
+        Every config and the plan's preflight are checked before any stage runs. A stage that
+        fails leaves its previous layer as it was; with ``check`` its error propagates, otherwise
+        it is recorded in its outcome and the stages after it are ``not run``."""
+        stages = self.plan(target)
+        say(self.plan_line(stages))
+        outcomes: list[StageOutcome] = []
+        failed: str | None = None
         for stage_def in stages:
+            backend = self.config(stage_def).backend.value
+            if failed is not None:
+                outcomes.append(StageOutcome(stage_def.name, "not run", 0.0, backend))
+                continue
             must = self.options.force and (target is None or stage_def.name == target)
             # is_current compares the upstream layers' hashes, so a re-run upstream stage makes
             # exactly its dependents stale
             if must or not self.is_current(stage_def):
-                outcomes.append(self.run_stage(stage_def))
+                t0 = time.perf_counter()
+                try:
+                    outcomes.append(self.run_stage(stage_def))
+                except RoseError as exc:
+                    if check:
+                        raise
+                    failed = exc.one_line()
+                    outcomes.append(
+                        StageOutcome(stage_def.name, "failed", time.perf_counter() - t0, backend, error=failed)
+                    )
             else:
-                prov = usd_stage.read_provenance(usd_stage.layer_file(self.out_dir, stage_def.layer)) or {}
                 say(f"[{stage_def.name}] up to date")
-                outcomes.append(StageOutcome(stage_def.name, False, 0.0, str(prov.get("backend", ""))))
-        if not usd_stage.root_file(self.out_dir).is_file():
+                outcomes.append(StageOutcome(stage_def.name, "skipped", 0.0, backend))
+        if usd_stage.existing_layers(self.out_dir) and not usd_stage.root_file(self.out_dir).is_file():
             usd_stage.write_root(self.out_dir, self.time_info)
         return outcomes

@@ -3,8 +3,10 @@ and the context a backend runs in. Stages register in :mod:`rose_usd.registry`."
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import enum
+import functools
 import hashlib
 import importlib
 import json
@@ -40,24 +42,90 @@ class StageDef:
     """Folders of ``<out>`` this stage writes besides its layer (e.g. ``masks``)."""
     needs_by_backend: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     """Backends that need other stages than ``needs`` (e.g. a segment backend that works on RGB alone)."""
-    auto_backend: str | None = None
-    """``module:function`` taking the Case and naming the backend ``auto`` stands for, if the
-    stage offers ``auto``."""
+    requires: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    """backend name -> what it requires of the case (names in :data:`rose_usd.plan.REQUIREMENTS`),
+    checked before any stage runs."""
 
     def needs_of(self, backend: str) -> tuple[str, ...]:
         """The stages this stage needs when ``backend`` runs it."""
         return self.needs_by_backend.get(backend, self.needs)
 
+    def requires_of(self, backend: str) -> tuple[str, ...]:
+        return tuple(self.requires.get(backend, ()))
+
     def backend_function(self, backend: str) -> Callable[["StageContext"], None]:
         return _resolve(self.backends[backend])
-
-    def resolve_auto(self, case: Case) -> str:
-        return _resolve(self.auto_backend)(case)
 
 
 def _resolve(target: str):
     module, func = target.split(":")
     return getattr(importlib.import_module(module), func)
+
+
+# ----------------------------------------------------------------------------- code version
+_PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+def _module_file(module: str) -> Path | None:
+    """The source file of a ``rose_usd`` module or package, None for anything else."""
+    parts = module.split(".")
+    if parts[0] != "rose_usd":
+        return None
+    base = _PACKAGE_DIR.joinpath(*parts[1:])
+    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _imported_modules(path: Path, module: str) -> set[str]:
+    """Every module an import statement of the file names (function-local ones included), with
+    ``from a import b`` giving ``a`` and ``a.b`` (b may be a submodule)."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_bytes(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            found.add(base)
+            found.update(f"{base}.{alias.name}" for alias in node.names)
+    return found
+
+
+@functools.cache
+def source_files(module: str) -> tuple[Path, ...]:
+    """The rose_usd source files that running ``module`` executes: the module, its packages'
+    ``__init__``, and what they import from rose_usd, transitively (read from the source, not by
+    importing it)."""
+    seen: dict[str, Path] = {}
+    todo = [module]
+    while todo:
+        name = todo.pop()
+        parts = name.split(".")
+        for i in range(1, len(parts) + 1):  # the packages above it run first
+            prefix = ".".join(parts[:i])
+            path = _module_file(prefix)
+            if path is not None and prefix not in seen:
+                seen[prefix] = path
+                todo.extend(_imported_modules(path, prefix))
+    return tuple(sorted(set(seen.values())))
+
+
+def code_version(stage_def: StageDef, backend: str) -> str:
+    """The package version and a hash of every source file the backend runs: a layer made by other
+    code is stale."""
+    from rose_usd import __version__
+
+    h = hashlib.sha256()
+    module = stage_def.backends[backend].split(":")[0]
+    for path in source_files(module):
+        h.update(path.relative_to(_PACKAGE_DIR).as_posix().encode())
+        h.update(hashlib.sha256(path.read_bytes()).digest())
+    return f"{__version__}+{h.hexdigest()[:16]}"
 
 
 @dataclass

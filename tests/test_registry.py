@@ -5,7 +5,7 @@ import enum
 
 import pytest
 
-from rose_usd import registry
+from rose_usd import plan, registry
 from rose_usd.usd import paths
 
 
@@ -20,8 +20,13 @@ def test_stage_definition_is_complete(stage):
     config = stage.config()
     backend_enum = type(config.backend)
     assert issubclass(backend_enum, enum.Enum)
-    expected = set(stage.backends) | ({"auto"} if stage.auto_backend else set())
-    assert {m.value for m in backend_enum} == expected
+    assert {m.value for m in backend_enum} == set(stage.backends) | {"auto"}
+    assert config.backend.value == "auto", "auto is every stage's default backend"
+    assert stage.name in plan.AUTO_RULES
+    assert set(stage.requires) <= set(stage.backends)
+    for needs in stage.requires.values():
+        assert set(needs) <= set(plan.REQUIREMENTS)
+    assert stage.requires_of("oracle") == (("gt",) if "oracle" in stage.backends else ())
     for name in stage.backends:
         assert callable(stage.backend_function(name))
     for f in dataclasses.fields(stage.config):

@@ -265,8 +265,12 @@ def _mask_ious(
     return float(np.mean(ious)) if ious else None
 
 
-def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> CaseScore:
-    """Metrics of the stage in ``out_dir`` against the ground truth of ``case_dir``."""
+def evaluate(
+    case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0, scene: bool = True, rest: bool = True
+) -> CaseScore:
+    """Metrics of the stage in ``out_dir`` against the ground truth of ``case_dir``; without
+    ``scene`` the scene's scores are NaN, without ``rest`` the objects' rest drifts are None (the
+    two slow parts)."""
     rng = np.random.default_rng(seed)
     gt = GroundTruth(case_dir / "gt")
     stage = open_stage(out_dir / "rose.usda")
@@ -284,18 +288,20 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
     _, scale = metrics.umeyama_sim3(track.world_from_cv[:, :3, 3], true_cams[:, :3, 3])
 
     # ---------------------------------------------------------------- scene
-    true_parts = [gt.part_mesh(p) for p in gt.parts]
-    tv = np.concatenate([m.vertices for m in true_parts])
-    tf = np.concatenate(
-        [m.faces + off for m, off in zip(true_parts, np.cumsum([0] + [len(m.vertices) for m in true_parts[:-1]]))]
-    )
-    true_surface = metrics.SurfaceDistance(tv, tf)
-    frames = list(range(0, n, max(1, frame_stride)))
-    pixels = {t: _static_pixels(gt, t) for t in frames}
-    seen_all = np.concatenate([_backproject(depth, mask, gt.K, true_cams[t]) for t, (depth, mask) in pixels.items()])
-    lo, hi = seen_all.min(axis=0) - 0.05, seen_all.max(axis=0) + 0.05
     rv, rf = _meshes(stage, paths.SCENE_VISUAL)  # empty when the scene stage has not run
-    if len(rf):
+    if scene and len(rf):
+        true_parts = [gt.part_mesh(p) for p in gt.parts]
+        tv = np.concatenate([m.vertices for m in true_parts])
+        tf = np.concatenate(
+            [m.faces + off for m, off in zip(true_parts, np.cumsum([0] + [len(m.vertices) for m in true_parts[:-1]]))]
+        )
+        true_surface = metrics.SurfaceDistance(tv, tf)
+        frames = list(range(0, n, max(1, frame_stride)))
+        pixels = {t: _static_pixels(gt, t) for t in frames}
+        seen_all = np.concatenate(
+            [_backproject(depth, mask, gt.K, true_cams[t]) for t, (depth, mask) in pixels.items()]
+        )
+        lo, hi = seen_all.min(axis=0) - 0.05, seen_all.max(axis=0) + 0.05
         rv = se3.transform_points(align, rv)
         rec_surface = metrics.SurfaceDistance(rv, rf)
         rec_pts = metrics.sample_surface(rv, rf, 400_000, rng)
@@ -390,7 +396,8 @@ def evaluate(case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0) -> Cas
     for sc, iou in zip(scores, best[1] if best else []):
         sc.mask_iou = iou
 
-    _rest_drifts(out_dir, scores)
+    if rest:
+        _rest_drifts(out_dir, scores)
 
     gate = stage.GetPrimAtPath(paths.GATE)
     ssim = float(gate.GetAttribute("rose:gate:ssimMean").Get()) if gate else None

@@ -22,8 +22,9 @@ from rose_usd.errors import InputError
 from rose_usd.progress import say
 from rose_usd.synth.generate import generate_case
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_CASES = REPO / "benchmarks" / "cases"
+BENCH_DIR = Path("benchmarks")
+"""Where benchmark results and generated cases go by default, relative to the working directory."""
+DEFAULT_CASES = BENCH_DIR / "cases"
 
 
 def ensure_case(spec: CaseSpec, suite_dir: Path) -> tuple[Path, float]:
@@ -216,15 +217,16 @@ def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -
     return {"commit": summary.get("commit"), "cases": cases}
 
 
-def kept_runs_parser(doc: str):
+def kept_runs_parser(doc: str, cases: Path = DEFAULT_CASES):
     """The command line that the scripts under benchmarks/ drawing from a results folder's kept
-    runs share: RESULTS, -o/--output PNG and --cases (see ``kept_runs``); each adds its own."""
+    runs share: RESULTS, -o/--output PNG and --cases (default ``cases``; see ``kept_runs``); each
+    adds its own."""
     import argparse
 
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument("results", type=Path)
     parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument("--cases", type=Path, default=DEFAULT_CASES)
+    parser.add_argument("--cases", type=Path, default=cases)
     return parser
 
 
@@ -281,14 +283,18 @@ def _version(pkg: str) -> str:
         return "absent"
 
 
+_SOURCE = Path(__file__).resolve().parent
+
+
 def _git_commit() -> str | None:
-    """The checkout's commit, with ``-dirty`` when tracked files have uncommitted changes."""
+    """The commit of the checkout this code runs from (None when installed from a wheel), with
+    ``-dirty`` when tracked files have uncommitted changes."""
     try:
         commit = subprocess.run(
-            ["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+            ["git", "-C", str(_SOURCE), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+            ["git", "-C", str(_SOURCE), "status", "--porcelain", "--untracked-files=no"],
             capture_output=True,
             text=True,
             check=True,

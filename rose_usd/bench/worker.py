@@ -56,8 +56,8 @@ def run_case(
     rerun: tuple[str, ...] = (),
 ) -> dict:
     """Run the stages into ``out`` and score them. With ``reuse``, a stage whose layer in ``out`` is
-    current (same config and inputs) is kept, with the wall time its provenance recorded, unless
-    it is in ``rerun`` (its code changed: staleness follows configs and inputs, not code)."""
+    current (same config, inputs and code) is kept, with the wall time its provenance recorded,
+    unless it is in ``rerun``."""
     from rose_usd import registry
     from rose_usd.bench.evaluate import evaluate
     from rose_usd.pipeline import Options, Pipeline
@@ -66,7 +66,7 @@ def run_case(
     monitor = RssMonitor()
     pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True))
     stages = {}
-    for stage_def in registry.closure(until) if until else registry.STAGES:
+    for stage_def in pipe.plan(until):
         if reuse and stage_def.name not in rerun and pipe.is_current(stage_def):
             prov = read_provenance(layer_file(out, stage_def.layer))
             stages[stage_def.name] = {

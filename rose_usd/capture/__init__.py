@@ -13,6 +13,6 @@ STAGE = StageDef(
         "megasam": "rose_usd.capture.megasam:run",
         "oracle": "rose_usd.capture.oracle:run",
     },
-    auto_backend="rose_usd.capture.auto:choose",
+    requires={"rgbd": ("sensor-depth",), "megasam": ("megasam",), "oracle": ("gt",)},
     summary="cameras, intrinsics, metric scale and gravity -> layers/world.usda",
 )

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 
 class CaptureBackend(enum.Enum):
-    AUTO = "auto"  # rgbd when the case has depth, else megasam when its npz is there, else oracle when gt/ is
+    AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     RGBD = "rgbd"  # depth sensor video: keyframe RGB-D tracking + pose graph
     MEGASAM = "megasam"  # import MegaSaM's cameras and depth, metric by a robust alpha/beta fit
     ORACLE = "oracle"  # ground-truth cameras and gravity from gt/ (benchmark cases)

@@ -5,13 +5,14 @@ from dataclasses import dataclass
 
 
 class GateBackend(enum.Enum):
+    AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     MITSUBA_NEWTON = "mitsuba-newton"  # re-render with Mitsuba, simulate with Newton
 
 
 @dataclass(frozen=True, kw_only=True)
 class GateConfig:
-    backend: GateBackend = GateBackend.MITSUBA_NEWTON
-    """How the stage is checked."""
+    backend: GateBackend = GateBackend.AUTO
+    """How the stage is checked (default auto)."""
     ssim_threshold: float = 0.75
     """Mean SSIM needed to pass [-] (default 0.75; the paper's real videos score 0.71-0.80)."""
     spp: int = 8

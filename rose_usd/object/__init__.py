@@ -14,4 +14,5 @@ STAGE = StageDef(
         "oracle": "rose_usd.object.oracle:run",
     },
     summary="object meshes, mass priors, colliders, frame-0 poses -> layers/object.usda",
+    requires={"fusion": ("metric-depth",), "imported": ("meshes", "metric-depth"), "oracle": ("gt",)},
 )

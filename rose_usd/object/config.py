@@ -5,15 +5,16 @@ from dataclasses import dataclass
 
 
 class ObjectBackend(enum.Enum):
-    FUSION = "fusion"  # no imported mesh: masked depth of the resting object fused, completed (flat bottom, revolution or height field), alpha-wrapped
-    IMPORTED = "imported"  # a mesh from another tool (TRELLIS GLB, scan, CAD): scale by the paper's silhouette search, posed on its support
+    AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
+    FUSION = "fusion"  # the resting object's masked depth fused and completed where never seen
+    IMPORTED = "imported"  # another tool's mesh (TRELLIS GLB, scan, CAD), scaled by silhouettes, posed on its support
     ORACLE = "oracle"  # ground-truth meshes, densities and frame-0 poses from gt/ (benchmark cases)
 
 
 @dataclass(frozen=True, kw_only=True)
 class ObjectConfig:
-    backend: ObjectBackend = ObjectBackend.ORACLE
-    """Which backend reconstructs the object(s); default oracle."""
+    backend: ObjectBackend = ObjectBackend.AUTO
+    """Which backend reconstructs the object(s) (default auto)."""
     voxel_m: float = 0.002
     """fusion: point spacing of the fused and completed object [m] (default 0.002)."""
     support_gap_m: float = 0.003

@@ -11,4 +11,5 @@ STAGE = StageDef(
     backends={"tsdf": "rose_usd.scene.tsdf:run", "oracle": "rose_usd.scene.oracle:run"},
     summary="static collidable colored scene mesh and lights -> layers/scene.usda",
     side_dirs=("textures",),
+    requires={"tsdf": ("metric-depth",), "oracle": ("gt",)},
 )

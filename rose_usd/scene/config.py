@@ -5,14 +5,15 @@ from dataclasses import dataclass
 
 
 class SceneBackend(enum.Enum):
+    AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, 3-NN vertex colors, xatlas texture from the frames
     ORACLE = "oracle"  # ground-truth scene parts, materials and lights from gt/ (benchmark cases)
 
 
 @dataclass(frozen=True, kw_only=True)
 class SceneConfig:
-    backend: SceneBackend = SceneBackend.TSDF
-    """Which backend reconstructs the scene (default tsdf)."""
+    backend: SceneBackend = SceneBackend.AUTO
+    """Which backend reconstructs the scene (default auto)."""
     voxel_m: float = 0.008
     """tsdf: TSDF voxel size [m] (default 0.008)."""
     frame_stride: int = 2

@@ -16,5 +16,10 @@ STAGE = StageDef(
     },
     summary="object and interactor masks per frame -> layers/masks.usda + masks/",
     side_dirs=("masks",),
-    needs_by_backend={"flow": ()},  # 2D: RGB and prompts only, for videos without depth
+    needs_by_backend={"flow": ()},
+    requires={
+        "classical": ("metric-depth",),
+        "sam2": ("sam2-masks", "metric-depth"),
+        "oracle": ("gt",),
+    },  # 2D: RGB and prompts only, for videos without depth
 )

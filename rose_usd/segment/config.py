@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 
 class SegmentBackend(enum.Enum):
+    AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     CLASSICAL = "classical"  # no learned model: prompt (or interactor contact) + 3D propagation + static-world residual
     SAM2 = "sam2"  # import SAM 2's masks from perception/masks (DAVIS paletted PNGs or per-object folders)
     FLOW = "flow"  # no depth needed (RGB-only video): prompt + GrabCut, optical-flow propagation, look-alike tracks
@@ -13,8 +14,8 @@ class SegmentBackend(enum.Enum):
 
 @dataclass(frozen=True, kw_only=True)
 class SegmentConfig:
-    backend: SegmentBackend = SegmentBackend.CLASSICAL
-    """Which backend segments the object(s) and the interactor (default classical)."""
+    backend: SegmentBackend = SegmentBackend.AUTO
+    """Which backend segments the object(s) and the interactor (default auto)."""
     prompts: str = ""
     """classical, flow: prompts overriding rose.toml's, ";"-separated "Name=frame:x0,y0,x1,y1" (a box) or "Name=frame:x,y" (a point) [px]; "Name=" may be left out when there is one object (default: rose.toml's)."""
     min_height_m: float = 0.004

@@ -15,4 +15,5 @@ STAGE = StageDef(
     },
     summary="object poses per frame (time samples) and TUM export -> layers/trajectory.usda",
     side_dirs=("trajectory",),
+    requires={"tracker": ("metric-depth",), "foundationpose": ("poses",), "oracle": ("gt",)},
 )

@@ -5,19 +5,16 @@ from dataclasses import dataclass
 
 
 class TrajectoryBackend(enum.Enum):
-    FOUNDATIONPOSE = (
-        "foundationpose"  # import FoundationPose's ob_in_cam/ (T_cam<-mesh per frame) through the recovered cameras
-    )
-    TRACKER = (
-        "tracker"  # classical model-based tracker: the object mesh registered to its masked metric depth frame by frame
-    )
+    AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
+    FOUNDATIONPOSE = "foundationpose"  # FoundationPose's ob_in_cam/ (T_cam<-mesh per frame) through the cameras
+    TRACKER = "tracker"  # the object mesh registered to its masked metric depth frame by frame
     ORACLE = "oracle"  # ground-truth object poses from gt/ (benchmark cases)
 
 
 @dataclass(frozen=True, kw_only=True)
 class TrajectoryConfig:
-    backend: TrajectoryBackend = TrajectoryBackend.ORACLE
-    """Which backend tracks the object(s); default oracle."""
+    backend: TrajectoryBackend = TrajectoryBackend.AUTO
+    """Which backend tracks the object(s) (default auto)."""
     model_points: int = 3000
     """tracker: points sampled on the object mesh to register against (default 3000)."""
     max_points: int = 1500

@@ -1,0 +1,1 @@
+"""Typed readers of the layers stages write, for later stages and for users of a stage."""

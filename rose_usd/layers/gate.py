@@ -1,0 +1,60 @@
+"""The gate layer's results (``/World/Gate``, ``RoseGateAPI``), read into a :class:`GateResult`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pxr import Usd
+
+from rose_usd.usd import paths
+
+
+@dataclass(frozen=True)
+class GateResult:
+    """The quality gate of a stage: re-render SSIM against the video, the physics rest check and
+    the collider check."""
+
+    passed: bool
+    ssim_mean: float
+    ssim_min: float
+    ssim_threshold: float
+    rest_displacement_m: dict[str, float]
+    """Per object: how far it moved in the rest check (empty when the check did not run)."""
+    rest_threshold_m: float
+    physics_passed: bool
+    geometry_passed: bool
+    geometry_report: str
+
+    def summary(self) -> str:
+        rest = ", ".join(f"{name} {1e3 * d:.2f} mm" for name, d in self.rest_displacement_m.items())
+        return (
+            f"gate {'PASS' if self.passed else 'FAIL'}: SSIM {self.ssim_mean:.4f} (min {self.ssim_min:.4f}, "
+            f"threshold {self.ssim_threshold:.2f}); rest {rest or 'not run'}; "
+            f"colliders {'ok' if self.geometry_passed else self.geometry_report}"
+        )
+
+
+def read_gate(stage: Usd.Stage) -> GateResult | None:
+    """The gate's results on a composed stage, None when the gate has not run."""
+    prim = stage.GetPrimAtPath(paths.GATE)
+    if not prim:
+        return None
+
+    def get(name: str):
+        return prim.GetAttribute(f"rose:gate:{name}").Get()
+
+    ssim = prim.GetAttribute("rose:gate:ssim")
+    samples = [ssim.Get(t) for t in ssim.GetTimeSamples()]
+    return GateResult(
+        passed=bool(get("passed")),
+        ssim_mean=float(get("ssimMean")),
+        ssim_min=float(min(samples)) if samples else float("nan"),
+        ssim_threshold=float(get("ssimThreshold")),
+        rest_displacement_m=dict(
+            zip(list(get("physics:objects") or []), [float(v) for v in get("physics:displacement") or []])
+        ),
+        rest_threshold_m=float(get("physics:threshold")),
+        physics_passed=bool(get("physics:passed")),
+        geometry_passed=bool(get("geometry:passed")),
+        geometry_report=str(get("geometry:report") or ""),
+    )

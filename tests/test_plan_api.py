@@ -1,0 +1,179 @@
+"""The plan (``auto`` resolved from what a case holds), the preflight that fails before anything is
+written, staleness by code, and the Python API (``rose_usd.reconstruct``)."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from conftest import oracle_options
+
+import rose_usd
+import rose_usd.pipeline as pipeline_module
+from rose_usd import registry
+from rose_usd.capture.config import CaptureBackend
+from rose_usd.cli import main
+from rose_usd.errors import ConfigError, InputError
+from rose_usd.pipeline import Options, Pipeline
+from rose_usd.segment.config import SegmentBackend, SegmentConfig
+from rose_usd.stage_api import source_files
+from rose_usd.usd.stage import layer_file, read_provenance
+
+
+def _plan(case, **options) -> dict[str, str]:
+    pipe = Pipeline(case, case.parent / "unused-out", Options(**options))
+    return {s.name: pipe.config(s).backend.value for s in registry.STAGES}
+
+
+def _snapshot(folder):
+    return {p: p.stat().st_mtime_ns for p in folder.rglob("*")} if folder.exists() else None
+
+
+def test_auto_resolves_each_stage_from_what_the_case_holds(case_copy):
+    """The sample (RGB-D, a prompt, ground truth) gets the real backends, never oracle; each input
+    another tool made switches its stage to that tool's importer."""
+    assert _plan(case_copy) == {
+        "capture": "rgbd",
+        "segment": "classical",
+        "scene": "tsdf",
+        "object": "fusion",
+        "trajectory": "tracker",
+        "gate": "mitsuba-newton",
+    }
+    perception = case_copy / "perception"
+    (perception / "ob_in_cam").mkdir(parents=True)
+    (perception / "ob_in_cam" / "000000.txt").write_text(" ".join(map(str, np.eye(4).ravel())))
+    (perception / "Box.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (perception / "masks").mkdir()
+    shutil.copy(case_copy / "gt" / "masks" / "Box" / "000000.png", perception / "masks" / "00000.png")
+    plan = _plan(case_copy)
+    assert (plan["segment"], plan["object"], plan["trajectory"]) == ("sam2", "imported", "foundationpose")
+    # named backends win over auto; "all" applies a name to every stage that has it
+    assert _plan(case_copy, backends={"all": "oracle", "gate": "auto"})["object"] == "oracle"
+    shutil.rmtree(perception / "masks")
+    shutil.rmtree(case_copy / "depth")
+    assert _plan(case_copy, backends={"capture": "oracle"})["segment"] == "flow"  # no depth: 2D masks
+    with pytest.raises(InputError, match="no capture backend fits"):
+        _plan(case_copy)
+
+
+@pytest.mark.parametrize(
+    "backend, missing",
+    [
+        ("object=oracle", "gt/scene.json"),
+        ("trajectory=oracle", "gt/scene.json"),
+        ("object=imported", "perception/Box.glb"),
+        ("trajectory=foundationpose", "perception/ob_in_cam"),
+        ("segment=sam2", "perception/masks"),
+    ],
+)
+def test_a_missing_input_fails_before_anything_is_written(tmp_path, case_copy, capsys, backend, missing):
+    """A backend whose input the case lacks fails at once with one line naming the file, and the
+    output folder -- fresh or holding an earlier reconstruction -- is left as it was."""
+    shutil.rmtree(case_copy / "gt")
+    fresh = tmp_path / "fresh"
+    assert main(["reconstruct", str(case_copy), "-o", str(fresh), "--backend", backend]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and missing in err and len(err.splitlines()) == 1
+    assert not fresh.exists()
+    kept = tmp_path / "kept"
+    (kept / "layers").mkdir(parents=True)
+    (kept / "layers" / "world.usda").write_text("#usda 1.0\n")
+    before = _snapshot(kept)
+    assert main(["run", "gate", str(case_copy), "-o", str(kept), "--backend", backend]) == 1
+    assert _snapshot(kept) == before
+
+
+def test_a_depth_backend_on_a_case_without_depth_names_what_is_missing(case_copy):
+    shutil.rmtree(case_copy / "depth")
+    with pytest.raises(InputError, match="needs metric depth"):
+        Pipeline(case_copy, case_copy.parent / "out", Options(backends={"capture": "oracle"})).plan("object")
+
+
+def test_source_files_follow_imports_within_the_package():
+    """The code a backend runs: its module, its packages' __init__ and what they import from
+    rose_usd, transitively; nothing from outside the package."""
+    files = {
+        p.relative_to(p.parents[1]).as_posix() if p.parent.name != "rose_usd" else p.name
+        for p in source_files("rose_usd.trajectory.oracle")
+    }
+    assert {"trajectory/oracle.py", "trajectory/__init__.py", "trajectory/config.py", "trajectory/author.py"} <= files
+    assert "oracle.py" in files and "__init__.py" in files  # rose_usd/oracle.py, rose_usd/__init__.py
+    assert not any(f.startswith(("bench/", "synth/", "gate/")) for f in files)
+
+
+def test_a_layer_made_by_other_code_is_stale(out_copy, sample_case, monkeypatch):
+    """The package version and a hash of the backend's source are in the staleness key."""
+    pipe = Pipeline(sample_case, out_copy, oracle_options())
+    assert all(pipe.is_current(s) for s in registry.STAGES)
+    prov = read_provenance(layer_file(out_copy, "world"))
+    assert prov["code"].startswith(rose_usd.__version__ + "+")
+    monkeypatch.setattr(pipeline_module, "code_version", lambda stage, backend: prov["code"] + "-changed")
+    pipe = Pipeline(sample_case, out_copy, oracle_options())
+    assert not any(pipe.is_current(s) for s in registry.STAGES)
+
+
+def test_reconstruct_takes_names_enums_and_config_instances(tmp_path, sample_case):
+    """until runs a stage and what it needs; a second call skips them; force re-runs the target."""
+    backends = {"capture": CaptureBackend.ORACLE, "segment": SegmentConfig(backend=SegmentBackend.ORACLE)}
+    out = tmp_path / "out"
+    first = rose_usd.reconstruct(sample_case, out, backends=backends, until="segment", validate=False)
+    assert first.plan == {"capture": "oracle", "segment": "oracle"}
+    assert [o.status for o in first.outcomes] == ["ran", "ran"]
+    assert sorted(p.stem for p in (out / "layers").glob("*.usda")) == ["masks", "world"]
+    again = rose_usd.reconstruct(sample_case, out, backends=backends, until="segment", validate=False)
+    assert [o.status for o in again.outcomes] == ["skipped", "skipped"]
+    forced = rose_usd.reconstruct(sample_case, out, backends=backends, until="segment", force=True, validate=False)
+    assert [o.status for o in forced.outcomes] == ["skipped", "ran"]
+    # a config instance is the stage's whole config
+    instance = SegmentConfig(backend=SegmentBackend.ORACLE, min_height_m=0.006)
+    other = rose_usd.reconstruct(
+        sample_case, out, backends={"capture": "oracle", "segment": instance}, until="segment", validate=False
+    )
+    assert [o.status for o in other.outcomes] == ["skipped", "ran"]
+    config = read_provenance(layer_file(out, "masks"))["config"]
+    assert config["backend"] == "oracle" and config["min_height_m"] == 0.006
+    with pytest.raises(ConfigError, match="no backend"):
+        rose_usd.reconstruct(sample_case, out, backends={"segment": CaptureBackend.ORACLE.value + "x"})
+    with pytest.raises(ConfigError, match="SegmentConfig instance"):
+        rose_usd.reconstruct(sample_case, out, backends={"capture": SegmentConfig()})
+
+
+def test_reconstruct_returns_the_stage_the_gate_and_the_validation(out_copy, sample_case):
+    result = rose_usd.reconstruct(sample_case, out_copy, backends={"all": "oracle"})
+    assert all(o.status == "skipped" for o in result.outcomes)
+    assert result.ok and result.gate.passed and result.validation.ok
+    assert result.gate.ssim_mean > 0.9 and set(result.gate.rest_displacement_m) == {"Box"}
+    assert result.stage.GetPrimAtPath("/World/Objects/Box")
+    assert "gate PASS" in result.summary()
+
+
+def test_a_failing_stage_is_an_outcome_with_check_false(out_copy, sample_case, monkeypatch):
+    """With check=False the error is recorded, later stages are 'not run', the failed stage's layer
+    stays as it was; with check=True the error propagates."""
+    import rose_usd.trajectory.oracle as trajectory_oracle
+
+    def broken(ctx):
+        raise InputError("the poses are broken", path=sample_case / "gt" / "objects" / "Box.tum", hint="fix them")
+
+    monkeypatch.setattr(trajectory_oracle, "run", broken)
+    before = _snapshot(out_copy)
+    oracle = {"all": "oracle"}
+    result = rose_usd.reconstruct(sample_case, out_copy, backends=oracle, until="trajectory", force=True, check=False)
+    status = {o.name: o.status for o in result.outcomes}
+    assert status == {"capture": "skipped", "segment": "skipped", "scene": "skipped", "object": "skipped"} | {
+        "trajectory": "failed"
+    }
+    assert not result.ok and "Box.tum: the poses are broken" in result.error
+    assert layer_file(out_copy, "trajectory").stat().st_mtime_ns == before[layer_file(out_copy, "trajectory")]
+    with pytest.raises(InputError, match="poses are broken"):
+        rose_usd.reconstruct(sample_case, out_copy, backends=oracle, until="trajectory", force=True)
+
+
+def test_the_public_names_are_documented_and_importable():
+    for name in rose_usd.__all__:
+        value = getattr(rose_usd, name)
+        if name not in ("__version__", "STAGES"):
+            assert (value.__doc__ or "").strip(), f"rose_usd.{name} has no docstring"
+    assert [s.name for s in rose_usd.STAGES] == list(registry.STAGE_NAMES)
