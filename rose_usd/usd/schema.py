@@ -1,7 +1,7 @@
 """rose's codeless USD schemas: where they live, their registration, their names.
 
-The source of truth is ``schemas/schema.usda``; ``generatedSchema.usda`` and ``plugInfo.json`` beside
-it are produced from it by usdGenSchema (shipped with usd-core) through :func:`regenerate`.
+The source of truth is ``schemas/schema.usda`` (package data); ``generatedSchema.usda`` and
+``plugInfo.json`` beside it are produced from it by usdGenSchema (shipped with usd-core) through :func:`regenerate`.
 Run ``python -m rose_usd.usd.schema --regenerate`` after editing the schema.
 """
 
@@ -32,16 +32,16 @@ _registered = False
 
 
 def schema_dir() -> Path:
-    """The folder holding schema.usda, generatedSchema.usda and plugInfo.json."""
-    here = Path(__file__).resolve()
-    for candidate in (here.parents[2] / "schemas", here.parents[1] / "_schemas"):
-        if (candidate / "schema.usda").is_file():
-            return candidate
-    raise EnvironmentProblem(
-        "rose's USD schema files (schemas/schema.usda) are missing",
-        path=here.parents[2] / "schemas",
-        hint="install rose_usd from a full checkout (pip install -e .)",
-    )
+    """The folder holding schema.usda, generatedSchema.usda and plugInfo.json (package data:
+    ``rose_usd/schemas``, which in a checkout links to the top-level ``schemas/``)."""
+    folder = Path(__file__).resolve().parents[1] / "schemas"
+    if not (folder / "schema.usda").is_file():
+        raise EnvironmentProblem(
+            "rose's USD schema files (schemas/schema.usda) are missing from the installed package",
+            path=folder,
+            hint="reinstall rose_usd (pip install .) from a full checkout or its wheel",
+        )
+    return folder
 
 
 def register_schemas() -> None:
