@@ -136,7 +136,8 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
         keep = areas >= 0.02 * areas.sum()
         if not keep.all():
             repairs.append(
-                f"dropped {int((~keep).sum())} loose part(s) holding {100 * areas[~keep].sum() / areas.sum():.1f} % of the surface"
+                f"dropped {int((~keep).sum())} loose part(s) holding "
+                f"{100 * areas[~keep].sum() / areas.sum():.1f} % of the surface"
             )
         if keep.sum() > 1:
             repairs.append(f"{int(keep.sum())} separate parts kept as one rigid body")
@@ -617,13 +618,15 @@ def run(ctx: StageContext) -> None:
             unit_scale, unit = choose_unit(rho0)
             if unit_scale is None:
                 ctx.warn(
-                    f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh"
+                    f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across "
+                    f"and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh"
                 )
                 how = "searched (unknown units)"
             else:
                 if unit != "meters":
                     ctx.warn(
-                        f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} ({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}"
+                        f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} "
+                        f"({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}"
                     )
                 rho0, search, how = unit_scale, False, f"file units ({unit})"
         views = _views(ctx, spec.name, cloud.frames, cloud.masks, cameras)
@@ -644,7 +647,8 @@ def run(ctx: StageContext) -> None:
         )
         if best.iou < 0.5:
             ctx.warn(
-                f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); check that {path.name} is this object"
+                f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); "
+                f"check that {path.name} is this object"
             )
         local = best.rho * imp.vertices
         tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), cfg.max_triangles)

@@ -298,7 +298,8 @@ class Segmenter:
                 order = [i, len(regions) - 1] + order[1:]
         if len(regions) < len(names) or not np.isfinite(nearest[order[len(names) - 1]]):
             raise InputError(
-                f"found {int(np.isfinite(nearest).sum())} region(s) the interactor approaches, rose.toml names {len(names)} object(s)",
+                f"found {int(np.isfinite(nearest).sum())} region(s) the interactor approaches, "
+                f"rose.toml names {len(names)} object(s)",
                 path=where,
                 hint="give each object a prompt box in rose.toml",
             )
@@ -577,7 +578,8 @@ def parse_prompts(text: str, specs) -> list:
             values, frame_i = (), -1
         if name not in out or not sep or len(values) not in (2, 4) or frame_i < 0:
             raise ConfigError(
-                f"segment.prompts item {item!r} is not Name=frame:x0,y0,x1,y1 or Name=frame:x,y for an object of rose.toml",
+                f"segment.prompts item {item!r} is not Name=frame:x0,y0,x1,y1 or Name=frame:x,y "
+                "for an object of rose.toml",
                 hint=f"objects: {', '.join(out)}; e.g. {next(iter(out))}=0:120,80,200,170",
             )
         box, point = (values, None) if len(values) == 4 else (None, values)

@@ -452,7 +452,8 @@ def run(ctx: StageContext) -> None:
         lost = fact["frames_lost"]
         if lost:
             ctx.warn(
-                f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): interpolated between tracked frames (confidence 0.5) or held at the ends (0)"
+                f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): "
+                "interpolated between tracked frames (confidence 0.5) or held at the ends (0)"
             )
         world0 = _default_pose(ctx, spec.name)
         results[spec.name] = (np.einsum("nij,jk->nik", motions, world0), confidence)
