@@ -4,8 +4,9 @@ with no imported mesh. No learned model.
 1. **Rest.** The object's masked, back-projected depth (masks eroded by 1 px, away from mixed
    edge pixels) gives a world point cloud per frame. It rests from its first clear view for as
    long as its points of that view, projected into later frames, still meet the depth there
-   (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are fused (the world frame is the object's frame
-   while it rests). Only those: the frames after, mapped into the rest by the tracked trajectory,
+   (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are
+   fused (the world frame is the object's frame while it rests). Only those: the frames after,
+   mapped into the rest by the tracked trajectory,
    made the shape worse on 8 of the benchmark's 11 moved objects (``benchmarks/tracked_fusion.py``).
 2. **Clean.** One point per ``voxel_m`` voxel, marked "often seen" when seen at least a tenth as
    often as the most seen voxel near it (``seen_voxels``: the depth noise's tail, a few points per
@@ -29,7 +30,8 @@ with no imported mesh. No learned model.
    the inner wall's radius, down to the inner bottom where seen, else to the wall's thickness
    above the support (``vessel_cavity``); its mass is then that of the modeled wall.
    Anything else is completed as a height field standing on the support: walls go
-   straight down from the seen rim to the table, around the convex hull of the often seen points. Heights (a column's, the top of a solid of
+   straight down from the seen rim to the table, around the convex hull of the often seen points.
+   Heights (a column's, the top of a solid of
    revolution) are upper medians of the points (``cell_upper_median``, ``top_height``): the
    highest point is raised by the depth noise (a box 3-4 mm, a can 7 mm too tall before).
 4. **Close**: the completed solid is a voxel grid (``voxel_m``) whose occupancy ramps from 1 to 0
@@ -233,8 +235,8 @@ def revolution_profile(
     Looked at in 10 deg sectors around the axis: a solid of revolution has the same outer radius in
     every sector of a height band, up to ``tolerance`` of the radius (the median over the band's
     sectors); a few sectors may stand out (a mug's handle) and are left out of the axis fit and the
-    radii (the fit keeps sectors within 5 % of the median, the radii within 15 %). Points inside the wall (a mug's inner wall, seen over its rim) never set a sector's
-    outer radius.
+    radii (the fit keeps sectors within 5 % of the median, the radii within 15 %). Points inside
+    the wall (a mug's inner wall, seen over its rim) never set a sector's outer radius.
 
     ``toward`` (N, 3), each point's mean unit direction to the cameras that saw it, tells a vessel's
     inner wall from its outer one where only one of them is seen: a camera on one side of a mug

@@ -9,8 +9,9 @@
    a copy of it ``thickness_m`` lower (against gravity), so an open table top becomes a solid
    slab that a resting object cannot be pushed through. The wrap lies ``offset_m`` outside what
    it wraps, so it wraps the surface moved ``offset_m`` into the material (along the TSDF's
-   normals): the table's collider top is the fused table, and a resting object is not lifted. Validity is then checked, never
-   assumed: trimesh must find it watertight and consistently wound with positive volume, and
+   normals): the table's collider top is the fused table, and a resting object is not lifted.
+   Validity is then checked, never assumed: trimesh must find it watertight and consistently
+   wound with positive volume, and
    CGAL must find no self-intersection.
 3. **Budget**: while the wrap has more than ``max_triangles`` triangles, wrap again with a 1.5x
    larger alpha (coarser, and still valid: decimating the wrap with manifold3d was measured to
