@@ -33,7 +33,8 @@ from rose_usd.usd.stage import open_stage
 class ObjectScore:
     name: str
     chamfer_m: float
-    """Symmetric Chamfer of the object mesh against the true mesh, at frame 0 in the true world registered by the cameras (so its placement counts)."""
+    """Symmetric Chamfer of the object mesh against the true mesh, at frame 0 in the true world registered by
+    the cameras (so its placement counts)."""
     ape_translation_m: float
     ape_rotation_deg: float
     rpe_translation_m: float

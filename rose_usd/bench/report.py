@@ -99,19 +99,26 @@ def build_report(results_dir: Path) -> Path:
     lines = [
         f"# rose_usd benchmark: suite `{data['suite']}`, mode `{data['mode']}`",
         "",
-        f"Backends `{json.dumps(data['backends'])}`, settings `{json.dumps(data.get('settings', {}))}`; commit `{data.get('commit')}`, {data['date']}, "
-        f"{data['machine']['cpus']} CPUs ({data['machine']['platform']}). {len(cases)} cases, {sum('error' in c for c in cases)} failed; suite wall time {data['suite_wall_time_s']:.0f} s.",
+        f"Backends `{json.dumps(data['backends'])}`, settings `{json.dumps(data.get('settings', {}))}`; "
+        f"commit `{data.get('commit')}`, {data['date']}, "
+        f"{data['machine']['cpus']} CPUs ({data['machine']['platform']}). {len(cases)} cases, "
+        f"{sum('error' in c for c in cases)} failed; suite wall time {data['suite_wall_time_s']:.0f} s.",
         "",
         f"Command: `{data.get('command', '')}`",
         "",
         "## Table 2: reconstruction accuracy (mean over each task's seeds)",
         "",
-        "Scene Chamfer: point-to-surface, true surface seen by the camera vs the reconstructed scene (cropped to what was seen); "
-        "visible: per-frame Chamfer of what both show through the same pixels. Object Chamfer: at frame 0, in the true world registered by the cameras (placement counts). "
-        "APE/RPE: RMSE as evo defines them (no alignment; RPE over 1 frame), object frames matched by mesh registration. "
-        "The true depth images that define what was seen are stored in whole millimeters, so even a perfect scene scores about 0.1 mm.",
+        "Scene Chamfer: point-to-surface, true surface seen by the camera vs the reconstructed scene "
+        "(cropped to what was seen); "
+        "visible: per-frame Chamfer of what both show through the same pixels. "
+        "Object Chamfer: at frame 0, in the true world registered by the cameras (placement counts). "
+        "APE/RPE: RMSE as evo defines them (no alignment; RPE over 1 frame), "
+        "object frames matched by mesh registration. "
+        "The true depth images that define what was seen are stored in whole millimeters, "
+        "so even a perfect scene scores about 0.1 mm.",
         "",
-        "| Task | Scene Chamfer (mm) | Scene Chamfer, visible (mm) | Object Chamfer (mm) | APE trans (cm) | APE rot (deg) | RPE trans (mm) | RPE rot (deg) |",
+        "| Task | Scene Chamfer (mm) | Scene Chamfer, visible (mm) | Object Chamfer (mm) | APE trans (cm) "
+        "| APE rot (deg) | RPE trans (mm) | RPE rot (deg) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     keys2 = (
@@ -128,7 +135,8 @@ def build_report(results_dir: Path) -> Path:
         lines.append(row(t.capitalize(), by_task[t], keys2, digits2))
     lines.append(row("**Mean (ours)**", allm, keys2, digits2))
     lines.append(
-        f"| Paper (mean, real videos) | – | – | – | {PAPER['ape_translation_cm']} | – | {PAPER['rpe_translation_mm']} | {PAPER['rpe_rotation_deg']} |"
+        f"| Paper (mean, real videos) | – | – | – | {PAPER['ape_translation_cm']} | – "
+        f"| {PAPER['rpe_translation_mm']} | {PAPER['rpe_rotation_deg']} |"
     )
     lines += [
         "",
@@ -152,7 +160,8 @@ def build_report(results_dir: Path) -> Path:
         "Scale error: of the camera path (Sim(3) registration to the true cameras); depth scale error: of the metric "
         "depth alpha fitted to up-to-scale input (benchmark-only, against the simulated MegaSaM scale).",
         "",
-        "| Case | camera APE trans (mm) | camera APE rot (deg) | camera RPE rot (deg) | gravity error (deg) | scale error (%) | depth scale error (%) |",
+        "| Case | camera APE trans (mm) | camera APE rot (deg) | camera RPE rot (deg) | gravity error (deg) "
+        "| scale error (%) | depth scale error (%) |",
         "|---|---|---|---|---|---|---|",
     ]
     keysc = ("cam_ape_t_mm", "cam_ape_r_deg", "cam_rpe_r_deg", "gravity_deg", "scale_pct", "depth_scale_pct")
@@ -167,8 +176,10 @@ def build_report(results_dir: Path) -> Path:
         "",
         "## Masks",
         "",
-        "Mask IoU: mean over the frames where the object is more than half visible (at least half its 95th-percentile visible area); "
-        "the worst object of the case is shown too. Interactor IoU: over frames where the true interactor covers at least 0.5 % of the image.",
+        "Mask IoU: mean over the frames where the object is more than half visible "
+        "(at least half its 95th-percentile visible area); "
+        "the worst object of the case is shown too. "
+        "Interactor IoU: over frames where the true interactor covers at least 0.5 % of the image.",
         "",
         "| Case | mask IoU (mean over objects) | mask IoU (worst object) | interactor IoU | segment (s) |",
         "|---|---|---|---|---|",
@@ -188,20 +199,28 @@ def build_report(results_dir: Path) -> Path:
             "",
             "## Objects",
             "",
-            "Chamfer at frame 0 (as above); shape Chamfer: the same after the rigid transform that best registers the mesh onto the true one (ICP, no scale: "
-            "its shape and size alone, its placement left to the APE); size error: RMS radius of the surface about its centroid, reconstructed over true, minus 1; "
-            "category range: the mass the category's density range gives the reconstructed volume (the wall's, for hollow categories); rest drift: largest corner displacement in 1 s of Newton from frame 0 (target < 5 mm); "
+            "Chamfer at frame 0 (as above); shape Chamfer: the same after the rigid transform that best registers "
+            "the mesh onto the true one (ICP, no scale: "
+            "its shape and size alone, its placement left to the APE); size error: RMS radius of the surface "
+            "about its centroid, reconstructed over true, minus 1; "
+            "category range: the mass the category's density range gives the reconstructed volume "
+            "(the wall's, for hollow categories); rest drift: largest corner displacement in 1 s of Newton "
+            "from frame 0 (target < 5 mm); "
             "object (s): the object stage's wall time for the case (all its objects).",
             "",
-            "| Case | object | Chamfer (mm) | shape Chamfer (mm) | size error (%) | mass (kg) | category range (kg) | true mass (kg) | rest drift (mm) | object (s) |",
+            "| Case | object | Chamfer (mm) | shape Chamfer (mm) | size error (%) | mass (kg) | category range (kg) "
+            "| true mass (kg) | rest drift (mm) | object (s) |",
             "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for case, o in object_rows:
             size = o.get("size_error")
             t_obj = (case.get("stages") or {}).get("object", {}).get("wall_time_s")
             lines.append(
-                f"| {case['case']} | {o['name']} | {_fmt(1e3 * o['chamfer_m'])} | {_fmt(None if o.get('shape_chamfer_m') is None else 1e3 * o['shape_chamfer_m'])} | {_fmt(None if size is None else 1e2 * size, 2)} | "
-                f"{_fmt(o.get('mass_kg'), 3)} | {_range(o.get('mass_range_kg'))} | {_fmt(o.get('true_mass_kg'), 3)} | {_fmt(None if o.get('rest_drift_m') is None else 1e3 * o['rest_drift_m'], 1)} | {_fmt(t_obj, 1)} |"
+                f"| {case['case']} | {o['name']} | {_fmt(1e3 * o['chamfer_m'])} | "
+                f"{_fmt(None if o.get('shape_chamfer_m') is None else 1e3 * o['shape_chamfer_m'])} | "
+                f"{_fmt(None if size is None else 1e2 * size, 2)} | "
+                f"{_fmt(o.get('mass_kg'), 3)} | {_range(o.get('mass_range_kg'))} | {_fmt(o.get('true_mass_kg'), 3)} | "
+                f"{_fmt(None if o.get('rest_drift_m') is None else 1e3 * o['rest_drift_m'], 1)} | {_fmt(t_obj, 1)} |"
             )
     track_rows = [
         (case, o)
@@ -214,12 +233,16 @@ def build_report(results_dir: Path) -> Path:
             "",
             "## Trajectories",
             "",
-            "Per object: APE and RPE as in Table 2 (issue 7's targets: APE translation <= 10 mm, RPE rotation <= 1 deg, RPE translation <= 3 mm "
-            "in rgbd mode; APE <= 20 mm in mono-imported mode). What the trajectory stage recorded: frames lost (held, confidence 0), "
-            "re-acquisitions, moves while untouched, mean fitness (observed points within 5 mm of the mesh) and frames per second of the "
+            "Per object: APE and RPE as in Table 2 (issue 7's targets: APE translation <= 10 mm, "
+            "RPE rotation <= 1 deg, RPE translation <= 3 mm "
+            "in rgbd mode; APE <= 20 mm in mono-imported mode). "
+            "What the trajectory stage recorded: frames lost (held, confidence 0), "
+            "re-acquisitions, moves while untouched, mean fitness (observed points within 5 mm of the mesh) "
+            "and frames per second of the "
             "tracker alone; trajectory (s): the stage's wall time for the case.",
             "",
-            "| Case | object | backend | APE trans (mm) | APE rot (deg) | RPE trans (mm) | RPE rot (deg) | lost | re-acquired | moved untouched | fitness | frames/s | trajectory (s) |",
+            "| Case | object | backend | APE trans (mm) | APE rot (deg) | RPE trans (mm) | RPE rot (deg) "
+            "| lost | re-acquired | moved untouched | fitness | frames/s | trajectory (s) |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for case, o in track_rows:
@@ -228,26 +251,33 @@ def build_report(results_dir: Path) -> Path:
                 o["name"], {}
             )
             lines.append(
-                f"| {case['case']} | {o['name']} | {stage.get('backend', '–')} | {_fmt(1e3 * o['ape_translation_m'], 1)} | {_fmt(o['ape_rotation_deg'], 2)} | "
+                f"| {case['case']} | {o['name']} | {stage.get('backend', '–')} | "
+                f"{_fmt(1e3 * o['ape_translation_m'], 1)} | {_fmt(o['ape_rotation_deg'], 2)} | "
                 f"{_fmt(1e3 * o['rpe_translation_m'], 2)} | {_fmt(o['rpe_rotation_deg'], 2)} | "
                 + " | ".join(str(facts.get(k, "–")) for k in ("frames_lost", "reacquired", "moved_untouched"))
-                + f" | {_fmt(facts.get('fitness_mean'), 3)} | {_fmt(facts.get('frames_per_s'), 1)} | {_fmt(stage.get('wall_time_s'), 1)} |"
+                + f" | {_fmt(facts.get('fitness_mean'), 3)} | {_fmt(facts.get('frames_per_s'), 1)} | "
+                f"{_fmt(stage.get('wall_time_s'), 1)} |"
             )
     lines += [
         "",
         "## Per case",
         "",
-        "Scene ghost: area of reconstructed scene surface more than 1.5 cm inside an object or the hand at some frame and more than 1.5 cm from the true static scene.",
+        "Scene ghost: area of reconstructed scene surface more than 1.5 cm inside an object or the hand "
+        "at some frame and more than 1.5 cm from the true static scene.",
         "",
-        "| Case | frames | Scene Chamfer (mm) | Scene ghost (cm^2) | Object Chamfer (mm) | APE trans (cm) | RPE rot (deg) | SSIM | gate | total (s) | error |",
+        "| Case | frames | Scene Chamfer (mm) | Scene ghost (cm^2) | Object Chamfer (mm) | APE trans (cm) "
+        "| RPE rot (deg) | SSIM | gate | total (s) | error |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for case in cases:
         m = _case_metrics(case) if "error" not in case else {}
         s = case.get("score") or {}
         lines.append(
-            f"| {case['case']} | {case.get('n_frames')} | {_fmt(m.get('scene_chamfer_mm'))} | {_fmt(m.get('scene_ghost_cm2'), 1)} | {_fmt(m.get('object_chamfer_mm'))} | {_fmt(m.get('ape_t_cm'), 3)} | "
-            f"{_fmt(m.get('rpe_r_deg'), 3)} | {_fmt(m.get('ssim'), 4)} | {_gate_cell(case, s)} | {_fmt(m.get('t_total'), 1)} | {case.get('error', '')} |"
+            f"| {case['case']} | {case.get('n_frames')} | {_fmt(m.get('scene_chamfer_mm'))} | "
+            f"{_fmt(m.get('scene_ghost_cm2'), 1)} | {_fmt(m.get('object_chamfer_mm'))} | "
+            f"{_fmt(m.get('ape_t_cm'), 3)} | "
+            f"{_fmt(m.get('rpe_r_deg'), 3)} | {_fmt(m.get('ssim'), 4)} | {_gate_cell(case, s)} | "
+            f"{_fmt(m.get('t_total'), 1)} | {case.get('error', '')} |"
         )
     plots = _plots(results_dir, cases, by_task, tasks)
     lines += ["", "## Pictures", ""] + [f"![{name}](plots/{name}.png)" for name in plots]

@@ -209,7 +209,8 @@ def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -
     theirs = (summary["suite"], summary["mode"], summary.get("prompts", True))
     if theirs != (suite, mode.value, prompts):
         raise InputError(
-            f"its runs are of suite {theirs[0]!r}, mode {theirs[1]!r}, prompts {theirs[2]}, not {suite!r}, {mode.value!r}, {prompts}",
+            f"its runs are of suite {theirs[0]!r}, mode {theirs[1]!r}, prompts {theirs[2]}, "
+            f"not {suite!r}, {mode.value!r}, {prompts}",
             path=summary_file,
             hint="start from a folder of the same suite and mode",
         )

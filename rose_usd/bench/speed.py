@@ -1,5 +1,6 @@
 """``rose-usd bench speed``: wall time and peak memory of one stage on a long case (default 300
-frames at 640x480, the issues' speed targets), each stage in its own process like the suites."""
+frames at 640x480, the size the speed targets are set for), each stage in its own process like
+the suites."""
 
 from __future__ import annotations
 

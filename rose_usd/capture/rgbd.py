@@ -166,7 +166,8 @@ def run(ctx: StageContext) -> None:
     low = int(np.sum(result.fitness < params.min_fitness))
     if low:
         ctx.warn(
-            f"{low} frame(s) overlap their keyframe poorly (fitness < {params.min_fitness}); their poses are less certain"
+            f"{low} frame(s) overlap their keyframe poorly (fitness < {params.min_fitness}); "
+            "their poses are less certain"
         )
     author_tracked_world(ctx, poses, K, world_from_track, gravity, k_source, scale_source="sensor")
     ctx.record(

@@ -8,12 +8,11 @@ frame to frame. Keyframes are also registered to up to ``keyframe_links`` earlie
 on their keyframe's optimized pose.
 
 The photometric term is used only where geometry alone is degenerate (``method = "auto"``):
-casual tabletop videos are mostly one big plane, along which point-to-plane ICP slides (tested:
-28 mm vs 0.07 mm over 20 frames of the benchmark), while real RGB-D sensors often have color and
-depth registered only approximately, which biases a photometric term (7-Scenes: 40 mm with it,
-19 mm without). A keyframe's geometry is degenerate when its surface normals do not span all
+casual tabletop videos are mostly one big plane, along which point-to-plane ICP slides, while
+real RGB-D sensors often have color and depth registered only approximately, which biases a
+photometric term. A keyframe's geometry is degenerate when its surface normals do not span all
 directions: the smallest eigenvalue of their scatter matrix, relative to the largest, is below
-``min_normal_spread`` (tabletop benchmark cases: 0.01-0.05; the 7-Scenes kitchen: 0.39-0.47).
+``min_normal_spread`` (typical values: a tabletop, 0.01-0.05; the 7-Scenes kitchen, 0.39-0.47).
 Moving parts (the object, the hand) and invalid depth are outliers for the robust losses and the
 depth-difference gate; pixels can also be masked out explicitly.
 """

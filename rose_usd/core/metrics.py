@@ -125,7 +125,7 @@ def surface_rms_radius(vertices: np.ndarray, faces: np.ndarray) -> float:
 
     For a point uniform on a triangle with corners a, b, c: E[x] = (a + b + c) / 3 and
     E[x x^T] = (a a^T + b b^T + c c^T + (a + b + c)(a + b + c)^T) / 12. Sampling it instead
-    (50k points on each mesh) moved a box's size ratio by 0.2-0.3 % from seed to seed."""
+    (50k points on each mesh) moves a box's size ratio by 0.2-0.3 % from seed to seed."""
     tri = np.asarray(vertices, dtype=float)[np.asarray(faces)]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if area.sum() <= 0:

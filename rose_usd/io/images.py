@@ -79,7 +79,8 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
             )
         if raw.dtype != np.uint16 or raw.ndim != 2:
             raise InputError(
-                f"depth PNG is {raw.dtype} with {1 if raw.ndim == 2 else raw.shape[2]} channel(s), expected 16-bit single channel in millimeters",
+                f"depth PNG is {raw.dtype} with {1 if raw.ndim == 2 else raw.shape[2]} channel(s), "
+                "expected 16-bit single channel in millimeters",
                 path=path,
                 hint="save depth as uint16 PNG in millimeters, or as .npy float meters",
             )

@@ -144,7 +144,8 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
         cover = decomposition_coverage(model.mesh)
         if cover["collision_coverage"] < 0.98:
             ctx.warn(
-                f"object {model.name!r}: its convex parts cover only {100 * cover['collision_coverage']:.1f} % of its volume"
+                f"object {model.name!r}: its convex parts cover only "
+                f"{100 * cover['collision_coverage']:.1f} % of its volume"
             )
     else:  # the hull covers the mesh
         cover = {"collision_parts": 1, "collision_coverage": 1.0, "collision_volume_ratio": round(1.0 / convexity, 4)}
@@ -175,7 +176,8 @@ def author_objects(ctx: StageContext, models: list[ObjectModel], convex_toleranc
         lift = lifts.get(model.name, 0.0)
         if not np.isfinite(lift):
             ctx.warn(
-                f"object {model.name!r} is more than 3 cm inside the scene at frame 0: left where it is (check its pose and the scene)"
+                f"object {model.name!r} is more than 3 cm inside the scene at frame 0: "
+                "left where it is (check its pose and the scene)"
             )
         elif lift > 0.01:
             ctx.warn(f"object {model.name!r} was {1e3 * lift:.0f} mm inside the scene at frame 0: lifted onto it")

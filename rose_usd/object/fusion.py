@@ -4,9 +4,10 @@ with no imported mesh. No learned model.
 1. **Rest.** The object's masked, back-projected depth (masks eroded by 1 px, away from mixed
    edge pixels) gives a world point cloud per frame. It rests from its first clear view for as
    long as its points of that view, projected into later frames, still meet the depth there
-   (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are fused (the world frame is the object's frame
-   while it rests). Only those: the frames after, mapped into the rest by the tracked trajectory,
-   made the shape worse on 8 of the benchmark's 11 moved objects (``benchmarks/tracked_fusion.py``).
+   (within ``rest_tolerance_m``), and until the interactor first touches it; those frames are
+   fused (the world frame is the object's frame while it rests). Only those: the frames after,
+   mapped into the rest by the tracked trajectory, carry the trajectory's errors into the shape
+   and mostly make it worse (``benchmarks/tracked_fusion.py`` measures both).
 2. **Clean.** One point per ``voxel_m`` voxel, marked "often seen" when seen at least a tenth as
    often as the most seen voxel near it (``seen_voxels``: the depth noise's tail, a few points per
    frame a few mm off a surface, is not), statistical outliers dropped, points that a
@@ -22,23 +23,24 @@ with no imported mesh. No learned model.
    band) is completed by revolving its median profile up to its top. The axis is fitted to the
    side's points only (the top face's points near its rim are not wall) that face away from it
    toward their cameras (each fused point keeps its mean direction to the cameras that saw it: a
-   mug's far inner wall, seen over the rim, faces the other way and once made the mugs 5 %
-   narrow), finally by geometric least squares (Kasa's algebraic fit of an arc seen from one
+   mug's far inner wall, seen over the rim, faces the other way and would make the mug narrow),
+   finally by geometric least squares (Kasa's algebraic fit of an arc seen from one
    side is pulled toward the camera and shrunk). A solid of revolution whose inner wall shows
    over its rim (points facing the axis, inside the outer wall) is an open vessel: its cavity has
    the inner wall's radius, down to the inner bottom where seen, else to the wall's thickness
    above the support (``vessel_cavity``); its mass is then that of the modeled wall.
    Anything else is completed as a height field standing on the support: walls go
-   straight down from the seen rim to the table, around the convex hull of the often seen points. Heights (a column's, the top of a solid of
-   revolution) are upper medians of the points (``cell_upper_median``, ``top_height``): the
-   highest point is raised by the depth noise (a box 3-4 mm, a can 7 mm too tall before).
+   straight down from the seen rim to the table, around the convex hull of the often seen points.
+   Heights (a column's, the top of a solid of revolution) are upper medians of the points
+   (``cell_upper_median``, ``top_height``): the highest point is raised by the depth noise, by
+   several millimeters.
 4. **Close**: the completed solid is a voxel grid (``voxel_m``) whose occupancy ramps from 1 to 0
    over two voxels across a completed surface, so marching cubes puts the surface where it is,
    not on a voxel face; seen points outside it count only in parts of a dozen voxels or more
    (a mug's handle, not the noise). Its surface is watertight by construction, smoothed (Taubin)
    and decimated to ``max_triangles``, then checked watertight, 2-manifold, oriented and free of
-   self-intersections. (An alpha wrap of the completed points was tried first: it entered the
-   solid and returned a thin shell.)
+   self-intersections. (Not an alpha wrap of the completed points: it enters the solid and
+   returns a thin shell.)
 5. **Priors**: density, friction and restitution from the category table (rose.toml may fix any
    of them, or mass_kg); mass = density x volume, or x the wall's volume for hollow categories;
    center of mass and inertia from the mesh.
@@ -78,8 +80,8 @@ def masked_points(
     depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int = 1
 ):
     """World points and sRGB colors of the mask's pixels with depth (mask eroded by ``erode_px``:
-    its border pixels mix the object's depth with what is behind it). Leaving out every pixel at a
-    depth discontinuity as well was measured to shrink the object more than it helps."""
+    its border pixels mix the object's depth with what is behind it). Pixels at a depth
+    discontinuity are not all left out as well: that shrinks the object more than it helps."""
     pts, (v, u) = masked_world_points(depth, mask, K, world_from_cv, erode_px=erode_px)
     return pts, rgb[v, u]
 
@@ -233,13 +235,13 @@ def revolution_profile(
     Looked at in 10 deg sectors around the axis: a solid of revolution has the same outer radius in
     every sector of a height band, up to ``tolerance`` of the radius (the median over the band's
     sectors); a few sectors may stand out (a mug's handle) and are left out of the axis fit and the
-    radii (the fit keeps sectors within 5 % of the median, the radii within 15 %). Points inside the wall (a mug's inner wall, seen over its rim) never set a sector's
-    outer radius.
+    radii (the fit keeps sectors within 5 % of the median, the radii within 15 %). Points inside
+    the wall (a mug's inner wall, seen over its rim) never set a sector's outer radius.
 
     ``toward`` (N, 3), each point's mean unit direction to the cameras that saw it, tells a vessel's
     inner wall from its outer one where only one of them is seen: a camera on one side of a mug
     sees its near outer wall and the far side's inner wall, which by radius alone are one circle
-    smaller by half the wall and off the axis by as much (the classical mugs were 5 % narrow)."""
+    smaller by half the wall and off the axis by as much (a fit to both makes the vessel narrow)."""
     # the axis is fitted on the side: the top face's points near its rim are not on the wall
     ztop = top_height(points, 0.5 * band_m)
     side = points[:, 2] < ztop - 2 * band_m
@@ -304,9 +306,9 @@ def vessel_cavity(
     three ``band_m`` bands make it one, unless most of what is seen near the axis is at the top (a
     can's lid). Its inner radius per band is their median radius (the nearest band's where none is
     seen). The floor is the median height of the points seen near the axis below the rim (its
-    inner bottom); where that was never seen, as high as the wall is thick (a uniform wall: the
-    cameras of place-mug saw its inner wall only down to half its depth, and a cavity only that
-    deep doubled its mass)."""
+    inner bottom); where that was never seen, as high as the wall is thick (a uniform wall: cameras
+    looking over the rim may see the inner wall only part of the way down, and a cavity only that
+    deep would leave a heavy solid bottom)."""
     if toward is None:
         return None
     pr = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1])
@@ -406,7 +408,7 @@ def solid_from_points(
         height = np.zeros(shape[:2])
         height[ids // shape[1], ids % shape[1]] = upper
         # closed with nothing beyond the grid: by default the erosion takes the border as inside,
-        # and a seen cell 2 voxels from the grid's edge grew a 4 mm spike to it (a wall's height)
+        # and a seen cell 2 voxels from the grid's edge grows a spike to it (a wall's height)
         foot = cv2.morphologyEx(
             (height > 0).astype(np.uint8),
             cv2.MORPH_CLOSE,
@@ -590,7 +592,7 @@ def free_space_carve(
 
     A sensor's flying pixels at a silhouette land a few mm off the surface, a few per frame, and
     fused over a rest they make a dense wall that outlier removal keeps (a strip 5-30 mm above a
-    box's top edge: the can stacked on it was then lifted that high). A point is dropped when, in
+    box's top edge lifts an object stacked on it that high). A point is dropped when, in
     at least ``min_views`` views and ``fraction`` of the views it falls in, even the nearest depth
     of the 3x3 pixels around it lies beyond it by ``tolerance_m``: that view saw past it. Things
     in front (a hand) only make depth nearer. ``views``: (depth, K, world_from_cv) of frames in
@@ -608,8 +610,8 @@ def decimate(mesh, max_triangles: int, *, check: bool = True):
 
     if len(mesh.faces) <= max_triangles:
         return mesh
-    # the decimator's default aggression (7) opened a vessel's thin wall (5 mm, 2.5 voxels): every
-    # target failed the check and the mugs kept 31-38k triangles; at 3 they decimate closed
+    # the decimator's default aggression (7) can open a vessel's thin wall (5 mm, 2.5 voxels): then
+    # every target fails the check and the mesh keeps all its triangles; at 3 it stays closed
     for target, aggression in itertools.product(
         (max_triangles, int(0.75 * max_triangles), int(0.5 * max_triangles)), (7, 3)
     ):
@@ -714,17 +716,16 @@ def seen_voxels(
     A surface seen in many frames fills its voxels many times over; the depth noise's tail and the
     registration's jitter put a few points per frame a few millimeters off it. A plain voxel
     downsample gives both one point each, so the fused wall becomes a slab as thick as the noise's
-    extremes, and a footprint drawn around it lies on its outside: unstack-box's boxes came out
-    4-6 mm too wide on the sides the camera saw (size +5.4 %, +5.9 %). A voxel of the tail is
+    extremes, and a footprint drawn around it lies on its outside: an object comes out a few
+    millimeters too wide on the sides the camera saw. A voxel of the tail is
     seen a fraction as often as its neighbors, so a height field's footprint is drawn around the
     often seen voxels only (``outline`` of ``solid_from_points``). Where every voxel around is seen
     at most 3 times (one frame's pixels), all count as often seen.
 
     ``keep_fraction`` 0.1, not more: a top face's far edge is seen less often than its middle
-    (voxels partly covered, the sensor's dropouts at depth edges), and at 0.35 the sides seen
-    only as such edges came 3-5 mm in (unstack-box: Chamfer 1.82 / 1.55 mm at 0.1, 2.69 / 2.38 at
-    0.35). The rarely seen points stay in the cloud: dropping them changed place-mug's revolved
-    mug from 2.67 to 3.28 mm Chamfer."""
+    (voxels partly covered, the sensor's dropouts at depth edges), and a higher fraction (0.35)
+    pulls the sides seen only as such edges a few millimeters in. The rarely seen points stay in
+    the cloud: dropping them makes a revolved profile worse."""
     # voxels as one integer each, on a grid padded by ``reach`` so a neighbor is an offset away
     key = np.floor(points / voxel_m).astype(np.int64)
     lo = key.min(axis=0) - reach

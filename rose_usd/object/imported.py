@@ -122,7 +122,8 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
         keep = areas >= 0.02 * areas.sum()
         if not keep.all():
             repairs.append(
-                f"dropped {int((~keep).sum())} loose part(s) holding {100 * areas[~keep].sum() / areas.sum():.1f} % of the surface"
+                f"dropped {int((~keep).sum())} loose part(s) holding "
+                f"{100 * areas[~keep].sum() / areas.sum():.1f} % of the surface"
             )
         if keep.sum() > 1:
             repairs.append(f"{int(keep.sum())} separate parts kept as one rigid body")
@@ -256,8 +257,8 @@ class Fit:
 def level_rotation(vertices: np.ndarray, faces: np.ndarray, *, max_tilt_deg: float = 6.0) -> np.ndarray:
     """The small rotation (3, 3) that sets an up-aligned closed mesh on its stable resting face.
 
-    A generated mesh's up axis is the network's guess: TRELLIS's push-mug stood upright with its
-    bottom 2 deg off level, so Newton tipped it onto its bottom and it moved 6.3 mm in 1 s. The
+    A generated mesh's up axis is the network's guess: a bottom a degree or two off level makes
+    Newton tip the object onto it, and the object moves while it should rest. The
     mesh rests on the face of its convex hull nearest its center of mass (the solid's) among
     those facing within ``max_tilt_deg`` of down, when the center of mass projects into that
     face (its coplanar hull triangles): that face is turned to face straight down. The identity
@@ -280,7 +281,7 @@ def level_rotation(vertices: np.ndarray, faces: np.ndarray, *, max_tilt_deg: flo
     if not inside.any():
         return np.eye(3)
     # Rodrigues written out rather than se3.rotation_between: the same rotation to 1e-16, but the
-    # pose search downstream is that sensitive (push-mug's silhouette IoU 0.9366 -> 0.9344)
+    # pose search downstream is that sensitive (a difference in the last bits changes its fit)
     axis = np.cross(n, [0.0, 0.0, -1.0])
     s, c = np.linalg.norm(axis), float(-n[2])
     if s < 1e-12:
@@ -293,9 +294,9 @@ def level_rotation(vertices: np.ndarray, faces: np.ndarray, *, max_tilt_deg: flo
 def resting_bottom(points: np.ndarray, band: float = 0.02) -> float:
     """Height of what an up-aligned mesh stands on, from its surface samples: the median height of
     those within ``band`` of its height above the lowest. The lowest vertex of a mesh made by a
-    network sits under its bottom face by its noise (TRELLIS-like noise of 0.4 % lifted a box
-    1.4 mm, and the depth fit then shrank it 2 %); a round bottom sinks by ~1 % of its radius,
-    which the rest step lifts out."""
+    network sits under its bottom face by its noise (noise of 0.4 % of its size lifts a box by
+    about 1.4 mm, which the depth fit then makes up for by shrinking it about 2 %); a round bottom
+    sinks by ~1 % of its radius, which the rest step lifts out."""
     z = points[:, 2]
     low = z[z <= z.min() + band * (z.max() - z.min())]
     return float(np.median(low))
@@ -369,11 +370,11 @@ class PoseCost:
     out).
 
     Neither term alone finds the pose. The resting frames see the object from nearly one
-    viewpoint, so the silhouette is met as well by a smaller mesh nearer the camera (on the
-    sample's box, IoU alone took a scale 4 % under the depth's and moved the box along the view
-    ray); the depth sees one side, and a TRELLIS mesh's one side fits it a few degrees turned (ICP
-    converged to yaws 3.5 degrees apart from neighboring starts, Chamfer 2.95-3.47 mm). Together
-    they agree from every start to within 0.4 degrees (Chamfer 2.73-2.77 mm)."""
+    viewpoint, so the silhouette is met as well by a smaller mesh nearer the camera (IoU alone
+    can take a scale a few % small and move the object along the view ray); the depth sees one
+    side, and a TRELLIS mesh's one side fits it a few degrees turned (ICP from neighboring starts
+    converges to yaws several degrees apart). Together they agree from every start to within a
+    fraction of a degree."""
 
     def __init__(
         self,
@@ -469,8 +470,8 @@ def fit_scale_and_pose(
     At rho_0, ICP from 12 yaws (and the extra starts) finds the pose's modes (a box has four);
     the ``modes`` cheapest are refined on the cost and the best kept. Every scale of the
     log-spaced grid starts ICP from that pose, and the three cheapest are refined. The modes are
-    found again at the best of them (a box 2 % longer than wide, its scale searched from 25 %
-    under, took the mode turned 90 degrees, which cost less at rho_0). Every scale of a finer
+    found again at the best of them (at a wrong scale a box's modes cost alike: one slightly
+    longer than wide can take at rho_0 the mode turned 90 degrees). Every scale of a finer
     grid around the best starts ICP from the best pose so far (and the extra starts) and is
     refined, and a golden section between the best's neighbors on it narrows the scale to
     ``resolution`` (ratio). The least cost over all is the fit."""
@@ -515,8 +516,8 @@ def fit_scale_and_pose(
     step = alpha ** (2.0 / (steps - 1))
     for rho in best.rho * step ** np.linspace(-1.0, 1.0, 9):
         tried.append(at(float(rho), best))
-    # that grid is 1.46 % apart at the defaults, half the benchmark's scale budget (a box halfway
-    # between two of its points came out 0.72 % off): a golden section between the best's
+    # that grid is 1.46 % apart at the defaults, half the benchmark's scale budget (a scale halfway
+    # between two of its points is about 0.7 % off): a golden section between the best's
     # neighbors narrows it to ``resolution``, each scale started from the best pose so far
     best = min(tried, key=lambda f: f.cost)
     lo, hi = np.log(best.rho) - 0.25 * np.log(step), np.log(best.rho) + 0.25 * np.log(step)
@@ -601,13 +602,15 @@ def run(ctx: StageContext) -> None:
             unit_scale, unit = choose_unit(rho0)
             if unit_scale is None:
                 ctx.warn(
-                    f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh"
+                    f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across "
+                    f"and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh"
                 )
                 how = "searched (unknown units)"
             else:
                 if unit != "meters":
                     ctx.warn(
-                        f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} ({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}"
+                        f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} "
+                        f"({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}"
                     )
                 rho0, search, how = unit_scale, False, f"file units ({unit})"
         views = _views(ctx, spec.name, cloud.frames, cloud.masks, cameras)
@@ -628,7 +631,8 @@ def run(ctx: StageContext) -> None:
         )
         if best.iou < 0.5:
             ctx.warn(
-                f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); check that {path.name} is this object"
+                f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); "
+                f"check that {path.name} is this object"
             )
         local = best.rho * imp.vertices
         tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), cfg.max_triangles)

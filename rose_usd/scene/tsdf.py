@@ -9,12 +9,12 @@
    a copy of it ``thickness_m`` lower (against gravity), so an open table top becomes a solid
    slab that a resting object cannot be pushed through. The wrap lies ``offset_m`` outside what
    it wraps, so it wraps the surface moved ``offset_m`` into the material (along the TSDF's
-   normals): the table's collider top is the fused table, and a resting object is not lifted. Validity is then checked, never
-   assumed: trimesh must find it watertight and consistently wound with positive volume, and
-   CGAL must find no self-intersection.
+   normals): the table's collider top is the fused table, and a resting object is not lifted.
+   Validity is then checked, never assumed: trimesh must find it watertight and consistently
+   wound with positive volume, and CGAL must find no self-intersection.
 3. **Budget**: while the wrap has more than ``max_triangles`` triangles, wrap again with a 1.5x
-   larger alpha (coarser, and still valid: decimating the wrap with manifold3d was measured to
-   create self-intersections), re-checked.
+   larger alpha (coarser, and still valid: decimating the wrap with manifold3d can create
+   self-intersections), re-checked.
    Under each object resting on the support before it is touched, the fused surface is replaced
    by a flat pad before the wrap (``support_pads``), and the wrap's top is set exactly at the
    pad's height after it (``flatten_pads``).
@@ -93,13 +93,12 @@ def _static_pixels(
 
 class Fusion:
     """A TSDF volume (Open3D's tensor voxel-block grid on the CPU; its legacy ScalableTSDFVolume
-    returned no points on CPU in Open3D 0.20) of metric depth frames with colors.
+    returns no points on CPU in Open3D 0.20) of metric depth frames with colors.
 
     The grid's blocks are allocated by several threads, so the surface it extracts comes out in
-    a different order from run to run (the same points, colors and normals: checked on push-box,
-    3 fusions of 10 frames). It is sorted by position here, so that nothing downstream (the wrap,
-    the colors' nearest neighbors, the texture) can depend on thread timing; on the sample the
-    scene came out the same either way."""
+    a different order from run to run (the same points, colors and normals). It is sorted by
+    position here, so that nothing downstream (the wrap, the colors' nearest neighbors, the
+    texture) can depend on thread timing."""
 
     def __init__(self, voxel_m: float, depth_max_m: float):
         import open3d as o3d
@@ -493,9 +492,8 @@ def support_pads(
     flat pad at the height the object stage stands it on (``segment.contact.ring_height``).
 
     The table under a resting object is never seen while it rests, and what is fused there from
-    other frames is what MegaSaM's depth makes of it: bumps of 5-11 mm under push-box, a 4.8 mm
-    slope under place-can, on which Newton's object rocks or slides (push-mug tipped 17 deg and
-    moved 56 mm in 1 s; flattened by hand, 6.5 mm). The footprint is the convex hull of the
+    other frames is what the depth makes of it: with MegaSaM's, bumps and slopes of several
+    millimeters, on which Newton's object rocks or slides. The footprint is the convex hull of the
     object's seen points (its top seen from above covers it), grown by ``margin_m``. An object
     whose lowest seen points lie more than ``max_gap_m`` above the surface around it does not
     stand on it (held, or on another object) and gets no pad. Returns the pads and, per object
@@ -588,16 +586,15 @@ def flatten_pads(
 ) -> tuple[np.ndarray, int]:
     """The wrapped collider with its top flat at each pad's height over the pad's footprint.
 
-    The wrap of a flat pad is flat only to its vertices' scatter about its offset surface: on
-    push-mug's MegaSaM pad it dipped up to 0.48 mm between 13 vertices, its triangles tilted
-    0.9 deg, and Newton's mug rocked on the ridge (1.8 deg and 5.2 mm in 1 s; 0.06 deg on the
-    same collider flattened). Every triangle over the footprint must be flat, and the wrap's
+    The wrap of a flat pad is flat only to its vertices' scatter about its offset surface: it
+    leaves sub-millimeter relief there (triangles tilted by up to about a degree), on which a
+    resting object rocks in Newton. Every triangle over the footprint must be flat, and the wrap's
     triangles are alpha-sized (3-6 cm), so a triangle over the footprint can have its vertices
     outside it: the vertices set at the pad's height are those within one edge length of the
     footprint (the longest among the flat triangles that reach takes in, grown until that stops
     growing), within ``band_m`` of the pad's height (the pad height is the surface's around the
-    object) and facing within ``up_deg`` of up. Over the footprint itself nothing but the pad was wrapped (``lay_pads``
-    replaced the fused surface there), so a vertex there is the pad's when within
+    object) and facing within ``up_deg`` of up. Over the footprint itself nothing but the pad is
+    wrapped (``lay_pads`` replaced the fused surface there), so a vertex there is the pad's when within
     ``over_band_m`` (less than the slab's thickness, so never its underside) and ``over_up_deg``:
     one left out would tilt a triangle under the object. Vertices move only vertically, on a slab
     ``thickness_m`` thick: the caller still checks validity. Returns the vertices and how many
@@ -675,8 +672,7 @@ def run(ctx: StageContext) -> None:
     )
     # only the triangles that face one of the video's cameras take texels: the slab's underside
     # and the wrap's far sides (about a third of its area) are never seen, and textured with the
-    # rest they left the seen surface 62-72 % of a texture whose packing varied between runs
-    # (place-can's SSIM 0.862 -> 0.838 with 0.688 -> 0.617 of the texture used)
+    # rest they would take texture from the seen surface and make the packing vary between runs
     facing = faces_facing(
         vertices, faces, read_camera(ctx.stage, paths.CAMERA, ctx.time_info.n_frames).world_from_cv[:, :3, 3]
     )

@@ -298,7 +298,8 @@ class Segmenter:
                 order = [i, len(regions) - 1] + order[1:]
         if len(regions) < len(names) or not np.isfinite(nearest[order[len(names) - 1]]):
             raise InputError(
-                f"found {int(np.isfinite(nearest).sum())} region(s) the interactor approaches, rose.toml names {len(names)} object(s)",
+                f"found {int(np.isfinite(nearest).sum())} region(s) the interactor approaches, "
+                f"rose.toml names {len(names)} object(s)",
                 path=where,
                 hint="give each object a prompt box in rose.toml",
             )
@@ -438,7 +439,7 @@ class Segmenter:
         shift = _shift(track.points, new)
         track.velocity = 0.5 * track.velocity + 0.5 * shift if track.hidden == 0 else np.zeros(3)
         # the part hidden now (something in front of it: a hand) is still there, moved with the
-        # part seen; keeping only the seen part lost a box whose seen face the hand then covered
+        # part seen; keeping only the seen part loses a box whose seen face the hand then covers
         moved = track.points + shift
         u, v, z = pixels_of(moved, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
         d = sample_at(depth, u, v)
@@ -455,7 +456,7 @@ def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
     of each new point to its nearest old one), started from no motion and from the difference of
     the means, whichever ends nearer. The means alone are wrong under occlusion: a hand covering
     the top of a box that stands still moves the mean of what is seen down, and a velocity read
-    from that carried the box's track into the table (it was then lost, and the scene fused the
+    from that carries the box's track into the table (the track is lost, and the scene fuses the
     box as a ghost)."""
     tree = cKDTree(old)
     best, best_gap = np.zeros(3), np.inf
@@ -577,7 +578,8 @@ def parse_prompts(text: str, specs) -> list:
             values, frame_i = (), -1
         if name not in out or not sep or len(values) not in (2, 4) or frame_i < 0:
             raise ConfigError(
-                f"segment.prompts item {item!r} is not Name=frame:x0,y0,x1,y1 or Name=frame:x,y for an object of rose.toml",
+                f"segment.prompts item {item!r} is not Name=frame:x0,y0,x1,y1 or Name=frame:x,y "
+                "for an object of rose.toml",
                 hint=f"objects: {', '.join(out)}; e.g. {next(iter(out))}=0:120,80,200,170",
             )
         box, point = (values, None) if len(values) == 4 else (None, values)

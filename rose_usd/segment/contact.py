@@ -15,10 +15,10 @@ from rose_usd.stage_api import StageContext
 
 TOUCH_REACH_PX = 5
 """The tracker's touch: the interactor touches an object whose mask it comes this near [px].
-Classical masks leave a pixel or two claimed by neither where hand meets object; with 3 px the
-hand carrying place-can by its top reached it on 8-41 pixels (20 needed) and the tracker held
-the can 4 cm over the table while it was set down (APE 16.2 mm; 3.6 mm with 5 px). The rest
-that fusion uses ends at 3 px (``first_contact``)."""
+Classical masks leave a pixel or two claimed by neither where hand meets object: at 3 px a hand
+carrying an object by its top can reach it on fewer pixels than ``touches`` needs, and the
+tracker then holds the object in the air while it is set down. The rest that fusion uses ends
+at 3 px (``first_contact``)."""
 
 
 def first_contact(
@@ -27,9 +27,9 @@ def first_contact(
     """The first frame in which the interactor touches the object: its mask comes within
     ``reach_px`` of the object's with depths within ``depth_m`` over ``min_px`` pixels (n if never).
     Nothing moves an object before that. Closer than the tracker's ``TOUCH_REACH_PX``: here a
-    touch seen too early ends the rest and loses views (with 5 px the hand reaching for
-    unstack-can's Top touched its Base at frame 38, not 86, and Base's Chamfer went 2.96 ->
-    5.46 mm), where for the tracker it only means registering instead of holding."""
+    touch seen too early ends the rest and loses views (at 5 px a hand reaching for the upper
+    object of a stack can seem to touch the lower one long before it does), where for the
+    tracker it only means registering instead of holding."""
     for t in range(n):
         if masks[t] is None or not (hand_folder / f"{t:06d}.png").is_file():
             continue

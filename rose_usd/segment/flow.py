@@ -333,7 +333,8 @@ def run(ctx: StageContext) -> None:
         raise InputError(
             "the flow backend needs a prompt (box or point) for every object",
             path=where,
-            hint="add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml, or pass --prompt NAME=FRAME:x0,y0,x1,y1",
+            hint="add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml, "
+            "or pass --prompt NAME=FRAME:x0,y0,x1,y1",
         )
     w, h, s = _work_size(case.width, case.height, cfg.flow_max_side_px)
 

@@ -78,7 +78,8 @@ def run(ctx: StageContext) -> None:
     missing = sorted(set(range(n)) - set(frames))
     if missing:
         ctx.warn(
-            f"SAM 2 gave no mask for {len(missing)} frame(s) (first {missing[0]}): the objects count as not visible there"
+            f"SAM 2 gave no mask for {len(missing)} frame(s) (first {missing[0]}): "
+            "the objects count as not visible there"
         )
     if hand_id:
         hands = [mask_of(t, hand_id) for t in range(n)]

@@ -58,8 +58,8 @@ def simulate_rest(
     solver = newton.solvers.SolverXPBD(model, iterations=iterations)
     state_0, state_1 = model.state(), model.state()
     control = model.control()
-    # room for every contact: Newton's estimate (1000 here) overflowed on stacks of convex parts
-    # (1827 found) and dropped the rest, with a warning per step
+    # room for every contact: Newton's estimate (1000 here) overflows on stacks of convex parts
+    # (they can make nearly twice that) and drops the rest, with a warning per step
     pipeline = newton.CollisionPipeline(model, rigid_contact_max=RIGID_CONTACT_MAX)
     contacts = pipeline.contacts()
     # object corners in the body frame (the prim frame: Newton bodies are the rigid-body prims)

@@ -82,7 +82,8 @@ def run(ctx: StageContext) -> None:
         poses, confidence = fill_gaps(np.einsum("nij,njk->nik", cameras.world_from_cv, cam_from_object), present)
         if not present.all():
             ctx.warn(
-                f"object {spec.name!r}: no FoundationPose pose for {int((~present).sum())} of {n} frames ({_gaps(~present)}): interpolated between neighbors (confidence 0.5) or held at the ends (0)"
+                f"object {spec.name!r}: no FoundationPose pose for {int((~present).sum())} of {n} frames "
+                f"({_gaps(~present)}): interpolated between neighbors (confidence 0.5) or held at the ends (0)"
             )
         tracks[spec.name] = (poses, confidence, int(present.sum()))
     facts = {}

@@ -18,8 +18,8 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    its axis) at the predicted motion instead of drifting. It is one damping for all six
    coordinates, a fraction of the depth's mean stiffness: weak on position, strong on the turn
    of a small object (its rotation terms are ~size^2 smaller), a filter on the turn rate.
-   Damping each coordinate by its own stiffness was measured worse (RPE rotation of lift-mug
-   1.6-2.1 deg against 0.84 deg). Where the matched normals leave a direction free (``weak_axis``:
+   Damping each coordinate by its own stiffness instead filters the turn far less, and the
+   rotation comes out noisier. Where the matched normals leave a direction free (``weak_axis``:
    a can seen only by its wall, a hand on its top), the pose is slid along it to where fitness
    plus silhouette IoU is best (``slide``, within ``slide_span_m``; off by default, see it).
 4. **Confidence.** The fraction of observed points within 5 mm of the model after ICP. A frame
@@ -320,8 +320,8 @@ def settle_along_gravity(
 ) -> Fit:
     """``here`` slid along gravity to where ``score`` (fitness + silhouette IoU) is best. Depth
     cannot tell where along its axis a can seen from the side is: its wall matches the model at
-    any height, and a hand on its top hides the one face that could. Put down, the can was held
-    4 cm above the table. Its silhouette's bottom edge can tell."""
+    any height, and a hand on its top hides the one face that could: put down, a can may be held
+    centimeters above the table. Its silhouette's bottom edge can tell."""
     return slide(model, observed, here, np.array([0.0, 0.0, 1.0]), score, span_m=span_m, step_m=step_m, margin=margin)
 
 
@@ -452,7 +452,8 @@ def run(ctx: StageContext) -> None:
         lost = fact["frames_lost"]
         if lost:
             ctx.warn(
-                f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): interpolated between tracked frames (confidence 0.5) or held at the ends (0)"
+                f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): "
+                "interpolated between tracked frames (confidence 0.5) or held at the ends (0)"
             )
         world0 = _default_pose(ctx, spec.name)
         results[spec.name] = (np.einsum("nij,jk->nik", motions, world0), confidence)

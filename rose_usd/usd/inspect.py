@@ -244,7 +244,8 @@ def to_text(data: dict[str, Any]) -> str:
     md = data["metadata"]
     lines.append(
         f"  upAxis {md['upAxis']}, metersPerUnit {md['metersPerUnit']:g}, kilogramsPerUnit {md['kilogramsPerUnit']:g}, "
-        f"{md['timeCodesPerSecond']:g} fps, time codes {md['startTimeCode']:g}..{md['endTimeCode']:g}, defaultPrim {md['defaultPrim']}"
+        f"{md['timeCodesPerSecond']:g} fps, time codes {md['startTimeCode']:g}..{md['endTimeCode']:g}, "
+        f"defaultPrim {md['defaultPrim']}"
     )
     lines.append("layers (strongest first):")
     for layer in data["layers"]:
@@ -267,13 +268,16 @@ def to_text(data: dict[str, Any]) -> str:
             m = p["mesh"]
             vol = f", volume {m['volume_m3'] * 1e6:.1f} cm^3" if m.get("volume_m3") else ""
             lines.append(
-                f"{pad}mesh: {m['points']} points, {m['triangles']} triangles, {'watertight' if m['watertight'] else 'NOT watertight'}{vol}, color {m['color']}"
+                f"{pad}mesh: {m['points']} points, {m['triangles']} triangles, "
+                f"{'watertight' if m['watertight'] else 'NOT watertight'}{vol}, color {m['color']}"
             )
         if "physics" in p:
             ph = p["physics"]
             if "mass_kg" in ph:
                 lines.append(
-                    f"{pad}mass {ph['mass_kg']:.4g} kg, inertia {np.round(ph.get('diagonal_inertia', []), 8).tolist()} kg m^2, CoM {np.round(ph.get('center_of_mass_m', []), 4).tolist()} m"
+                    f"{pad}mass {ph['mass_kg']:.4g} kg, "
+                    f"inertia {np.round(ph.get('diagonal_inertia', []), 8).tolist()} kg m^2, "
+                    f"CoM {np.round(ph.get('center_of_mass_m', []), 4).tolist()} m"
                 )
             if "approximation" in ph:
                 mat = ph.get("material")
@@ -284,34 +288,43 @@ def to_text(data: dict[str, Any]) -> str:
         if "xform" in p and "time_samples" in p["xform"]:
             xf = p["xform"]
             lines.append(
-                f"{pad}trajectory: {xf['time_samples']} samples, path {xf['path_length_m'] * 100:.1f} cm, from {np.round(xf['first_translation_m'], 3).tolist()} to {np.round(xf['last_translation_m'], 3).tolist()} m"
+                f"{pad}trajectory: {xf['time_samples']} samples, path {xf['path_length_m'] * 100:.1f} cm, "
+                f"from {np.round(xf['first_translation_m'], 3).tolist()} "
+                f"to {np.round(xf['last_translation_m'], 3).tolist()} m"
             )
         if "camera" in p:
             c = p["camera"]
             K = c["K_frame0"]
             lines.append(
-                f"{pad}camera: {c['resolution'][0]}x{c['resolution'][1]}, fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}, {c['frames']} frames, path {c['path_length_m'] * 100:.1f} cm"
+                f"{pad}camera: {c['resolution'][0]}x{c['resolution'][1]}, "
+                f"fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}, "
+                f"{c['frames']} frames, path {c['path_length_m'] * 100:.1f} cm"
             )
         if "light" in p:
             lines.append(
-                f"{pad}light: intensity {p['light']['intensity']:.3g}, color {np.round(p['light']['color'], 3).tolist()}"
+                f"{pad}light: intensity {p['light']['intensity']:.3g}, "
+                f"color {np.round(p['light']['color'], 3).tolist()}"
             )
     if "gate" in data:
         g = data["gate"]
         ssim = g.get("rose:gate:ssim", {})
         lines.append("gate:")
         lines.append(
-            f"  SSIM mean {g.get('rose:gate:ssimMean', float('nan')):.4f} (min {ssim.get('min', float('nan')):.4f}) vs threshold "
-            f"{g.get('rose:gate:ssimThreshold', float('nan')):.2f}: {'pass' if g.get('rose:gate:ssimPassed') else 'FAIL'}"
+            f"  SSIM mean {g.get('rose:gate:ssimMean', float('nan')):.4f} "
+            f"(min {ssim.get('min', float('nan')):.4f}) vs threshold "
+            f"{g.get('rose:gate:ssimThreshold', float('nan')):.2f}: "
+            f"{'pass' if g.get('rose:gate:ssimPassed') else 'FAIL'}"
         )
         objs = g.get("rose:gate:physics:objects", [])
         disp = g.get("rose:gate:physics:displacement", [])
         moves = ", ".join(f"{o} {d * 1000:.2f} mm" for o, d in zip(objs, disp))
         lines.append(
-            f"  physics: rest check over {g.get('rose:gate:physics:duration', 0):g} s: {moves or 'not run'}: {'pass' if g.get('rose:gate:physics:passed') else 'FAIL'}"
+            f"  physics: rest check over {g.get('rose:gate:physics:duration', 0):g} s: {moves or 'not run'}: "
+            f"{'pass' if g.get('rose:gate:physics:passed') else 'FAIL'}"
         )
         lines.append(
-            f"  geometry: {'pass' if g.get('rose:gate:geometry:passed') else 'FAIL: ' + g.get('rose:gate:geometry:report', '')}"
+            "  geometry: "
+            f"{'pass' if g.get('rose:gate:geometry:passed') else 'FAIL: ' + g.get('rose:gate:geometry:report', '')}"
         )
         lines.append(f"  overall: {'PASS' if g.get('rose:gate:passed') else 'FAIL'}")
     return "\n".join(lines)
