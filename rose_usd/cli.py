@@ -165,7 +165,8 @@ def cmd_stages(args) -> int:
     for s in registry.STAGES:
         except_ = "".join(f" ({b}: [{', '.join(n)}])" for b, n in s.needs_by_backend.items())
         print(
-            f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]{except_}  backends: {', '.join(s.backends)}"
+            f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]{except_}"
+            f"  backends: auto, {', '.join(s.backends)}"
         )
         print(f"            {s.summary}")
         for f in dataclasses.fields(s.config):
@@ -230,7 +231,8 @@ def cmd_bench_run(args) -> int:
     report = build_report(out)
     failed = [c["case"] for c in summary["cases"] if "error" in c]
     print(
-        f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed -> {out}/results.json, {report}"
+        f"{len(summary['cases'])} cases in {summary['suite_wall_time_s']:.0f} s, {len(failed)} failed"
+        f" -> {out}/results.json, {report}"
     )
     print(report.read_text().split("## Per case")[0])
     return 1 if failed else 0
@@ -302,7 +304,8 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
         "--prompt",
         action="append",
         metavar="[NAME=]FRAME:X0,Y0,X1,Y1",
-        help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml (repeatable; NAME may be left out for one object)",
+        help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml"
+        " (repeatable; NAME may be left out for one object)",
     )
     p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
 
@@ -394,13 +397,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--start-from",
         metavar="FOLDER",
-        help="start each case from a copy of this earlier results folder's kept run (same suite and mode): its current layers are not run again, their times carried over",
+        help="start each case from a copy of this earlier results folder's kept run (same suite and mode):"
+        " its current layers (same config, inputs and code) are not run again, their times carried over",
     )
     p.add_argument(
         "--rerun",
         action="append",
         metavar="STAGE",
-        help="with --start-from: run this stage even when its layer is current (after a change of its code; what depends on it follows)",
+        help="with --start-from: run this stage even when its layer is current (what depends on it follows)",
     )
     p.set_defaults(func=cmd_bench_run)
     p = bsub.add_parser("speed", help="time one stage on a long case (default 300 frames at 640x480)")
@@ -412,7 +416,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench_speed)
     p = bsub.add_parser(
         "real",
-        help="run rose on a real recording: 7scenes (capture and scene mesh vs recorded poses), sam2-cups (masks of one cup, contact sheet)",
+        help="run rose on a real recording: 7scenes (capture and scene mesh vs recorded poses),"
+        " sam2-cups (masks of one cup, contact sheet)",
     )
     p.add_argument("dataset", choices=["7scenes", "sam2-cups"])
     p.add_argument(

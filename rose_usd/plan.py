@@ -135,7 +135,8 @@ def _need_meshes(case: Case, plan: Mapping[str, str], stage: str) -> None:
             raise InputError(
                 f"the object stage's imported backend needs a mesh of object {spec.name!r}, and there is none",
                 path=case.perception_dir / f"{spec.name}.glb",
-                hint='put it there, set mesh = "..." in its [[objects]] entry of rose.toml, or drop --backend object=imported',
+                hint='put it there, set mesh = "..." in its [[objects]] entry of rose.toml,'
+                " or drop --backend object=imported",
             )
 
 
@@ -145,7 +146,8 @@ def _need_poses(case: Case, plan: Mapping[str, str], stage: str) -> None:
             raise InputError(
                 f"the trajectory stage's foundationpose backend needs FoundationPose's poses of object {spec.name!r}",
                 path=case.pose_dir(spec.name),
-                hint="put ob_in_cam/*.txt there (one folder per object when there are several), or pick another backend",
+                hint="put ob_in_cam/*.txt there (one folder per object when there are several),"
+                " or pick another backend",
             )
 
 

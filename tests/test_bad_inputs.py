@@ -121,7 +121,7 @@ def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
     code, err = run_cli(
         capsys, "reconstruct", str(sample_case), "-o", str(tmp_path / "o"), "--backend", "capture=colmap"
     )
-    assert_one_line_error(code, err, "no backend 'colmap'", "rgbd, megasam, oracle, auto")
+    assert_one_line_error(code, err, "no backend 'colmap'", "auto, rgbd, megasam, oracle")
 
 
 def test_object_never_visible_leaves_previous_output(capsys, case_copy, out_copy):
@@ -143,4 +143,5 @@ def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
     """Oracle backends on a case without gt/ say which backend to choose instead."""
     shutil.rmtree(case_copy / "gt")
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"), "--backend", "all=oracle")
-    assert_one_line_error(code, err, "no ground truth", "--backend")
+    assert_one_line_error(code, err, "gt/scene.json", "has none", "--backend capture=oracle")
+    assert not (tmp_path / "out").exists()

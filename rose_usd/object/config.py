@@ -22,7 +22,8 @@ class ObjectConfig:
     rest_tolerance_m: float = 0.01
     """fusion: the object rests while its median point stays this near its first one [m] (default 0.01)."""
     revolution_tolerance: float = 0.05
-    """fusion: a solid of revolution when radial spread within height bands is under this fraction of the radius (default 0.05)."""
+    """fusion: a solid of revolution when radial spread within height bands is under this fraction
+    of the radius (default 0.05)."""
     max_triangles: int = 8000
     """fusion: the object mesh is decimated to at most this many triangles (default 8000)."""
     scale_search_alpha: float = 1.5

@@ -25,7 +25,10 @@ class SceneConfig:
     depth_max_m: float = 5.0
     """tsdf: depth beyond this is not fused [m] (default 5: all a Kinect-class sensor gives)."""
     pad_margin_m: float = 0.03
-    """tsdf: under each object resting on the surface before it is touched, the collider is a flat pad at the surface's height around it, over its seen footprint grown by this much [m]; 0: no pads (default 0.03: with 1.5 cm push-box's mono pad missed an edge of its box, which then moved 6.6 mm in Newton; 0.85 mm with 3 cm)."""
+    """tsdf: under each object resting on the surface before it is touched, the collider is a flat
+    pad at the surface's height around it, over its seen footprint grown by this much [m]; 0: no
+    pads (default 0.03: a footprint seen through noisy depth can miss an edge of the object by more
+    than a centimetre, and an object whose edge overhangs its pad tips in simulation)."""
     alpha_m: float = 0.03
     """tsdf: alpha wrapping's alpha, the largest gap it bridges [m] (default 0.03)."""
     offset_m: float = 0.002
@@ -37,4 +40,5 @@ class SceneConfig:
     texture_size: int = 2048
     """tsdf: baked texture width and height [px] (default 2048)."""
     texture_frames: int = 24
-    """tsdf: texels take the median color of their projections into this many frames spread over the video; 0: the fused points' 3-NN colors (default 24)."""
+    """tsdf: texels take the median color of their projections into this many frames spread over
+    the video; 0: the fused points' 3-NN colors (default 24)."""

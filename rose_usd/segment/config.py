@@ -17,13 +17,16 @@ class SegmentConfig:
     backend: SegmentBackend = SegmentBackend.AUTO
     """Which backend segments the object(s) and the interactor (default auto)."""
     prompts: str = ""
-    """classical, flow: prompts overriding rose.toml's, ";"-separated "Name=frame:x0,y0,x1,y1" (a box) or "Name=frame:x,y" (a point) [px]; "Name=" may be left out when there is one object (default: rose.toml's)."""
+    """classical, flow: prompts overriding rose.toml's, ";"-separated "Name=frame:x0,y0,x1,y1" (a box)
+    or "Name=frame:x,y" (a point) [px]; "Name=" may be left out when there is one object (default:
+    rose.toml's)."""
     min_height_m: float = 0.004
     """classical: a pixel stands on the support when its point is this high above it [m] (default 0.004)."""
     core_m: float = 0.015
     """classical: pixels this close to the object's previous points seed its next mask [m] (default 0.015)."""
     foreground_m: float = 0.015
-    """classical: the interactor is nearer than the static world by more than this (+1 % of depth) [m] (default 0.015)."""
+    """classical: the interactor is nearer than the static world by more than this (+1 % of depth) [m]
+    (default 0.015)."""
     flow_max_side_px: int = 640
     """flow: frames are processed at this long side [px] (default 640)."""
     sam2_ids: str = ""

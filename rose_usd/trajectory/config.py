@@ -26,13 +26,15 @@ class TrajectoryConfig:
     min_fitness: float = 0.3
     """tracker: a fit with fewer observed points within 5 mm of the mesh is lost [-] (default 0.3)."""
     prior_weight: float = 0.001
-    """tracker: pull toward the constant-velocity prediction, a fraction of the depth's mean stiffness (trace of the ICP Hessian / 6) [-] (default 0.001)."""
+    """tracker: pull toward the constant-velocity prediction, a fraction of the depth's mean stiffness
+    (trace of the ICP Hessian / 6) [-] (default 0.001)."""
     smooth_window: int = 5
     """tracker: frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""
     release_frames: int = 10
-    """tracker: an object may move for this many frames after the interactor last touched it (it settles) (default 10)."""
+    """tracker: an object may move for this many frames after the interactor last touched it (it
+    settles) (default 10)."""
     slide_span_m: float = 0.0
     """tracker: where depth leaves a direction free (a can seen only by its wall), slide the pose
     along it up to this far to where fitness plus silhouette IoU is best; 0 turns it off [m]
-    (default 0: on the benchmark it moved 40 frames of 12 objects for +-0.3 mm of APE, and on
-    unstack-box's Top cost 2.4x the tracking time, 17.9 against 42.6 frames/s; try 0.03)."""
+    (default 0: it rarely changes the pose by more than a fraction of a millimetre and can cost
+    twice the tracking time; try 0.03)."""

@@ -85,7 +85,8 @@ def regenerate(out_dir: Path | None = None) -> Path:
         )
         if proc.returncode != 0:
             raise EnvironmentProblem(
-                f"usdGenSchema failed: {proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else proc.returncode}",
+                "usdGenSchema failed: "
+                + (proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else str(proc.returncode)),
                 path=src / "schema.usda",
                 hint="fix the schema file",
             )
