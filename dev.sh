@@ -5,6 +5,7 @@
 #   ./dev.sh demo        reconstruct the bundled sample (samples/push-box) into out/demo
 #   ./dev.sh test        the test suite (what CI runs)
 #   ./dev.sh bench       the slow tests (benchmark job)
+#   ./dev.sh lint        ruff format --check and ruff check
 #   ./dev.sh setup       only install
 #   ./dev.sh rose-usd …  any rose-usd command inside the environment
 set -euo pipefail
@@ -61,6 +62,7 @@ case "$cmd" in
   demo) setup; exec "$VENV/bin/rose-usd" demo "$@" ;;
   test) setup; ROSE_USD_QUIET=1 exec "$VENV/bin/python" -m pytest -q -m "not slow" "$@" ;;
   bench) setup; ROSE_USD_QUIET=1 exec "$VENV/bin/python" -m pytest -q -m slow "$@" ;;
+  lint) setup; "$VENV/bin/ruff" format --check --quiet . && exec "$VENV/bin/ruff" check --quiet . ;;
   rose-usd) setup; exec "$VENV/bin/rose-usd" "$@" ;;
-  *) sed -n '2,11p' "$0"; exit 2 ;;
+  *) sed -n '2,12p' "$0"; exit 2 ;;
 esac
