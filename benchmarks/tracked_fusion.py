@@ -22,13 +22,14 @@ from rose_usd import registry
 from rose_usd.bench.evaluate import prim_poses, register_mesh
 from rose_usd.bench.report import pyplot
 from rose_usd.bench.runner import kept_runs, kept_runs_parser
-from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.case.gt import GroundTruth
 from rose_usd.case.layout import load_case
 from rose_usd.core import metrics, se3
 from rose_usd.io.images import read_mask
+from rose_usd.layers.world import metric_depth_reader
 from rose_usd.object.config import ObjectConfig
-from rose_usd.object.fusion import clean_cloud, complete, free_space_carve, masked_points
+from rose_usd.object.fusion import complete
+from rose_usd.object.rest import clean_cloud, free_space_carve, masked_points
 from rose_usd.usd import paths
 from rose_usd.usd.camera import read_camera
 from rose_usd.usd.stage import layer_file, open_stage, read_provenance

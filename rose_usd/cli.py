@@ -158,9 +158,8 @@ def cmd_validate(args) -> int:
 
 
 def cmd_stages(args) -> int:
-    import dataclasses
-
     from rose_usd import registry
+    from rose_usd.stage_config import config_to_dict, setting_names
 
     for s in registry.STAGES:
         except_ = "".join(f" ({b}: [{', '.join(n)}])" for b, n in s.needs_by_backend.items())
@@ -169,10 +168,11 @@ def cmd_stages(args) -> int:
             f"  backends: auto, {', '.join(s.backends)}"
         )
         print(f"            {s.summary}")
-        for f in dataclasses.fields(s.config):
-            default = getattr(s.config(), f.name)
-            default = default.value if hasattr(default, "value") else default
-            print(f"              {s.name}.{f.name} = {default!r}")
+        defaults = config_to_dict(s.config(), running_only=False)
+        for name in setting_names(s.config):
+            owner, _, field = name.rpartition(".")
+            default = defaults[owner][field] if owner else defaults[field]
+            print(f"              {s.name}.{name} = {default!r}")
     return 0
 
 
@@ -311,14 +311,18 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from rose_usd.synth.motion import Task
-    from rose_usd.synth.shapes import ObjectShape
-
     parser = argparse.ArgumentParser(
         prog="rose-usd", description="Casual video of a person moving an object -> simulator-ready OpenUSD stage."
     )
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_pipeline_commands(sub)
+    _add_stage_commands(sub)
+    _add_bench_commands(sub.add_parser("bench", help="benchmark cases with ground truth"))
+    return parser
 
+
+def _add_pipeline_commands(sub) -> None:
+    """reconstruct, run, demo."""
     p = sub.add_parser("reconstruct", help="run every stage on a case (skips stages that are up to date)")
     p.add_argument("case", help="case folder or video file")
     _add_pipeline_flags(p)
@@ -342,6 +346,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-validate", action="store_true", help="skip validation at the end")
     p.set_defaults(func=cmd_demo)
 
+
+def _add_stage_commands(sub) -> None:
+    """inspect, diff, validate, stages: what a stage holds, without running anything."""
     p = sub.add_parser("inspect", help="dump a stage: layers, prims, schemas, physics, meshes, cameras, gate")
     p.add_argument("stage", help="a .usda/.usd file (usually OUT/rose.usda)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -364,7 +371,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("stages", help="list the pipeline stages, their backends and settings")
     p.set_defaults(func=cmd_stages)
 
-    bench = sub.add_parser("bench", help="benchmark cases with ground truth")
+
+def _add_bench_commands(bench) -> None:
+    from rose_usd.synth.motion import Task
+    from rose_usd.synth.shapes import ObjectShape
+
     bsub = bench.add_subparsers(dest="bench_command", required=True)
     p = bsub.add_parser("generate", help="render one synthetic case with full ground truth")
     p.add_argument("-o", "--output", required=True, help="case folder to create")
@@ -443,7 +454,6 @@ def build_parser() -> argparse.ArgumentParser:
     p = bsub.add_parser("report", help="write report.md and plots for a results folder")
     p.add_argument("results", help="a folder with results.json")
     p.set_defaults(func=cmd_bench_report)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,14 +18,8 @@ from rose_usd import registry
 from rose_usd.case.layout import Case, load_case
 from rose_usd.errors import ConfigError, RoseError, StageError
 from rose_usd.progress import say
-from rose_usd.stage_api import (
-    StageContext,
-    StageDef,
-    build_config,
-    code_version,
-    config_hash,
-    config_to_dict,
-)
+from rose_usd.stage_api import StageContext, StageDef, code_version
+from rose_usd.stage_config import build_config, config_hash, config_to_dict, flatten, setting_names
 from rose_usd.usd import stage as usd_stage
 
 _hash_cache: dict[tuple[str, int, int], str] = {}
@@ -118,7 +112,7 @@ class Pipeline:
         source = str(self.case.folder / "rose.toml")
         choice = self._backend_choice(stage_def)
         if isinstance(choice, stage_def.config):
-            values = config_to_dict(choice)
+            config = choice
         else:
             values = dict(self.case.config.stage_overrides.get(stage_def.name, {}))
             if choice is not None:
@@ -133,8 +127,10 @@ class Pipeline:
                         f" (or a {stage_def.config.__name__})",
                     )
                 values["backend"] = choice
-            values.update(self.options.settings.get(stage_def.name, {}))
-        config = build_config(stage_def, values, source=source)
+            names = setting_names(stage_def.config)
+            values = flatten(values, names)
+            values.update(flatten(self.options.settings.get(stage_def.name, {}), names))
+            config = build_config(stage_def.name, stage_def.config, values, source=source)
         if config.backend.value == planning.AUTO:
             backend = planning.resolve_auto(stage_def.name, self.case)
             config = dataclasses.replace(config, backend=type(config.backend)(backend))

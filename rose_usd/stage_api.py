@@ -4,12 +4,9 @@ and the context a backend runs in. Stages register in :mod:`rose_usd.registry`."
 from __future__ import annotations
 
 import ast
-import dataclasses
-import enum
 import functools
 import hashlib
 import importlib
-import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +15,6 @@ from typing import Any
 from pxr import Usd
 
 from rose_usd.case.layout import Case
-from rose_usd.errors import ConfigError
 from rose_usd.usd.stage import LayerWriter, TimeInfo
 
 
@@ -164,56 +160,3 @@ class StageContext:
 
         self.writer.provenance.setdefault("warnings", []).append(message)
         say(f"warning: {self.stage_def.name}: {message}")
-
-
-# ----------------------------------------------------------------------------- configs
-def config_to_dict(config: Any) -> dict[str, Any]:
-    out = {}
-    for f in dataclasses.fields(config):
-        value = getattr(config, f.name)
-        out[f.name] = value.value if isinstance(value, enum.Enum) else value
-    return out
-
-
-def config_hash(config: Any) -> str:
-    return hashlib.sha256(json.dumps(config_to_dict(config), sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def build_config(stage_def: StageDef, overrides: Mapping[str, Any], *, source: str) -> Any:
-    """The stage's config with ``overrides`` (field -> value) applied and type-checked."""
-    fields = {f.name: f for f in dataclasses.fields(stage_def.config)}
-    kwargs = {}
-    for key, value in overrides.items():
-        if key not in fields:
-            raise ConfigError(
-                f"stage {stage_def.name!r} has no setting {key!r}",
-                path=source,
-                hint=f"settings: {', '.join(sorted(fields))}",
-            )
-        default = getattr(stage_def.config(), key)
-        kwargs[key] = _coerce(stage_def.name, key, value, default, source)
-    return stage_def.config(**kwargs)
-
-
-def _coerce(stage: str, key: str, value: Any, default: Any, source: str) -> Any:
-    try:
-        if isinstance(default, enum.Enum):
-            return type(default)(value)
-        if isinstance(default, bool):
-            if isinstance(value, str):
-                if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                    raise ValueError(value)
-                return value.lower() in ("true", "1", "yes")
-            return bool(value)
-        if isinstance(default, int):
-            return int(value)
-        if isinstance(default, float):
-            return float(value)
-        if isinstance(default, tuple):
-            return tuple(value)
-        return value
-    except (ValueError, TypeError):
-        allowed = f" (one of {', '.join(m.value for m in type(default))})" if isinstance(default, enum.Enum) else ""
-        raise ConfigError(
-            f"{stage}.{key} = {value!r} is not valid{allowed}", path=source, hint=f"the default is {default!r}"
-        ) from None

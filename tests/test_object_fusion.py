@@ -10,10 +10,10 @@ from rose_usd import registry
 from rose_usd.bench.evaluate import evaluate
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError
+from rose_usd.geometry.mesh import self_intersects
 from rose_usd.io.images import write_mask
 from rose_usd.object.priors import PRIORS
 from rose_usd.pipeline import Options, Pipeline
-from rose_usd.scene.tsdf import self_intersects
 from rose_usd.usd import paths
 from rose_usd.usd.geom import read_mesh
 from rose_usd.usd.stage import layer_file, open_stage, read_provenance
@@ -219,7 +219,7 @@ def test_flying_pixels_above_a_top_face_are_carved_and_the_face_is_kept():
     edge (a sensor's flying pixels fused over a rest): views see past the strip, not past the face."""
     from rose_usd.core import se3
     from rose_usd.core.pinhole import backproject
-    from rose_usd.object.fusion import free_space_carve
+    from rose_usd.object.rest import free_space_carve
 
     K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
     views = []
@@ -294,7 +294,7 @@ def test_a_box_top_face_seen_with_noise_is_not_raised_by_it():
 def test_a_hand_a_few_pixels_off_the_mask_touches_and_one_farther_does_not():
     """Classical masks leave a pixel or two claimed by neither where hand meets object
     (``TOUCH_REACH_PX``): a gap of 3 px touches; 12 px does not; a hand 30 cm behind does not."""
-    from rose_usd.segment.contact import touches
+    from rose_usd.geometry.contact import touches
 
     depth = np.full((120, 160), 0.5)
     obj = np.zeros((120, 160), bool)
@@ -321,7 +321,7 @@ def test_walls_fused_over_many_frames_lie_where_the_frames_put_them():
     walls, they lie within 3.5 mm, at least 1 mm nearer than around every voxel; the sides seen
     only as the top face's edges stay where they are (within 1 mm), and one frame's points (each
     voxel seen at most 3 times) all count as often seen."""
-    from rose_usd.object.fusion import clean_cloud, seen_voxels
+    from rose_usd.object.rest import clean_cloud, seen_voxels
 
     rng = np.random.default_rng(5)
     frames = []

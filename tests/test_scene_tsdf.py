@@ -79,7 +79,9 @@ def test_the_wrapped_collider_is_exactly_flat_over_a_pad_and_still_valid():
 
     from rose_usd.core.metrics import SurfaceDistance
     from rose_usd.core.watertight import collider_problems
-    from rose_usd.scene.tsdf import SupportPad, _footprint, alpha_wrap, flatten_pads, self_intersects
+    from rose_usd.geometry.mesh import self_intersects
+    from rose_usd.geometry.wrap import alpha_wrap
+    from rose_usd.scene.tsdf import SupportPad, _footprint, flatten_pads
 
     rng = np.random.default_rng(1)
     g = np.arange(0.0, 0.4, 0.004)
@@ -117,7 +119,7 @@ def test_only_triangles_facing_a_camera_are_textured_and_the_rest_keep_their_ver
     and the far sides do not (a closed mesh hides them from every camera)."""
     import trimesh
 
-    from rose_usd.scene.tsdf import faces_facing, submesh
+    from rose_usd.geometry.mesh import faces_facing, submesh
 
     slab = trimesh.creation.box(extents=[1.0, 1.0, 0.02])
     centers = np.array([[0.0, -1.0, 1.0], [1.0, -1.2, 0.8]])  # above, in front (-y), the second right of it (+x)

@@ -11,11 +11,11 @@ import pytest
 from rose_usd import registry
 from rose_usd.bench.evaluate import _mask_ious
 from rose_usd.capture.gravity import Plane, plane_under
-from rose_usd.case.config import load_case_config
+from rose_usd.case.config import load_case_config, parse_object_prompts
 from rose_usd.case.gt import GroundTruth
 from rose_usd.errors import ConfigError, InputError
 from rose_usd.pipeline import Options, Pipeline
-from rose_usd.segment.classical import parse_prompts
+from rose_usd.segment.prompts import parse_prompts
 from rose_usd.usd.stage import layer_file, read_provenance
 
 
@@ -52,19 +52,28 @@ def test_command_line_prompt_overrides_rose_toml(tmp_path, case_copy, sample_cas
     assert _mask_ious(gt.mask_dir("Box"), out / "masks" / "Box", gt.n_frames, min_fraction=0.5) >= 0.9
 
 
-@pytest.mark.parametrize("text", ["Mug=0:1,2,3,4", "Box=0:1,2,3", "Box=x:1,2,3,4", "Box=1,2,3,4"])
-def test_bad_prompt_strings_name_the_format(text, sample_case):
+@pytest.mark.parametrize("text", ["Box=0:1,2,3", "Box=x:1,2,3,4", "Box=1,2,3,4", "Box=0:1,2,nan,4"])
+def test_bad_prompt_strings_name_the_format(text, case_copy, tmp_path):
+    """A malformed --prompt is a one-line ConfigError naming the setting and the format, before
+    anything runs."""
+    with pytest.raises(ConfigError, match=r"segment\.prompts = .*Name=\]frame:x0,y0,x1,y1"):
+        Pipeline(case_copy, tmp_path / "out", _flow(prompts=text)).plan("segment")
+    assert not (tmp_path / "out").exists()
+
+
+def test_prompt_for_an_unknown_object_is_refused(sample_case):
     specs = list(load_case_config(sample_case, registry.STAGE_NAMES).objects)
-    with pytest.raises(ConfigError, match="Name=frame:x0,y0,x1,y1"):
-        parse_prompts(text, specs)
+    with pytest.raises(ConfigError, match="names no object"):
+        parse_prompts(parse_object_prompts("Mug=0:1,2,3,4"), specs)
 
 
 def test_parse_prompts_box_and_point(sample_case):
     specs = list(load_case_config(sample_case, registry.STAGE_NAMES).objects)
-    (box,) = parse_prompts("Box=3:10,20,30,40", specs)
+    (box,) = parse_prompts(parse_object_prompts("Box=3:10,20,30,40"), specs)
     assert box.prompt.frame == 3 and box.prompt.box == (10.0, 20.0, 30.0, 40.0) and box.prompt.point is None
-    (point,) = parse_prompts("5:12,34", specs)
+    (point,) = parse_prompts(parse_object_prompts(["5:12,34"]), specs)
     assert point.prompt.frame == 5 and point.prompt.point == (12.0, 34.0) and point.prompt.box is None
+    assert str(parse_object_prompts("Box=3:10,20,30,40")[0]) == "Box=3:10,20,30,40"
 
 
 def test_backend_needs_decide_what_runs_first():

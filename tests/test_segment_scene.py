@@ -13,10 +13,11 @@ from rose_usd.case.gt import GroundTruth
 from rose_usd.core.metrics import SurfaceDistance
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, RoseError
+from rose_usd.geometry.mesh import self_intersects
 from rose_usd.io.images import read_mask, write_mask
 from rose_usd.io.sam2 import write_id_mask
+from rose_usd.layers.scene import support_heights
 from rose_usd.pipeline import Options, Pipeline
-from rose_usd.scene.tsdf import self_intersects
 from rose_usd.usd import paths
 from rose_usd.usd.geom import read_mesh
 from rose_usd.usd.stage import layer_file, open_stage, read_provenance
@@ -102,10 +103,13 @@ def test_scene_mesh_is_a_valid_collider_without_ghosts(classical_out, sample_cas
     probe = np.column_stack([grid, np.full(len(grid), 0.3)]) @ from_true[:3, :3].T + from_true[:3, 3]
     under = probe[:, 2] - SurfaceDistance(collision.vertices, collision.faces).drop(probe)
     assert np.abs(under - pads["Box"]["height_m"]).max() < 1e-4, under
+    # the scene layer records the pad's height for the object stage to stand the box on
+    heights = support_heights(open_stage(classical_out / "rose.usda"))
+    assert set(heights) == {"Box"} and abs(heights["Box"] - pads["Box"]["height_m"]) < 1e-4
 
 
 def test_sam2_import_round_trip_paletted_and_per_object(tmp_path, case_copy, sample_case):
-    """SAM 2's two layouts import to exactly the masks they hold, object ids mapped by order or by sam2_ids."""
+    """SAM 2's two layouts import to exactly the masks they hold, object ids mapped by order or by sam2.ids."""
     gt = GroundTruth(sample_case / "gt")
     folder = case_copy / "perception" / "masks"
     for t in range(N):
@@ -114,7 +118,7 @@ def test_sam2_import_round_trip_paletted_and_per_object(tmp_path, case_copy, sam
         ids[read_mask(gt.mask_dir("interactor") / f"{t:06d}.png")] = 5
         write_id_mask(folder / f"{t:05d}.png", ids)
     out = tmp_path / "paletted"
-    Pipeline(case_copy, out, _sam2(sam2_ids="Box=3", sam2_interactor_id=5)).run("segment")
+    Pipeline(case_copy, out, _sam2(sam2={"ids": "Box=3", "interactor_id": 5})).run("segment")
     for t in (0, 20, 47):
         assert np.array_equal(
             read_mask(out / "masks" / "Box" / f"{t:06d}.png"), read_mask(gt.mask_dir("Box") / f"{t:06d}.png")
@@ -212,7 +216,7 @@ def test_scene_texture_from_the_frames_is_closer_to_the_video(classical_out, sam
     than one from the TSDF's 8 mm voxel colors; both are measured in this test."""
     points_out = tmp_path / "out"
     shutil.copytree(classical_out, points_out)
-    Pipeline(sample_case, points_out, _rgbd(scene={"texture_frames": 0})).run("scene")
+    Pipeline(sample_case, points_out, _rgbd(scene={"tsdf": {"texture_frames": 0}})).run("scene")
     assert read_provenance(layer_file(points_out, "scene"))["results"]["texture_frames"] == 0
     assert read_provenance(layer_file(classical_out, "scene"))["results"]["texture_frames"] > 0
     from_frames, from_points = _static_ssim(classical_out, sample_case), _static_ssim(points_out, sample_case)
@@ -222,7 +226,7 @@ def test_scene_texture_from_the_frames_is_closer_to_the_video(classical_out, sam
 def _stack_image(seed: int = 0):
     """A teal box with a pink can standing on it (color index image), the two prompt-box regions
     (the box's runs up into the can, as the depth-connected region of a stack does) and the truth."""
-    from rose_usd.segment.classical import color_index
+    from rose_usd.segment.segmenter import color_index
 
     rng = np.random.default_rng(seed)
     rgb = np.full((120, 160, 3), (200, 200, 200), np.uint8)
@@ -239,7 +243,7 @@ def _stack_image(seed: int = 0):
 
 
 def test_stacked_objects_prompt_regions_share_no_pixel():
-    from rose_usd.segment.classical import separate
+    from rose_usd.segment.segmenter import separate
 
     cidx, base_region, top_region, base, top = _stack_image()
     assert np.count_nonzero(base_region & top_region) > 500  # the overlap this is about
@@ -251,7 +255,7 @@ def test_stacked_objects_prompt_regions_share_no_pixel():
 
 
 def test_separate_falls_back_to_the_nearest_region_for_objects_of_one_color():
-    from rose_usd.segment.classical import separate
+    from rose_usd.segment.segmenter import separate
 
     cidx, base_region, top_region, base, top = _stack_image()
     same = np.full_like(cidx, cidx[80, 80])  # every pixel one color: color cannot decide
@@ -267,7 +271,7 @@ def test_a_still_box_whose_top_a_hand_covers_has_not_moved():
     covering the top half of a box that stands still moves that mean down by half its height."""
     import trimesh
 
-    from rose_usd.segment.classical import _shift
+    from rose_usd.segment.segmenter import _shift
 
     box = np.asarray(trimesh.sample.sample_surface_even(trimesh.creation.box([0.1, 0.1, 0.08]), 4000, seed=0)[0])
     rng = np.random.default_rng(1)

@@ -13,7 +13,7 @@ from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.io import foundationpose
 from rose_usd.pipeline import Options, Pipeline
-from rose_usd.trajectory.foundationpose import fill_gaps
+from rose_usd.trajectory.author import fill_gaps
 from rose_usd.usd.stage import layer_file, read_provenance
 
 BACKENDS = {"all": "oracle", "trajectory": "foundationpose"}

@@ -23,7 +23,7 @@ from rose_usd.core.pinhole import backproject
 from rose_usd.io.images import read_depth_m, read_mask
 from rose_usd.render.lighting import Lighting
 from rose_usd.render.scene import RenderItem, RenderScene
-from rose_usd.usd import paths
+from rose_usd.usd import paths, tokens
 from rose_usd.usd.camera import read_camera
 from rose_usd.usd.geom import MeshData, read_mesh
 from rose_usd.usd.stage import open_stage
@@ -129,7 +129,7 @@ def _rest_drifts(out_dir, scores: list[ObjectScore]) -> None:
 
 def _mass_range(prim) -> list[float] | None:
     """mass x (density range / density): mass is density x volume, so this is the range's mass."""
-    mass, rng, rho = (prim.GetAttribute(a) for a in ("physics:mass", "rose:prior:densityRange", "rose:prior:density"))
+    mass, rng, rho = (prim.GetAttribute(a) for a in ("physics:mass", tokens.PRIOR_DENSITY_RANGE, tokens.PRIOR_DENSITY))
     if not (mass and rng and rho and mass.HasAuthoredValue() and rng.HasAuthoredValue() and rho.HasAuthoredValue()):
         return None
     k = float(mass.Get()) / float(rho.Get())
@@ -401,8 +401,8 @@ def evaluate(
         _rest_drifts(out_dir, scores)
 
     gate = stage.GetPrimAtPath(paths.GATE)
-    ssim = float(gate.GetAttribute("rose:gate:ssimMean").Get()) if gate else None
-    passed = bool(gate.GetAttribute("rose:gate:passed").Get()) if gate else None
+    ssim = float(gate.GetAttribute(tokens.GATE_SSIM_MEAN).Get()) if gate else None
+    passed = bool(gate.GetAttribute(tokens.GATE_PASSED).Get()) if gate else None
     return CaseScore(
         camera_ape_translation_m=cam_ape.translation.rmse,
         camera_ape_rotation_deg=cam_ape.rotation.rmse,

@@ -20,7 +20,7 @@ from rose_usd.core import metrics, se3
 from rose_usd.core.pinhole import backproject
 from rose_usd.errors import InputError
 from rose_usd.pipeline import Options, Pipeline
-from rose_usd.usd import paths
+from rose_usd.usd import paths, tokens
 from rose_usd.usd.camera import read_camera
 from rose_usd.usd.stage import layer_file, open_stage, read_provenance
 
@@ -87,7 +87,7 @@ def evaluate_seven_scenes(folder: Path, out_dir: Path, *, backends: dict | None 
         "camera_rpe_translation_rmse_m": rpe.translation.rmse,
         "camera_rpe_rotation_rmse_deg": rpe.rotation.rmse,
         "gravity_error_deg": gravity_err,
-        "gravity_source": stage.GetPrimAtPath(paths.WORLD).GetAttribute("rose:world:gravitySource").Get(),
+        "gravity_source": stage.GetPrimAtPath(paths.WORLD).GetAttribute(tokens.WORLD_GRAVITY_SOURCE).Get(),
         "capture_results": prov.get("results"),
         "capture_warnings": prov.get("warnings", []),
     }
@@ -110,10 +110,11 @@ def _scene_against_recorded(
     Chamfer); the reference's points are also measured to the collider's surface."""
     from rose_usd.case.layout import load_case
     from rose_usd.core.watertight import collider_problems
+    from rose_usd.geometry.mesh import self_intersects
     from rose_usd.render.lighting import Lighting
     from rose_usd.render.scene import RenderItem, RenderScene
     from rose_usd.scene.config import SceneConfig
-    from rose_usd.scene.tsdf import Fusion, self_intersects
+    from rose_usd.scene.tsdf import Fusion
     from rose_usd.usd.geom import MeshData, read_mesh
 
     case = load_case(folder)
@@ -125,7 +126,7 @@ def _scene_against_recorded(
     intersects = self_intersects(col.vertices, col.faces)
     ours_v = se3.transform_points(align, col.vertices)
 
-    reference = Fusion(cfg.voxel_m, cfg.depth_max_m)
+    reference = Fusion(cfg.tsdf.voxel_m, cfg.tsdf.depth_max_m)
     for t in range(len(truth)):
         reference.add(case.depth_m(t), case.rgb(t), K, truth[t])
     ref_v, ref_f = reference.mesh()
@@ -237,8 +238,8 @@ def evaluate_sam2_cups(folder: Path, out_dir: Path, *, prompt: str = CUPS_PROMPT
     stage = open_stage(run_dir / "rose.usda")
     prim = stage.GetPrimAtPath(paths.object_mask("Cup"))
     n = pipe.case.n_frames
-    conf = np.array([prim.GetAttribute("rose:masks:confidence").Get(t) for t in range(n)], dtype=float)
-    pixels = np.array([prim.GetAttribute("rose:masks:visiblePixels").Get(t) for t in range(n)], dtype=float)
+    conf = np.array([prim.GetAttribute(tokens.MASKS_CONFIDENCE).Get(t) for t in range(n)], dtype=float)
+    pixels = np.array([prim.GetAttribute(tokens.MASKS_VISIBLE_PIXELS).Get(t) for t in range(n)], dtype=float)
     prov = read_provenance(layer_file(run_dir, "masks")) or {}
     result = {
         "video": str(video.name),

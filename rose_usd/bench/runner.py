@@ -10,13 +10,13 @@ import os
 import platform
 import shutil
 import subprocess
-import sys
 import time
 from importlib import metadata
 from pathlib import Path
 
 from rose_usd.bench.modes import PerceptionMode, make_mode_case, mode_stamp
 from rose_usd.bench.suites import CaseSpec, get_suite
+from rose_usd.bench.worker import run_worker
 from rose_usd.case.gt import GroundTruth
 from rose_usd.errors import InputError
 from rose_usd.progress import say
@@ -108,7 +108,7 @@ def run_suite(
     ``start_from`` (an earlier results folder of the same suite, mode and prompts), each case starts
     from a copy of that folder's kept run: its layers that are still current are not run again
     (their recorded wall times and peak memory are carried over), so later stages can be added to
-    a kept benchmark. Stages in ``rerun`` run even when current (after a change of their code)."""
+    a kept benchmark. Stages in ``rerun`` run even when current."""
     specs = get_suite(suite)
     source = _start_from(start_from, suite, mode, prompts) if start_from else None
     commit = _git_commit()  # at the start: the code that runs
@@ -130,26 +130,15 @@ def run_suite(
                 shutil.rmtree(run_out)
             shutil.copytree(Path(start_from) / "runs" / spec.name, run_out)
         t0 = time.perf_counter()
-        proc = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "rose_usd.bench.worker",
-                "--case",
-                str(case),
-                "--out",
-                str(run_out),
-                "--result",
-                str(result_file),
-                "--backends",
-                json.dumps(backends),
-                "--settings",
-                json.dumps(settings or {}),
-            ]
-            + (["--until", until] if until else [])
-            + (["--reuse"] if earlier is not None else [])
-            + (["--rerun", ",".join(rerun)] if rerun else []),
-            env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
+        proc = run_worker(
+            case,
+            run_out,
+            result_file,
+            backends,
+            settings=settings,
+            until=until,
+            reuse=earlier is not None,
+            rerun=list(rerun) if rerun else None,
         )
         result = (
             json.loads(result_file.read_text())

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 from rose_usd.bench.runner import DEFAULT_CASES, _git_commit, ensure_case
 from rose_usd.bench.suites import CaseSpec
+from rose_usd.bench.worker import run_worker
 from rose_usd.progress import say
 from rose_usd.synth.motion import Task
 from rose_usd.synth.shapes import ObjectShape
@@ -40,25 +39,7 @@ def measure(
     result_file = out_dir / "runs" / f"{stage}-{frames}x{width}x{height}.json"
     say(f"bench speed: {stage} on {case} ({frames} frames {width}x{height})")
     t0 = time.perf_counter()
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "rose_usd.bench.worker",
-            "--case",
-            str(case),
-            "--out",
-            str(run_out),
-            "--result",
-            str(result_file),
-            "--backends",
-            json.dumps(backends),
-            "--until",
-            stage,
-        ],
-        env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")),
-        check=False,
-    )
+    run_worker(case, run_out, result_file, backends, until=stage)
     result = json.loads(result_file.read_text())
     if "error" in result:
         return {"stage": stage, "error": result["error"]}

@@ -7,6 +7,7 @@ import argparse
 import json
 import os
 import resource
+import subprocess
 import sys
 import threading
 import time
@@ -108,6 +109,25 @@ def _depth_scale_error(case: Path, out: Path) -> float | None:
     if not sim.is_file() or "alpha" not in results:
         return None
     return float(results["alpha"]) * float(json.loads(sim.read_text())["megasam"]["scale"]) - 1.0
+
+
+def run_worker(
+    case: Path,
+    out: Path,
+    result: Path,
+    backends: dict,
+    *,
+    settings: dict | None = None,
+    until: str | None = None,
+    reuse: bool = False,
+    rerun: list[str] | None = None,
+) -> subprocess.CompletedProcess:
+    """Run one case in a fresh Python process (its own peak memory and a crash of its own)."""
+    command = [sys.executable, "-m", "rose_usd.bench.worker", "--case", str(case), "--out", str(out)]
+    command += ["--result", str(result), "--backends", json.dumps(backends), "--settings", json.dumps(settings or {})]
+    command += (["--until", until] if until else []) + (["--reuse"] if reuse else [])
+    command += ["--rerun", ",".join(rerun)] if rerun else []
+    return subprocess.run(command, env=dict(os.environ, ROSE_USD_QUIET=os.environ.get("ROSE_USD_QUIET", "1")))
 
 
 def main(argv: list[str] | None = None) -> int:

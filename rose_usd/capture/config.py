@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 class CaptureBackend(enum.Enum):
@@ -26,18 +26,32 @@ class ScaleSource(enum.Enum):
 
 
 @dataclass(frozen=True, kw_only=True)
+class RgbdConfig:
+    """Settings of the rgbd backend."""
+
+    track_width: int = 320
+    """Images are downscaled by an integer factor to about this width for tracking [px] (default 320)."""
+    keyframe_every: int = 8
+    """A new keyframe after at most this many frames (default 8)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class MegasamConfig:
+    """Settings of the megasam backend."""
+
+    scale_source: ScaleSource = ScaleSource.AUTO
+    """The absolute depth the alpha/beta fit uses (default auto: sensor, UniDepth, size prior)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class CaptureConfig:
     backend: CaptureBackend = CaptureBackend.AUTO
     """Which backend recovers the cameras (default auto: rgbd, megasam or oracle by what the case holds)."""
     gravity: GravityMethod = GravityMethod.AUTO
     """Where gravity comes from (default auto: imu, then geocalib, then the support plane)."""
-    scale_source: ScaleSource = ScaleSource.AUTO
-    """megasam: the absolute depth the alpha/beta fit uses (default auto: sensor, UniDepth, size prior)."""
     fov_guess_deg: float = 60.0
     """Horizontal field of view assumed when no intrinsics are given [deg] (default 60; a warning is recorded)."""
-    track_width: int = 320
-    """rgbd: images are downscaled by an integer factor to about this width for tracking [px] (default 320)."""
-    keyframe_every: int = 8
-    """rgbd: a new keyframe after at most this many frames (default 8)."""
     depth_max_m: float = 3.0
     """Depth beyond this is ignored for tracking and gravity [m] (default 3)."""
+    rgbd: RgbdConfig = field(default_factory=RgbdConfig)
+    megasam: MegasamConfig = field(default_factory=MegasamConfig)

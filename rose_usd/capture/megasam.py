@@ -15,15 +15,13 @@ import cv2
 import numpy as np
 
 from rose_usd.capture.intrinsics import resolve_K
-from rose_usd.capture.rgbd import author_tracked_world, fused_points, locate
+from rose_usd.capture.world import author_tracked_world, fused_points, locate
 from rose_usd.case.layout import Case
 from rose_usd.core import se3
 from rose_usd.errors import InputError
-from rose_usd.io.megasam import MegaSamOutput, read_megasam
+from rose_usd.io.megasam import FAR_CLIP, MegaSamOutput, metric_from_megasam, read_megasam
 from rose_usd.io.unidepth import read_unidepth
 from rose_usd.stage_api import StageContext
-
-FAR_CLIP = 99.0  # MegaSaM clips 1/disparity at 1e2: treat the clip as "no depth"
 
 
 def find_npz(case: Case) -> Path:
@@ -35,14 +33,6 @@ def find_npz(case: Case) -> Path:
             hint="run MegaSaM and copy its npz there, or choose --backend capture=rgbd",
         )
     return path
-
-
-def metric_from_megasam(relative: np.ndarray, alpha: float, beta: float, width: int, height: int) -> np.ndarray:
-    """One MegaSaM depth map made metric (alpha * depth + beta) at the video's size [m], 0 where
-    MegaSaM has no depth (non-positive or at its far clip)."""
-    rel = relative.astype(np.float32)
-    d = np.where((rel > 0) & (rel < FAR_CLIP), alpha * rel + beta, 0.0).astype(np.float32)
-    return cv2.resize(d, (width, height), interpolation=cv2.INTER_NEAREST)
 
 
 def fit_alpha_beta(
@@ -89,7 +79,7 @@ def metric_scale(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> t
     case = ctx.case
     n = case.n_frames
     frames = sorted(set(np.linspace(0, n - 1, min(n, 24)).round().astype(int).tolist()))
-    choice = ctx.config.scale_source.value
+    choice = ctx.config.megasam.scale_source.value
     uni = case.folder / "perception" / "unidepth"
     if choice in ("auto", "sensor") and case.has_depth:
         alpha, beta, res, _ = fit_alpha_beta(*_samples(out, frames, case.depth_m))

@@ -7,13 +7,16 @@ category = "mug"                  # picks the physics prior
 prompt = { frame = 0, box = [212, 140, 300, 232] }   # pixels, x0 y0 x1 y1
 # (no [[objects]]: one object named "Object"; objects = [] instead: a static scene)
 [backends]
-capture = "oracle"
-[capture]                         # per-stage config overrides (fields of that stage's config)
-...
+object = "fusion"
+[capture]                         # a stage's settings (`rose-usd stages` lists them)
+depth_max_m = 2.5
+[object.fusion]                   # settings of one backend of the stage
+revolution_tolerance = 0.04
 """
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +48,46 @@ class Prompt:
     frame: int = 0
     box: tuple[float, float, float, float] | None = None
     point: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class ObjectPrompt:
+    """A prompt given for one object by name ("" when the case has one object)."""
+
+    name: str
+    prompt: Prompt
+
+    def __str__(self) -> str:
+        p = self.prompt
+        coords = ",".join(f"{v:g}" for v in (p.box if p.box is not None else p.point))
+        return f"{self.name + '=' if self.name else ''}{p.frame}:{coords}"
+
+
+def parse_object_prompts(value) -> tuple[ObjectPrompt, ...]:
+    """Prompts from ``"[Name=]frame:x0,y0,x1,y1"`` (a box) or ``"[Name=]frame:x,y"`` (a point)
+    items [px], given as one ";"-separated string or a list; ObjectPrompts pass through."""
+    items = value.split(";") if isinstance(value, str) else list(value)
+    out = []
+    for item in items:
+        if isinstance(item, ObjectPrompt):
+            out.append(item)
+            continue
+        if not isinstance(item, str):
+            raise TypeError(f"prompt {item!r} is not text")
+        if not item.strip():
+            continue
+        name, _, rest = item.strip().rpartition("=")
+        frame, sep, coords = rest.partition(":")
+        try:
+            values = tuple(float(v) for v in coords.split(","))
+            frame_i = int(frame)
+        except ValueError:
+            values, frame_i = (), -1
+        if not sep or len(values) not in (2, 4) or frame_i < 0 or not all(math.isfinite(v) for v in values):
+            raise ValueError(f"prompt {item.strip()!r} is not [Name=]frame:x0,y0,x1,y1 or [Name=]frame:x,y")
+        box, point = (values, None) if len(values) == 4 else (None, values)
+        out.append(ObjectPrompt(name.strip(), Prompt(frame=frame_i, box=box, point=point)))
+    return tuple(out)
 
 
 @dataclass(frozen=True)

@@ -13,37 +13,25 @@ from pxr import Usd, UsdGeom, UsdPhysics
 from rose_usd.core.watertight import collider_problems
 from rose_usd.gate.report import write_report
 from rose_usd.gate.ssim import masked_ssim
-from rose_usd.io.images import read_mask, write_rgb
+from rose_usd.io.images import write_rgb
+from rose_usd.layers.masks import INTERACTOR, Masks, read_masks
+from rose_usd.layers.objects import object_paths
+from rose_usd.layers.world import read_cameras
 from rose_usd.progress import progress, say
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths, schema
-from rose_usd.usd.camera import read_camera
+from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import read_mesh
 
 
-def _interactor_mask(stage: Usd.Stage, t: int, dilate_px: int) -> np.ndarray | None:
-    prim = stage.GetPrimAtPath(paths.INTERACTOR_MASK)
-    if not prim:
+def _interactor_mask(masks: Masks | None, t: int, dilate_px: int) -> np.ndarray | None:
+    """The interactor's mask at frame t grown by ``dilate_px``, None where there is none."""
+    mask = masks.mask(INTERACTOR, t) if masks is not None and masks.has(INTERACTOR) else None
+    if mask is None:
         return None
-    asset = prim.GetAttribute("rose:masks:file").Get(Usd.TimeCode(t))
-    if asset is None or not asset.resolvedPath:
-        return None
-    mask = read_mask(asset.resolvedPath)
     if dilate_px > 0:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate_px + 1, 2 * dilate_px + 1))
         mask = cv2.dilate(mask.astype(np.uint8), kernel) > 0
     return mask
-
-
-def _objects(stage: Usd.Stage) -> dict[str, str]:
-    objects = stage.GetPrimAtPath(paths.OBJECTS)
-    if not objects:
-        return {}
-    return {
-        child.GetName(): str(child.GetPath())
-        for child in objects.GetChildren()
-        if child.HasAPI(UsdPhysics.RigidBodyAPI)
-    }
 
 
 def _geometry_check(stage: Usd.Stage) -> list[str]:
@@ -60,45 +48,18 @@ def _geometry_check(stage: Usd.Stage) -> list[str]:
 
 
 def run(ctx: StageContext) -> None:
-    cfg = ctx.config
-    stage = ctx.stage
-    case = ctx.case
-    n = ctx.time_info.n_frames
+    cfg, stage, n = ctx.config, ctx.stage, ctx.time_info.n_frames
     from rose_usd.render.from_usd import StageRenderer
 
-    camera = read_camera(stage, paths.CAMERA, n)
-    if (camera.width, camera.height) != (case.width, case.height):
-        say(f"gate: the stage's camera is {camera.width}x{camera.height}, the video {case.width}x{case.height}")
     renderer = StageRenderer(stage)
     frames = list(range(0, n, max(1, cfg.frame_stride)))
     report_dir = ctx.side_dir("report")
-    ssim = np.full(n, np.nan)
-    keep = {}
-    sample_frames = set(np.linspace(0, len(frames) - 1, 4).round().astype(int).tolist())
-    for i, t in enumerate(progress(frames, "gate render", total=len(frames))):
-        renderer.pose_at(t)
-        rendered = renderer.scene.render_srgb8(
-            camera.world_from_cv[t], camera.K[t], case.width, case.height, spp=cfg.spp, seed=t
-        )
-        original = case.rgb(t)
-        exclude = _interactor_mask(stage, t, cfg.interactor_dilate_px) if cfg.exclude_interactor else None
-        ssim[t], ssim_map = masked_ssim(original, rendered, exclude)
-        if cfg.save_frames:
-            write_rgb(report_dir / "frames" / f"{t:06d}.png", rendered)
-        if i in sample_frames:
-            keep[t] = (original, rendered, ssim_map, exclude)
+    ssim, keep = _render_and_compare(ctx, renderer, frames, report_dir)
     worst = int(np.nanargmin(ssim))
-    if worst not in keep:
-        renderer.pose_at(worst)
-        rendered = renderer.scene.render_srgb8(
-            camera.world_from_cv[worst], camera.K[worst], case.width, case.height, spp=cfg.spp, seed=worst
-        )
-        exclude = _interactor_mask(stage, worst, cfg.interactor_dilate_px) if cfg.exclude_interactor else None
-        keep[worst] = (case.rgb(worst), rendered, masked_ssim(case.rgb(worst), rendered, exclude)[1], exclude)
     ssim_mean = float(np.nanmean(ssim))
 
     rest = []
-    objects = _objects(stage)
+    objects = object_paths(stage)
     if cfg.physics and objects:
         from rose_usd.sim.rest import simulate_rest
 
@@ -107,29 +68,7 @@ def run(ctx: StageContext) -> None:
         )
     physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for r in rest)
     geometry_problems = _geometry_check(stage)
-
-    # ---------------------------------------------------------------- author
-    gate = UsdGeom.Scope.Define(stage, paths.GATE).GetPrim()
-    gate.ApplyAPI(schema.GATE_API)
-    ssim_attr = gate.GetAttribute("rose:gate:ssim")
-    for t in frames:
-        ssim_attr.Set(float(ssim[t]), Usd.TimeCode(t))
-    passed_ssim = ssim_mean >= cfg.ssim_threshold
-    gate.GetAttribute("rose:gate:ssimMean").Set(ssim_mean)
-    gate.GetAttribute("rose:gate:ssimThreshold").Set(float(cfg.ssim_threshold))
-    gate.GetAttribute("rose:gate:ssimPassed").Set(bool(passed_ssim))
-    gate.GetAttribute("rose:gate:renderVariant").Set(renderer.scene.variant)
-    gate.GetAttribute("rose:gate:samplesPerPixel").Set(int(cfg.spp))
-    gate.GetAttribute("rose:gate:physics:objects").Set([r.name for r in rest])
-    gate.GetAttribute("rose:gate:physics:displacement").Set([float(r.max_displacement_m) for r in rest])
-    gate.GetAttribute("rose:gate:physics:rotation").Set([float(r.max_rotation_deg) for r in rest])
-    gate.GetAttribute("rose:gate:physics:threshold").Set(float(cfg.physics_threshold_m))
-    gate.GetAttribute("rose:gate:physics:duration").Set(float(cfg.physics_duration_s if cfg.physics else 0.0))
-    gate.GetAttribute("rose:gate:physics:passed").Set(bool(physics_ok and cfg.physics))
-    gate.GetAttribute("rose:gate:geometry:passed").Set(not geometry_problems)
-    gate.GetAttribute("rose:gate:geometry:report").Set("\n".join(geometry_problems))
-    passed = passed_ssim and (physics_ok or not cfg.physics) and not geometry_problems
-    gate.GetAttribute("rose:gate:passed").Set(bool(passed))
+    passed = _author_gate(ctx, frames, ssim, renderer.scene.variant, rest, physics_ok, geometry_problems)
 
     summary = {
         "passed": passed,
@@ -148,3 +87,68 @@ def run(ctx: StageContext) -> None:
     ctx.record(
         ssim_mean=round(ssim_mean, 5), passed=passed, physics={r.name: round(r.max_displacement_m, 6) for r in rest}
     )
+
+
+def _render_and_compare(ctx: StageContext, renderer, frames: list[int], report_dir) -> tuple[np.ndarray, dict]:
+    """SSIM per frame of the re-render against the video (NaN where not rendered), and the
+    pictures of four frames spread over the video and of the worst: t -> (original, rendered,
+    SSIM map, excluded pixels)."""
+    cfg, stage, case, n = ctx.config, ctx.stage, ctx.case, ctx.time_info.n_frames
+    camera = read_cameras(stage, n)
+    if (camera.width, camera.height) != (case.width, case.height):
+        say(f"gate: the stage's camera is {camera.width}x{camera.height}, the video {case.width}x{case.height}")
+
+    def render(t: int) -> np.ndarray:
+        renderer.pose_at(t)
+        return renderer.scene.render_srgb8(
+            camera.world_from_cv[t], camera.K[t], case.width, case.height, spp=cfg.spp, seed=t
+        )
+
+    masks = read_masks(stage, n) if stage.GetPrimAtPath(paths.MASKS) else None
+
+    def exclude(t: int) -> np.ndarray | None:
+        return _interactor_mask(masks, t, cfg.interactor_dilate_px) if cfg.exclude_interactor else None
+
+    ssim = np.full(n, np.nan)
+    keep = {}
+    sample_frames = set(np.linspace(0, len(frames) - 1, 4).round().astype(int).tolist())
+    for i, t in enumerate(progress(frames, "gate render", total=len(frames))):
+        rendered, original, left_out = render(t), case.rgb(t), exclude(t)
+        ssim[t], ssim_map = masked_ssim(original, rendered, left_out)
+        if cfg.save_frames:
+            write_rgb(report_dir / "frames" / f"{t:06d}.png", rendered)
+        if i in sample_frames:
+            keep[t] = (original, rendered, ssim_map, left_out)
+    worst = int(np.nanargmin(ssim))
+    if worst not in keep:
+        rendered, left_out = render(worst), exclude(worst)
+        keep[worst] = (case.rgb(worst), rendered, masked_ssim(case.rgb(worst), rendered, left_out)[1], left_out)
+    return ssim, keep
+
+
+def _author_gate(ctx: StageContext, frames, ssim, variant: str, rest, physics_ok: bool, geometry_problems) -> bool:
+    """Write /World/Gate (RoseGateAPI); returns whether the gate passed."""
+    cfg = ctx.config
+    gate = UsdGeom.Scope.Define(ctx.stage, paths.GATE).GetPrim()
+    gate.ApplyAPI(schema.GATE_API)
+    ssim_attr = gate.GetAttribute(tokens.GATE_SSIM)
+    for t in frames:
+        ssim_attr.Set(float(ssim[t]), Usd.TimeCode(t))
+    ssim_mean = float(np.nanmean(ssim))
+    passed_ssim = ssim_mean >= cfg.ssim_threshold
+    gate.GetAttribute(tokens.GATE_SSIM_MEAN).Set(ssim_mean)
+    gate.GetAttribute(tokens.GATE_SSIM_THRESHOLD).Set(float(cfg.ssim_threshold))
+    gate.GetAttribute(tokens.GATE_SSIM_PASSED).Set(bool(passed_ssim))
+    gate.GetAttribute(tokens.GATE_RENDER_VARIANT).Set(variant)
+    gate.GetAttribute(tokens.GATE_SAMPLES_PER_PIXEL).Set(int(cfg.spp))
+    gate.GetAttribute(tokens.GATE_PHYSICS_OBJECTS).Set([r.name for r in rest])
+    gate.GetAttribute(tokens.GATE_PHYSICS_DISPLACEMENT).Set([float(r.max_displacement_m) for r in rest])
+    gate.GetAttribute(tokens.GATE_PHYSICS_ROTATION).Set([float(r.max_rotation_deg) for r in rest])
+    gate.GetAttribute(tokens.GATE_PHYSICS_THRESHOLD).Set(float(cfg.physics_threshold_m))
+    gate.GetAttribute(tokens.GATE_PHYSICS_DURATION).Set(float(cfg.physics_duration_s if cfg.physics else 0.0))
+    gate.GetAttribute(tokens.GATE_PHYSICS_PASSED).Set(bool(physics_ok and cfg.physics))
+    gate.GetAttribute(tokens.GATE_GEOMETRY_PASSED).Set(not geometry_problems)
+    gate.GetAttribute(tokens.GATE_GEOMETRY_REPORT).Set("\n".join(geometry_problems))
+    passed = passed_ssim and (physics_ok or not cfg.physics) and not geometry_problems
+    gate.GetAttribute(tokens.GATE_PASSED).Set(bool(passed))
+    return bool(passed)

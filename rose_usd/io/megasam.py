@@ -12,6 +12,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from rose_usd.errors import InputError
@@ -67,3 +68,14 @@ def write_megasam(path: str | os.PathLike, out: MegaSamOutput, *, depth_dtype=np
         intrinsic=np.asarray(out.intrinsic, dtype=np.float32),
         cam_c2w=np.asarray(out.cam_c2w, dtype=np.float32),
     )
+
+
+FAR_CLIP = 99.0  # MegaSaM clips 1/disparity at 1e2: treat the clip as "no depth"
+
+
+def metric_from_megasam(relative: np.ndarray, alpha: float, beta: float, width: int, height: int) -> np.ndarray:
+    """One MegaSaM depth map made metric (alpha * depth + beta) at the video's size [m], 0 where
+    MegaSaM has no depth (non-positive or at its far clip)."""
+    rel = relative.astype(np.float32)
+    d = np.where((rel > 0) & (rel < FAR_CLIP), alpha * rel + beta, 0.0).astype(np.float32)
+    return cv2.resize(d, (width, height), interpolation=cv2.INTER_NEAREST)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from pxr import Usd
 
-from rose_usd.usd import paths
+from rose_usd.usd import paths, tokens
 
 
 @dataclass(frozen=True)
@@ -41,20 +41,23 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
         return None
 
     def get(name: str):
-        return prim.GetAttribute(f"rose:gate:{name}").Get()
+        return prim.GetAttribute(name).Get()
 
-    ssim = prim.GetAttribute("rose:gate:ssim")
+    ssim = prim.GetAttribute(tokens.GATE_SSIM)
     samples = [ssim.Get(t) for t in ssim.GetTimeSamples()]
     return GateResult(
-        passed=bool(get("passed")),
-        ssim_mean=float(get("ssimMean")),
+        passed=bool(get(tokens.GATE_PASSED)),
+        ssim_mean=float(get(tokens.GATE_SSIM_MEAN)),
         ssim_min=float(min(samples)) if samples else float("nan"),
-        ssim_threshold=float(get("ssimThreshold")),
+        ssim_threshold=float(get(tokens.GATE_SSIM_THRESHOLD)),
         rest_displacement_m=dict(
-            zip(list(get("physics:objects") or []), [float(v) for v in get("physics:displacement") or []])
+            zip(
+                list(get(tokens.GATE_PHYSICS_OBJECTS) or []),
+                [float(v) for v in get(tokens.GATE_PHYSICS_DISPLACEMENT) or []],
+            )
         ),
-        rest_threshold_m=float(get("physics:threshold")),
-        physics_passed=bool(get("physics:passed")),
-        geometry_passed=bool(get("geometry:passed")),
-        geometry_report=str(get("geometry:report") or ""),
+        rest_threshold_m=float(get(tokens.GATE_PHYSICS_THRESHOLD)),
+        physics_passed=bool(get(tokens.GATE_PHYSICS_PASSED)),
+        geometry_passed=bool(get(tokens.GATE_GEOMETRY_PASSED)),
+        geometry_report=str(get(tokens.GATE_GEOMETRY_REPORT) or ""),
     )

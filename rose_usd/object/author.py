@@ -9,11 +9,11 @@ import numpy as np
 import trimesh
 from pxr import Gf, UsdGeom
 
-from rose_usd.core.inertia import MassProperties
-from rose_usd.object.priors import PhysicsPrior
-from rose_usd.scene.author import check_collider
+from rose_usd.core.inertia import MassProperties, mass_properties, shell_mass_properties
+from rose_usd.geometry.mesh import check_collider
+from rose_usd.object.priors import PhysicsPrior, lookup
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths, schema
+from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import (
     MeshData,
     author_mesh,
@@ -111,17 +111,17 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
     )
     phys = model.physics
     prim.ApplyAPI(schema.PHYSICS_PRIOR_API)
-    prim.GetAttribute("rose:prior:category").Set(phys.prior.category)
-    prim.GetAttribute("rose:prior:source").Set(phys.source)
-    prim.GetAttribute("rose:prior:densityRange").Set(Gf.Vec2f(*phys.prior.density_range_kg_m3))
-    prim.GetAttribute("rose:prior:density").Set(float(phys.density_kg_m3))
-    prim.GetAttribute("rose:prior:massUncertainty").Set(float(phys.mass_sigma_kg))
-    prim.GetAttribute("rose:prior:friction").Set(float(phys.friction))
-    prim.GetAttribute("rose:prior:frictionUncertainty").Set(float(phys.friction_sigma))
-    prim.GetAttribute("rose:prior:restitution").Set(float(phys.restitution))
-    prim.GetAttribute("rose:prior:restitutionUncertainty").Set(float(phys.restitution_sigma))
-    prim.GetAttribute("rose:prior:hollow").Set(bool(phys.prior.hollow))
-    prim.GetAttribute("rose:prior:shellThickness").Set(float(phys.prior.shell_thickness_m))
+    prim.GetAttribute(tokens.PRIOR_CATEGORY).Set(phys.prior.category)
+    prim.GetAttribute(tokens.PRIOR_SOURCE).Set(phys.source)
+    prim.GetAttribute(tokens.PRIOR_DENSITY_RANGE).Set(Gf.Vec2f(*phys.prior.density_range_kg_m3))
+    prim.GetAttribute(tokens.PRIOR_DENSITY).Set(float(phys.density_kg_m3))
+    prim.GetAttribute(tokens.PRIOR_MASS_UNCERTAINTY).Set(float(phys.mass_sigma_kg))
+    prim.GetAttribute(tokens.PRIOR_FRICTION).Set(float(phys.friction))
+    prim.GetAttribute(tokens.PRIOR_FRICTION_UNCERTAINTY).Set(float(phys.friction_sigma))
+    prim.GetAttribute(tokens.PRIOR_RESTITUTION).Set(float(phys.restitution))
+    prim.GetAttribute(tokens.PRIOR_RESTITUTION_UNCERTAINTY).Set(float(phys.restitution_sigma))
+    prim.GetAttribute(tokens.PRIOR_HOLLOW).Set(bool(phys.prior.hollow))
+    prim.GetAttribute(tokens.PRIOR_SHELL_THICKNESS).Set(float(phys.prior.shell_thickness_m))
 
     looks = paths.object_looks(model.name)
     UsdGeom.Scope.Define(stage, looks)
@@ -168,7 +168,8 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
 
 def author_objects(ctx: StageContext, models: list[ObjectModel], convex_tolerance: float) -> dict:
     """Rest the objects on the scene (object.settle), then write them all. Returns facts per object."""
-    from rose_usd.object.settle import scene_collider, settle
+    from rose_usd.layers.scene import scene_collider
+    from rose_usd.object.settle import settle
 
     lifts = settle(models, scene_collider(ctx.stage))
     facts = {}
@@ -185,3 +186,47 @@ def author_objects(ctx: StageContext, models: list[ObjectModel], convex_toleranc
             "settle_lift_m": None if not np.isfinite(lift) else round(lift, 5)
         }
     return facts
+
+
+def physics_for(spec, vertices: np.ndarray, faces: np.ndarray, ctx: StageContext, *, wall_modeled: bool = False):
+    """Density, friction, restitution from the category prior with rose.toml's overrides; mass
+    properties of the solid (or of its wall, for hollow categories, unless ``wall_modeled``: the
+    mesh is a vessel's wall already)."""
+    prior, warning = lookup(spec.category)
+    if warning:
+        ctx.warn(f"object {spec.name!r}: {warning}")
+    o = spec.overrides
+    hollow = bool(o.get("hollow", prior.hollow)) and not wall_modeled
+    density = float(o.get("density_kg_m3", prior.density_kg_m3))
+    thickness = prior.shell_thickness_m if prior.shell_thickness_m > 0 else 0.003
+    props = (
+        shell_mass_properties(vertices, faces, density, thickness)
+        if hollow
+        else mass_properties(vertices, faces, density)
+    )
+    source = "table"
+    mass_sigma = prior.density_sigma_kg_m3 * props.volume_m3
+    if "mass_kg" in o:  # the user's mass wins: rescale (the mass distribution keeps its shape)
+        k = float(o["mass_kg"]) / props.mass_kg
+        props = type(props)(
+            props.mass_kg * k,
+            props.volume_m3,
+            props.center_of_mass_m,
+            props.inertia_com * k,
+            props.diagonal_inertia * k,
+            props.principal_axes,
+        )
+        density, mass_sigma, source = density * k, 0.0, "user"
+    elif "density_kg_m3" in o:
+        mass_sigma, source = 0.0, "user"
+    physics = PhysicsValues(
+        prior=prior,
+        source=source,
+        density_kg_m3=density,
+        friction=float(o.get("friction", prior.friction)),
+        restitution=float(o.get("restitution", prior.restitution)),
+        mass_sigma_kg=float(mass_sigma),
+        friction_sigma=0.0 if "friction" in o else prior.friction_sigma,
+        restitution_sigma=0.0 if "restitution" in o else prior.restitution_sigma,
+    )
+    return physics, props

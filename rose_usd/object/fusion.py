@@ -48,86 +48,23 @@ with no imported mesh. No learned model.
 
 from __future__ import annotations
 
-import itertools
 import warnings
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy.spatial import ConvexHull, cKDTree
 
-from rose_usd.capture.depth import depth_is_sensor, metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
-from rose_usd.core.inertia import mass_properties, shell_mass_properties
-from rose_usd.core.pinhole import masked_world_points, pixels_of, view_counts
 from rose_usd.core.watertight import collider_problems
-from rose_usd.errors import InputError, MeshError
-from rose_usd.io.images import read_mask
-from rose_usd.object.author import ObjectModel, PhysicsValues, author_objects
-from rose_usd.object.priors import lookup
-from rose_usd.progress import progress
-from rose_usd.scene.tsdf import self_intersects, transfer_colors
-from rose_usd.segment.contact import first_contact, ring_height
-from rose_usd.segment.tracks import INTERACTOR
+from rose_usd.errors import MeshError
+from rose_usd.geometry.mesh import decimate, self_intersects
+from rose_usd.geometry.texture import transfer_colors
+from rose_usd.layers.world import metric_depth_reader, read_cameras
+from rose_usd.object.author import ObjectModel, author_objects, physics_for
+from rose_usd.object.rest import resting_clouds, support_height
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths
-from rose_usd.usd.camera import read_camera
 from rose_usd.usd.geom import MeshData
-
-
-def masked_points(
-    depth: np.ndarray, mask: np.ndarray, rgb: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, erode_px: int = 1
-):
-    """World points and sRGB colors of the mask's pixels with depth (mask eroded by ``erode_px``:
-    its border pixels mix the object's depth with what is behind it). Pixels at a depth
-    discontinuity are not all left out as well: that shrinks the object more than it helps."""
-    pts, (v, u) = masked_world_points(depth, mask, K, world_from_cv, erode_px=erode_px)
-    return pts, rgb[v, u]
-
-
-def rest_frames(
-    ref_frame: int, n: int, sample, tolerance_m: float, *, scale_drift: bool = False
-) -> list[tuple[int, float]]:
-    """Frames from ``ref_frame`` on in which the object is still where it was then, each with the
-    ratio of its depth there to the reference frame's (1 for a sensor).
-
-    ``sample(t)`` gives (depth, mask, K, world_from_cv) of frame t (None when the object is not
-    seen). The object's points of the reference frame are projected into frame t; where they
-    land on the object's mask, the depth must agree within ``tolerance_m`` for most of them. Newly
-    revealed parts (the top of a stack's lower object, once the upper one is lifted) do not count
-    as motion, and a hand covering part of the object only leaves fewer points to compare.
-    With ``scale_drift`` (depth that is not a sensor's: MegaSaM's scale varies by a few % from
-    frame to frame), the frame's median depth ratio (within 6 %) is divided out first."""
-    depth, mask, K, pose = sample(ref_frame)
-    ref, _ = masked_points(depth, mask, np.zeros((*mask.shape, 3), np.uint8), K, pose)
-    ref = ref[:: max(1, len(ref) // 3000)]
-    frames = []
-    for t in range(ref_frame, n):
-        got = sample(t)
-        if got is None:
-            continue
-        depth, mask, K, pose = got
-        u, v, z = pixels_of(ref, pose, K, mask.shape[1], mask.shape[0])
-        inside = u >= 0
-        u, v, zz = u[inside], v[inside], z[inside]
-        d = depth[v, u]
-        on = mask[v, u] & (d > 0)
-        ratio = float(np.median(d[on] / zz[on])) if scale_drift and on.sum() >= 30 else 1.0
-        if abs(ratio - 1.0) > 0.06:
-            break  # moved along the view (or the depth jumped): not the same rest
-        d = d / np.float32(ratio)
-        unhidden = ~((d > 0) & (d < zz - tolerance_m))  # nothing (a hand) in front of the point
-        if unhidden.sum() < 30:
-            continue  # hidden: nothing to compare
-        on_mask = float(np.mean(mask[v[unhidden], u[unhidden]]))
-        on = unhidden & on
-        agree = float(np.mean(np.abs(d[on] - zz[on]) < tolerance_m)) if on.sum() >= 30 else 0.0
-        if on_mask < 0.6 or agree < 0.3:
-            break  # moved
-        if on_mask >= 0.93 and agree >= 0.6:
-            frames.append((t, ratio))
-    return frames
 
 
 def _circle_fit(xy: np.ndarray, *, geometric: bool = False, scale_m: float = 0.002) -> tuple[np.ndarray, float]:
@@ -367,7 +304,6 @@ def solid_from_points(
     Voxel k spans z in [k, k+1) * step, so the solid's bottom face is the support, z = 0. Near a
     completed surface (the revolved wall, a top at its height) the occupancy ramps linearly from 1
     to 0 over two voxels, so that its 0.5 level lies where the surface is, not on a voxel face."""
-    from scipy import ndimage
 
     top = float(points[:, 2].max())
     lo = np.array([*(points[:, :2].min(axis=0) - 3 * step_m), 0.0])
@@ -378,72 +314,90 @@ def solid_from_points(
     z = centers[2]
     rev = revolution_profile(points, band_m, tolerance, toward=toward)
     idx = np.clip(np.floor((points - lo) / step_m).astype(int), 0, np.array(shape) - 1)
+    grid = (x, y, z)
     if rev is not None:
-        center, heights, radii = rev
-        rz = np.interp(z, heights, radii)
-        r = np.hypot(x - center[0], y - center[1])
-        top_face = top_height(points, step_m)  # the grid's ``top`` is the highest point, noise and all
-        solid = np.minimum(_ramp(rz[None, None, :] - r[..., None], step_m), _ramp(top_face - z, step_m)[None, None, :])
-        # seen points well outside the revolved solid are solid too (a mug's handle); the depth
-        # noise's few points a little outside its wall or above its top are not
-        pr = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1])
-        out = (pr > np.interp(points[:, 2], heights, radii) + 2 * step_m) & (points[:, 2] < top_face)
-        solid[_large_parts(idx[out], shape, min_voxels=12)] = 1.0
-        how = "revolution"
-        cavity = vessel_cavity(points, toward, center, heights, radii, top_face, band_m, step_m=step_m)
-        if cavity is not None:  # open at the top, down to its floor
-            floor, in_heights, in_radii, floor_seen = cavity
-            empty = np.minimum(
-                _ramp(np.interp(z, in_heights, in_radii)[None, None, :] - r[..., None], step_m),
-                _ramp(z - floor, step_m)[None, None, :],
-            )
-            solid = np.minimum(solid, 1.0 - empty)
-            how = "vessel" if floor_seen else "vessel (floor not seen: as thick as the wall)"
+        solid, how = _revolved_solid(points, toward, rev, idx, shape, grid, top, step_m, band_m)
     else:
-        # a height field standing on the support: under every seen point the object is solid
-        # down to the table; the footprint is the seen one, closed and made convex-hull-tight.
-        # A cell's height is its points' upper median: the highest is biased up by the noise
-        cells = idx[:, :2]
-        ids, upper = cell_upper_median(cells[:, 0] * shape[1] + cells[:, 1], points[:, 2], 0.006)
-        height = np.zeros(shape[:2])
-        height[ids // shape[1], ids % shape[1]] = upper
-        # closed with nothing beyond the grid: by default the erosion takes the border as inside,
-        # and a seen cell 2 voxels from the grid's edge grows a spike to it (a wall's height)
-        foot = cv2.morphologyEx(
-            (height > 0).astype(np.uint8),
-            cv2.MORPH_CLOSE,
-            np.ones((5, 5), np.uint8),
-            borderType=cv2.BORDER_CONSTANT,
-            borderValue=0,
-        )
-        around = points[:, :2] if outline is None or np.count_nonzero(outline) < 3 else points[outline, :2]
-        hull = ConvexHull(around)
-        poly = np.round((around[hull.vertices] - lo[:2]) / step_m - 0.5).astype(np.int32)[:, ::-1]
-        cv2.fillConvexPoly(foot, poly, 1)
-        # the walls at the hull's edges, not on the faces of the cells it touches (up to a voxel
-        # out): the occupancy ramps across them like a top's, so the cells around the foot join in
-        foot = ndimage.binary_dilation(foot.astype(bool), np.ones((3, 3), bool))
-        inside_hull = -np.max(
-            np.einsum("ijk,nk->ijn", np.stack([x, y], axis=-1), hull.equations[:, :2]) + hull.equations[:, 2], axis=-1
-        )
-        # the highest point of a cell is biased up by depth noise: take the median of its neighbors'
-        seen = height > 0
-        with warnings.catch_warnings():  # cells with no seen neighbor: NaN, left as they are
-            warnings.simplefilter("ignore", RuntimeWarning)
-            smooth = ndimage.generic_filter(
-                np.where(seen, height, np.nan), np.nanmedian, size=5, mode="constant", cval=np.nan
-            )
-        height = np.where(seen & np.isfinite(smooth), smooth, height)
-        if np.any(foot & (height <= 0)):  # cells never seen from above: the nearest seen cell's height
-            seen_idx = np.argwhere(height > 0)
-            missing = np.argwhere(foot & (height <= 0))
-            _, nearest = cKDTree(seen_idx).query(missing)
-            height[missing[:, 0], missing[:, 1]] = height[seen_idx[nearest, 0], seen_idx[nearest, 1]]
-        walls = _ramp(inside_hull, step_m)[..., None]
-        solid = np.where(foot[..., None], np.minimum(_ramp(height[..., None] - z[None, None, :], step_m), walls), 0.0)
-        how = "height-field"
+        solid, how = _height_field_solid(points, outline, idx, shape, lo, grid, step_m)
     solid[..., 0] = np.maximum(solid[..., 0], solid[..., 1])  # the bottom layer under anything standing
     return solid.astype(np.float32), lo, step_m, how
+
+
+def _revolved_solid(points, toward, rev, idx, shape, grid, top, step_m: float, band_m: float):
+    """A solid of revolution's occupancy (and, where its inner wall shows over the rim, an open
+    vessel's), plus seen points well outside it (a mug's handle). Returns (occupancy, how)."""
+    x, y, z = grid
+    center, heights, radii = rev
+    rz = np.interp(z, heights, radii)
+    r = np.hypot(x - center[0], y - center[1])
+    top_face = top_height(points, step_m)  # the grid's ``top`` is the highest point, noise and all
+    solid = np.minimum(_ramp(rz[None, None, :] - r[..., None], step_m), _ramp(top_face - z, step_m)[None, None, :])
+    # seen points well outside the revolved solid are solid too (a mug's handle); the depth
+    # noise's few points a little outside its wall or above its top are not
+    pr = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1])
+    out = (pr > np.interp(points[:, 2], heights, radii) + 2 * step_m) & (points[:, 2] < top_face)
+    solid[_large_parts(idx[out], shape, min_voxels=12)] = 1.0
+    how = "revolution"
+    cavity = vessel_cavity(points, toward, center, heights, radii, top_face, band_m, step_m=step_m)
+    if cavity is not None:  # open at the top, down to its floor
+        floor, in_heights, in_radii, floor_seen = cavity
+        empty = np.minimum(
+            _ramp(np.interp(z, in_heights, in_radii)[None, None, :] - r[..., None], step_m),
+            _ramp(z - floor, step_m)[None, None, :],
+        )
+        solid = np.minimum(solid, 1.0 - empty)
+        how = "vessel" if floor_seen else "vessel (floor not seen: as thick as the wall)"
+    return solid, how
+
+
+def _height_field_solid(points, outline, idx, shape, lo, grid, step_m: float):
+    """A height field standing on the support: under every seen point the object is solid down to
+    the table; the footprint is the seen one, closed and made convex-hull-tight. Returns
+    (occupancy, how)."""
+    from scipy import ndimage
+
+    x, y, z = grid
+    # a cell's height is its points' upper median: the highest is biased up by the noise
+    cells = idx[:, :2]
+    ids, upper = cell_upper_median(cells[:, 0] * shape[1] + cells[:, 1], points[:, 2], 0.006)
+    height = np.zeros(shape[:2])
+    height[ids // shape[1], ids % shape[1]] = upper
+    # closed with nothing beyond the grid: by default the erosion takes the border as inside,
+    # and a seen cell 2 voxels from the grid's edge grows a spike to it (a wall's height)
+    foot = cv2.morphologyEx(
+        (height > 0).astype(np.uint8),
+        cv2.MORPH_CLOSE,
+        np.ones((5, 5), np.uint8),
+        borderType=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
+    around = points[:, :2] if outline is None or np.count_nonzero(outline) < 3 else points[outline, :2]
+    hull = ConvexHull(around)
+    poly = np.round((around[hull.vertices] - lo[:2]) / step_m - 0.5).astype(np.int32)[:, ::-1]
+    cv2.fillConvexPoly(foot, poly, 1)
+    # the walls at the hull's edges, not on the faces of the cells it touches (up to a voxel
+    # out): the occupancy ramps across them like a top's, so the cells around the foot join in
+    foot = ndimage.binary_dilation(foot.astype(bool), np.ones((3, 3), bool))
+    inside_hull = -np.max(
+        np.einsum("ijk,nk->ijn", np.stack([x, y], axis=-1), hull.equations[:, :2]) + hull.equations[:, 2], axis=-1
+    )
+    # the highest point of a cell is biased up by depth noise: take the median of its neighbors'
+    seen = height > 0
+    with warnings.catch_warnings():  # cells with no seen neighbor: NaN, left as they are
+        warnings.simplefilter("ignore", RuntimeWarning)
+        smooth = ndimage.generic_filter(
+            np.where(seen, height, np.nan), np.nanmedian, size=5, mode="constant", cval=np.nan
+        )
+    height = np.where(seen & np.isfinite(smooth), smooth, height)
+    if np.any(foot & (height <= 0)):  # cells never seen from above: the nearest seen cell's height
+        seen_idx = np.argwhere(height > 0)
+        missing = np.argwhere(foot & (height <= 0))
+        _, nearest = cKDTree(seen_idx).query(missing)
+        height[missing[:, 0], missing[:, 1]] = height[seen_idx[nearest, 0], seen_idx[nearest, 1]]
+    walls = _ramp(inside_hull, step_m)[..., None]
+    solid = np.where(foot[..., None], np.minimum(_ramp(height[..., None] - z[None, None, :], step_m), walls), 0.0)
+    how = "height-field"
+    return solid, how
 
 
 def _ramp(distance_m: np.ndarray, step_m: float) -> np.ndarray:
@@ -497,139 +451,11 @@ def mesh_from_solid(
     return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
 
 
-@dataclass
-class RestingCloud:
-    """What the object's resting frames show: its cleaned world points above the support with
-    their sRGB colors, the frames they came from, and its masks (None where barely visible)."""
-
-    points: np.ndarray
-    colors: np.ndarray
-    frames: list[int]
-    masks: list
-    often: np.ndarray
-    """Per point: seen about as often as the points around it (``seen_voxels``); a footprint is
-    drawn around these, not around the depth noise's tail."""
-    toward: np.ndarray
-    """Per point: the mean unit direction from it to the cameras that saw it (which way a wall faces)."""
-    ground: float = 0.0
-    """The height of the surface around the object [m] (0 = the world's support plane)."""
-
-
-def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingCloud]:
-    """Every object's points while it rests before the interactor first touches it (all objects
-    first: one may stand on another). InputError when an object is never clearly seen."""
-    case, cfg, n = ctx.case, ctx.config, ctx.time_info.n_frames
-    drifts = not depth_is_sensor(ctx.stage)
-    clouds = {}
-    for spec in case.config.objects:
-        folder = ctx.out_dir / "masks" / spec.name
-        if not folder.is_dir():
-            raise InputError(f"no masks of object {spec.name!r}", path=folder, hint="run the segment stage")
-        masks, per_frame, visible = [], [], np.zeros(n)
-        for t in progress(range(n), f"object {spec.name}: masked depth", total=n):
-            mask = read_mask(folder / f"{t:06d}.png")
-            if mask.shape != (case.height, case.width):
-                raise InputError(
-                    f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {case.width}x{case.height}",
-                    path=folder / f"{t:06d}.png",
-                    hint="re-run the segment stage",
-                )
-            visible[t] = mask.sum()
-            masks.append(mask if visible[t] >= 50 else None)
-        if not np.any(visible >= 50):
-            raise InputError(
-                f"object {spec.name!r} is never visible (every mask is empty)",
-                path=folder,
-                hint="check its masks (segment stage) or its prompt",
-            )
-        clear = np.flatnonzero(visible >= 0.5 * np.percentile(visible[visible >= 50], 90))
-
-        def sample(t, masks=masks):
-            return None if masks[t] is None else (depth_of(t), masks[t], cameras.K[t], cameras.world_from_cv[t])
-
-        touched = first_contact(masks, ctx.out_dir / "masks" / INTERACTOR, depth_of, n)
-        rests = [
-            (t, r)
-            for t, r in rest_frames(int(clear[0]), n, sample, cfg.rest_tolerance_m, scale_drift=drifts)
-            if t < touched
-        ]
-        if not rests:
-            raise InputError(
-                f"object {spec.name!r} is never clearly visible",
-                path=folder,
-                hint="check its masks (segment stage) or its prompt",
-            )
-        frames = [t for t, _ in rests]
-        typical = float(np.median([r for _, r in rests]))
-        carve_at = {rests[i][0] for i in np.unique(np.linspace(0, len(rests) - 1, min(16, len(rests))).astype(int))}
-        views = []  # the resting views that carve the fused points (their depth read once)
-        for t, ratio in rests:  # every frame's depth brought to the rest's typical scale
-            depth = depth_of(t) * np.float32(typical / ratio)
-            pts, cols = masked_points(depth, masks[t], case.rgb(t), cameras.K[t], cameras.world_from_cv[t])
-            toward = (cameras.world_from_cv[t][:3, 3] - pts).astype(np.float32)
-            per_frame.append((pts, cols, toward / np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-9)))
-            if t in carve_at:
-                views.append((depth, cameras.K[t], cameras.world_from_cv[t]))
-        ground = ring_height(ctx, spec.name, [(t, typical / ratio) for t, ratio in rests], masks, depth_of, cameras)
-        pts, cols, toward = (np.concatenate(parts) for parts in zip(*per_frame))
-        pts, cols, toward, often = clean_cloud(pts, cols, toward, cfg.voxel_m, ground + cfg.support_gap_m)
-        keep = free_space_carve(pts, views)
-        pts, cols, toward, often = pts[keep], cols[keep], toward[keep], often[keep]
-        if len(pts) < 200:
-            raise InputError(
-                f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames",
-                path=folder,
-                hint="check its masks and the depth",
-            )
-        clouds[spec.name] = RestingCloud(pts, cols, frames, masks, often, toward, ground)
-    return clouds
-
-
-def free_space_carve(
-    points: np.ndarray, views: list, *, tolerance_m: float = 0.004, fraction: float = 0.3, min_views: int = 2
-) -> np.ndarray:
-    """Which points no view sees through (a mask): free-space carving.
-
-    A sensor's flying pixels at a silhouette land a few mm off the surface, a few per frame, and
-    fused over a rest they make a dense wall that outlier removal keeps (a strip 5-30 mm above a
-    box's top edge lifts an object stacked on it that high). A point is dropped when, in
-    at least ``min_views`` views and ``fraction`` of the views it falls in, even the nearest depth
-    of the 3x3 pixels around it lies beyond it by ``tolerance_m``: that view saw past it. Things
-    in front (a hand) only make depth nearer. ``views``: (depth, K, world_from_cv) of frames in
-    which the object rests."""
-    if not len(points) or not views:
-        return np.ones(len(points), bool)
-    through, _, observed = view_counts(points, views, tol_m=tolerance_m, window=3)
-    return ~((through >= min_views) & (through >= fraction * observed))
-
-
-def decimate(mesh, max_triangles: int, *, check: bool = True):
-    """Quadric decimation of a trimesh to at most ``max_triangles``; with ``check``, the input is
-    kept when the decimated mesh would not be a closed, self-intersection-free 2-manifold."""
-    import trimesh
-
-    if len(mesh.faces) <= max_triangles:
-        return mesh
-    # the decimator's default aggression (7) can open a vessel's thin wall (5 mm, 2.5 voxels): then
-    # every target fails the check and the mesh keeps all its triangles; at 3 it stays closed
-    for target, aggression in itertools.product(
-        (max_triangles, int(0.75 * max_triangles), int(0.5 * max_triangles)), (7, 3)
-    ):
-        simple = mesh.simplify_quadric_decimation(face_count=target, aggression=aggression)
-        # the decimator may leave collapsed (two-vertex) triangles: drop them
-        simple = trimesh.Trimesh(simple.vertices, simple.faces[simple.nondegenerate_faces()], process=True)
-        if not check or not (
-            collider_problems(simple.vertices, simple.faces) or self_intersects(simple.vertices, simple.faces)
-        ):
-            return simple
-    return mesh
-
-
 def run(ctx: StageContext) -> None:
     case = ctx.case
     cfg = ctx.config
     n = ctx.time_info.n_frames
-    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    cameras = read_cameras(ctx.stage, n)
     depth_of = metric_depth_reader(ctx.stage, case, cache=8)
     models, facts = [], {}
     clouds = resting_clouds(ctx, cameras, depth_of)
@@ -681,156 +507,9 @@ def complete(
         points[above] - lift,
         step_m=cfg.voxel_m,
         band_m=4 * cfg.voxel_m,
-        tolerance=cfg.revolution_tolerance,
+        tolerance=cfg.fusion.revolution_tolerance,
         outline=often[above],
         toward=toward[above],
     )
     vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
     return vertices + lift, faces, how, above
-
-
-def support_height(
-    points: np.ndarray, others: list[np.ndarray], *, ground: float = 0.0, margin_m: float = 0.01
-) -> float:
-    """What the object stands on: the top of another object under its footprint (a stack), else
-    the surface around it (``ground``). Another object's points count when they lie under the
-    object's footprint (grown by ``margin_m``) and no higher than its lowest seen point plus ``margin_m``."""
-    lowest = float(points[:, 2].min())
-    lo, hi = points[:, :2].min(axis=0) - margin_m, points[:, :2].max(axis=0) + margin_m
-    best = ground
-    for other in others:
-        under = other[np.all((other[:, :2] >= lo) & (other[:, :2] <= hi), axis=1) & (other[:, 2] <= lowest + margin_m)]
-        if len(under) >= 30:
-            best = max(best, float(np.percentile(under[:, 2], 95)))
-    return min(best, lowest)
-
-
-def seen_voxels(
-    points: np.ndarray, values: np.ndarray, voxel_m: float, *, keep_fraction: float = 0.1, reach: int = 2
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The points fused over many frames, one per ``voxel_m`` voxel (the mean of its points and of
-    their ``values`` (N, k): colors, directions to the camera), and which of them are seen often:
-    at least ``keep_fraction`` as often as the most seen voxel within ``reach`` voxels of them.
-    Returns (points, mean values (float), often).
-
-    A surface seen in many frames fills its voxels many times over; the depth noise's tail and the
-    registration's jitter put a few points per frame a few millimeters off it. A plain voxel
-    downsample gives both one point each, so the fused wall becomes a slab as thick as the noise's
-    extremes, and a footprint drawn around it lies on its outside: an object comes out a few
-    millimeters too wide on the sides the camera saw. A voxel of the tail is
-    seen a fraction as often as its neighbors, so a height field's footprint is drawn around the
-    often seen voxels only (``outline`` of ``solid_from_points``). Where every voxel around is seen
-    at most 3 times (one frame's pixels), all count as often seen.
-
-    ``keep_fraction`` 0.1, not more: a top face's far edge is seen less often than its middle
-    (voxels partly covered, the sensor's dropouts at depth edges), and a higher fraction (0.35)
-    pulls the sides seen only as such edges a few millimeters in. The rarely seen points stay in
-    the cloud: dropping them makes a revolved profile worse."""
-    # voxels as one integer each, on a grid padded by ``reach`` so a neighbor is an offset away
-    key = np.floor(points / voxel_m).astype(np.int64)
-    lo = key.min(axis=0) - reach
-    dims = key.max(axis=0) + reach - lo + 1
-    ids, owner, count = np.unique(
-        ((key[:, 0] - lo[0]) * dims[1] + (key[:, 1] - lo[1])) * dims[2] + (key[:, 2] - lo[2]),
-        return_inverse=True,
-        return_counts=True,
-    )
-    owner = owner.ravel()
-    mean = (
-        np.column_stack([np.bincount(owner, weights=points[:, a], minlength=len(ids)) for a in range(3)])
-        / count[:, None]
-    )
-    values = np.asarray(values, dtype=float).reshape(len(points), -1)
-    value = (
-        np.column_stack([np.bincount(owner, weights=values[:, a], minlength=len(ids)) for a in range(values.shape[1])])
-        / count[:, None]
-    )
-    # the most seen voxel around each: every offset looked up in the (sorted) voxel ids
-    most = count.copy()
-    steps = range(-reach, reach + 1)
-    for dx, dy, dz in itertools.product(steps, steps, steps):
-        other = ids + (dx * dims[1] + dy) * dims[2] + dz
-        j = np.minimum(np.searchsorted(ids, other), len(ids) - 1)
-        hit = ids[j] == other
-        most[hit] = np.maximum(most[hit], count[j[hit]])
-    often = (count >= keep_fraction * most) | (most <= 3)  # up to 3 (one frame's pixels): nothing to compare
-    return mean, value, often
-
-
-def clean_cloud(
-    points: np.ndarray, colors: np.ndarray, toward: np.ndarray, voxel_m: float, above_m: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Points higher than ``above_m`` (the table is left out), one per voxel (``seen_voxels``),
-    outliers and stray clusters dropped. ``toward``: each point's unit direction to its camera.
-    Returns (points, sRGB8 colors, mean unit directions to the cameras, often seen)."""
-    import open3d as o3d
-
-    def inliers(pts: np.ndarray) -> np.ndarray:  # Open3D's statistical outlier test, as indices
-        _, kept = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).remove_statistical_outlier(
-            nb_neighbors=16, std_ratio=2.0
-        )
-        return np.asarray(kept, dtype=np.int64)
-
-    keep = points[:, 2] > above_m
-    pts, values, often = seen_voxels(points[keep], np.column_stack([colors[keep], toward[keep]]), voxel_m)
-    cols = np.clip(values[:, :3] + 0.5, 0, 255).astype(np.uint8)
-    toward = values[:, 3:] / np.maximum(np.linalg.norm(values[:, 3:], axis=1, keepdims=True), 1e-12)
-    kept = inliers(pts)
-    if len(kept) > 50:  # keep the largest cluster (stray mask pixels on the background)
-        labels = np.asarray(
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[kept])).cluster_dbscan(eps=3 * voxel_m, min_points=4)
-        )
-        if labels.max() >= 0:
-            kept = kept[labels == np.bincount(labels[labels >= 0]).argmax()]
-    pts, cols, toward, often = pts[kept], cols[kept], toward[kept], often[kept]
-    # an often seen voxel alone among the rarely seen ones (a flying pixels' strip, seen by few
-    # frames but each time) is an outlier of the often seen
-    marked = np.flatnonzero(often)
-    if len(marked) > 50:
-        often[:] = False
-        often[marked[inliers(pts[marked])]] = True
-    return pts, cols, toward, often
-
-
-def physics_for(spec, vertices: np.ndarray, faces: np.ndarray, ctx: StageContext, *, wall_modeled: bool = False):
-    """Density, friction, restitution from the category prior with rose.toml's overrides; mass
-    properties of the solid (or of its wall, for hollow categories, unless ``wall_modeled``: the
-    mesh is a vessel's wall already)."""
-    prior, warning = lookup(spec.category)
-    if warning:
-        ctx.warn(f"object {spec.name!r}: {warning}")
-    o = spec.overrides
-    hollow = bool(o.get("hollow", prior.hollow)) and not wall_modeled
-    density = float(o.get("density_kg_m3", prior.density_kg_m3))
-    thickness = prior.shell_thickness_m if prior.shell_thickness_m > 0 else 0.003
-    props = (
-        shell_mass_properties(vertices, faces, density, thickness)
-        if hollow
-        else mass_properties(vertices, faces, density)
-    )
-    source = "table"
-    mass_sigma = prior.density_sigma_kg_m3 * props.volume_m3
-    if "mass_kg" in o:  # the user's mass wins: rescale (the mass distribution keeps its shape)
-        k = float(o["mass_kg"]) / props.mass_kg
-        props = type(props)(
-            props.mass_kg * k,
-            props.volume_m3,
-            props.center_of_mass_m,
-            props.inertia_com * k,
-            props.diagonal_inertia * k,
-            props.principal_axes,
-        )
-        density, mass_sigma, source = density * k, 0.0, "user"
-    elif "density_kg_m3" in o:
-        mass_sigma, source = 0.0, "user"
-    physics = PhysicsValues(
-        prior=prior,
-        source=source,
-        density_kg_m3=density,
-        friction=float(o.get("friction", prior.friction)),
-        restitution=float(o.get("restitution", prior.restitution)),
-        mass_sigma_kg=float(mass_sigma),
-        friction_sigma=0.0 if "friction" in o else prior.friction_sigma,
-        restitution_sigma=0.0 if "restitution" in o else prior.restitution_sigma,
-    )
-    return physics, props

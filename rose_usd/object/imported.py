@@ -37,7 +37,6 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, cKDTree
 
-from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.case.config import ObjectSpec
 from rose_usd.case.layout import Case
 from rose_usd.core import se3
@@ -45,16 +44,16 @@ from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.pinhole import silhouette
 from rose_usd.core.watertight import collider_problems, is_closed
 from rose_usd.errors import InputError, MeshError
+from rose_usd.geometry.mesh import decimate, self_intersects
+from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import foundationpose, trellis
 from rose_usd.io.meshfile import read_mesh_file
-from rose_usd.object.author import ObjectModel, author_objects
-from rose_usd.object.fusion import decimate, physics_for, resting_clouds, support_height
+from rose_usd.layers.masks import Masks, read_masks
+from rose_usd.layers.world import metric_depth_reader, read_cameras
+from rose_usd.object.author import ObjectModel, author_objects, physics_for
+from rose_usd.object.rest import resting_clouds, support_height
 from rose_usd.progress import say
-from rose_usd.scene.tsdf import self_intersects, transfer_colors
-from rose_usd.segment.contact import occluders
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths
-from rose_usd.usd.camera import read_camera
 from rose_usd.usd.geom import MeshData
 
 UNITS = {"millimeters": 1e-3, "centimeters": 1e-2, "inches": 0.0254}
@@ -519,6 +518,14 @@ def fit_scale_and_pose(
     # that grid is 1.46 % apart at the defaults, half the benchmark's scale budget (a scale halfway
     # between two of its points is about 0.7 % off): a golden section between the best's
     # neighbors narrows it to ``resolution``, each scale started from the best pose so far
+    _golden_section(at, tried, step, resolution)
+    return min(tried, key=lambda f: f.cost), tried
+
+
+def _golden_section(at, tried: list[Fit], step: float, resolution: float) -> None:
+    """Narrow the scale between the best fit's neighbors on a grid of ratio ``step`` to
+    ``resolution`` (ratio) by a golden section on log scale, each scale fitted by ``at(rho,
+    start)`` from the best pose so far; every fit is appended to ``tried``."""
     best = min(tried, key=lambda f: f.cost)
     lo, hi = np.log(best.rho) - 0.25 * np.log(step), np.log(best.rho) + 0.25 * np.log(step)
     g = (np.sqrt(5.0) - 1.0) / 2.0
@@ -537,7 +544,6 @@ def fit_scale_and_pose(
             b = lo + g * (hi - lo)
             fb = at(float(np.exp(b)), start)
             tried.append(fb)
-    return min(tried, key=lambda f: f.cost), tried
 
 
 def choose_unit(rho0: float, tolerance: float = 0.25) -> tuple[float | None, str | None]:
@@ -552,11 +558,11 @@ def choose_unit(rho0: float, tolerance: float = 0.25) -> tuple[float | None, str
 # ---------------------------------------------------------------- the backend
 
 
-def _views(ctx: StageContext, name: str, frames: list[int], masks: list, cameras, count: int = 6) -> list[View]:
+def _views(layer: Masks, name: str, frames: list[int], masks: list, cameras, count: int = 6) -> list[View]:
     """Up to ``count`` resting frames spread over the rest, with what to leave out of each."""
     picked = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
     return [
-        View(masks[t], occluders(ctx, name, t, masks[t].shape, grow_px=2), cameras.K[t], cameras.world_from_cv[t])
+        View(masks[t], layer.occluders(name, t, masks[t].shape, grow_px=2), cameras.K[t], cameras.world_from_cv[t])
         for t in picked
     ]
 
@@ -571,9 +577,31 @@ def _foundationpose_start(ctx: StageContext, name: str, t: int, cameras, up_rot:
     return None
 
 
+def _initial_scale(ctx: StageContext, name: str, path: Path, normalized: bool, d_image: float, d_mesh: float):
+    """rho_0, whether to search the scale, and how it was chosen: the paper's diameter ratio for a
+    normalized mesh (or one in unknown units), a metric mesh's own unit otherwise (with a warning
+    unless meters)."""
+    rho0 = d_image / d_mesh
+    if normalized:
+        return rho0, True, "searched (normalized mesh)"
+    unit_scale, unit = choose_unit(rho0)
+    if unit_scale is None:
+        ctx.warn(
+            f"object {name!r} ({path.name}): the mesh is {d_mesh:.4g} units across "
+            f"and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh"
+        )
+        return rho0, True, "searched (unknown units)"
+    if unit != "meters":
+        ctx.warn(
+            f"object {name!r} ({path.name}): the mesh looks like it is in {unit} "
+            f"({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}"
+        )
+    return unit_scale, False, f"file units ({unit})"
+
+
 def run(ctx: StageContext) -> None:
     case, cfg, n = ctx.case, ctx.config, ctx.time_info.n_frames
-    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    cameras = read_cameras(ctx.stage, n)
     depth_of = metric_depth_reader(ctx.stage, case, cache=8)
     specs = case.config.objects
     meshes = {}
@@ -583,6 +611,7 @@ def run(ctx: StageContext) -> None:
         for repair in meshes[spec.name][1].repairs:
             ctx.warn(f"object {spec.name!r} ({path.name}): {repair}")
     clouds = resting_clouds(ctx, cameras, depth_of)
+    layer = read_masks(ctx.stage, n)
     models, facts = [], {}
     for spec in specs:
         path, imp = meshes[spec.name]
@@ -596,24 +625,8 @@ def run(ctx: StageContext) -> None:
         up_rot = level @ up_rot
         vertices_up = imp.vertices @ up_rot.T
         d_image, d_mesh = diameter(observed), diameter(imp.vertices)
-        rho0 = d_image / d_mesh
-        search, how = True, "searched (normalized mesh)"
-        if not imp.normalized:
-            unit_scale, unit = choose_unit(rho0)
-            if unit_scale is None:
-                ctx.warn(
-                    f"object {spec.name!r} ({path.name}): the mesh is {d_mesh:.4g} units across "
-                    f"and the object ~{d_image:.3f} m: its scale is searched, as for a normalized mesh"
-                )
-                how = "searched (unknown units)"
-            else:
-                if unit != "meters":
-                    ctx.warn(
-                        f"object {spec.name!r} ({path.name}): the mesh looks like it is in {unit} "
-                        f"({d_mesh:.4g} units across, the object ~{d_image:.3f} m): scaled by {unit_scale:g}"
-                    )
-                rho0, search, how = unit_scale, False, f"file units ({unit})"
-        views = _views(ctx, spec.name, cloud.frames, cloud.masks, cameras)
+        rho0, search, how = _initial_scale(ctx, spec.name, path, imp.normalized, d_image, d_mesh)
+        views = _views(layer, spec.name, cloud.frames, cloud.masks, cameras)
         fp = _foundationpose_start(ctx, spec.name, cloud.frames[0], cameras, up_rot)
         say(f"object {spec.name}: fitting scale and pose to {len(observed)} points and {len(views)} silhouettes")
         best, tried = fit_scale_and_pose(
@@ -623,10 +636,10 @@ def run(ctx: StageContext) -> None:
             support,
             views,
             rho0=rho0,
-            alpha=cfg.scale_search_alpha,
-            steps=cfg.scale_search_steps,
+            alpha=cfg.imported.scale_search_alpha,
+            steps=cfg.imported.scale_search_steps,
             search=search,
-            depth_weight=cfg.scale_depth_weight,
+            depth_weight=cfg.imported.scale_depth_weight,
             extra_starts=() if fp is None else (fp,),
         )
         if best.iou < 0.5:
@@ -663,8 +676,7 @@ def run(ctx: StageContext) -> None:
             "repairs": imp.repairs,
             "triangles": int(len(faces)),
         }
-    for name, authored in author_objects(
-        ctx, models, cfg.convex_tolerance
-    ).items():  # everything built and checked: now author
-        facts[name] |= authored
+    authored = author_objects(ctx, models, cfg.convex_tolerance)  # everything built and checked: now author
+    for name, values in authored.items():
+        facts[name] |= values
     ctx.record(objects=facts)

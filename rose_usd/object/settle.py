@@ -10,22 +10,11 @@ from __future__ import annotations
 import numpy as np
 
 from rose_usd.core import metrics, se3
-from rose_usd.usd import paths
-from rose_usd.usd.geom import read_mesh
 
 CLEARANCE_M = 0.0005
 """Left between an object and its support after lifting [m]."""
 TOUCHING_M = 0.001
 """Penetration up to this is contact, not an error: left alone [m]."""
-
-
-def scene_collider(stage) -> tuple[np.ndarray, np.ndarray] | None:
-    """The scene layer's collider (world), or None when there is none."""
-    prim = stage.GetPrimAtPath(paths.SCENE_COLLISION)
-    if not prim:
-        return None
-    mesh = read_mesh(prim, world=True)
-    return mesh.vertices, mesh.faces
 
 
 def settle(

@@ -7,13 +7,12 @@ import shutil
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Gf, UsdGeom, UsdLux
+from pxr import Gf, UsdGeom, UsdLux, Vt
 
-from rose_usd.core.watertight import collider_problems
-from rose_usd.errors import MeshError
+from rose_usd.geometry.mesh import check_collider
 from rose_usd.render.lighting import Lighting
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths
+from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import (
     MeshData,
     author_mesh,
@@ -31,22 +30,21 @@ class ScenePart:
     """In world coordinates."""
 
 
-def check_collider(vertices: np.ndarray, faces: np.ndarray, what: str) -> None:
-    """Raise MeshError unless the mesh is watertight, consistently wound and encloses volume."""
-    problems = collider_problems(vertices, faces)
-    if problems:
-        raise MeshError(
-            f"{what} is {', '.join(problems)}", hint="repair it (the scene backend must produce a closed 2-manifold)"
-        )
-
-
-def author_scene(ctx: StageContext, parts: list[ScenePart], collision: MeshData, lighting: Lighting) -> None:
+def author_scene(
+    ctx: StageContext,
+    parts: list[ScenePart],
+    collision: MeshData,
+    lighting: Lighting,
+    support: dict[str, float] | None = None,
+) -> None:
     """Write the scene layer.
 
     Args:
         parts: visual meshes (world coordinates), each with its own look.
         collision: one watertight 2-manifold static collider in world coordinates.
         lighting: the lights to render the scene with (Lighting.unlit() for baked colors).
+        support: object name -> the height [m] of the flat pad laid in the collider under it
+            (``RoseSupportAPI``); None when the backend lays no pads.
     """
     check_collider(collision.vertices, collision.faces, "scene collision mesh")
     stage = ctx.stage
@@ -73,6 +71,11 @@ def author_scene(ctx: StageContext, parts: list[ScenePart], collision: MeshData,
         bind_material(usd_mesh.GetPrim(), material)
     collider = author_mesh(stage, paths.SCENE_COLLISION, collision, purpose=UsdGeom.Tokens.guide)
     make_collider(collider.GetPrim(), Approximation.NONE)
+    if support is not None:
+        prim = collider.GetPrim()
+        prim.ApplyAPI(schema.SUPPORT_API)
+        prim.GetAttribute(tokens.SUPPORT_OBJECTS).Set(Vt.TokenArray(list(support)))
+        prim.GetAttribute(tokens.SUPPORT_HEIGHTS).Set(Vt.DoubleArray([float(h) for h in support.values()]))
     _author_lights(stage, lighting)
 
 

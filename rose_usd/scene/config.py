@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 class SceneBackend(enum.Enum):
@@ -11,34 +11,41 @@ class SceneBackend(enum.Enum):
 
 
 @dataclass(frozen=True, kw_only=True)
-class SceneConfig:
-    backend: SceneBackend = SceneBackend.AUTO
-    """Which backend reconstructs the scene (default auto)."""
+class TsdfConfig:
+    """Settings of the tsdf backend."""
+
     voxel_m: float = 0.008
-    """tsdf: TSDF voxel size [m] (default 0.008)."""
+    """TSDF voxel size [m] (default 0.008)."""
     frame_stride: int = 2
-    """tsdf: fuse every n-th frame (default 2)."""
+    """Fuse every n-th frame (default 2)."""
     mask_margin_px: int = 6
-    """tsdf: object and interactor masks are dilated by this many pixels before fusion (default 6)."""
+    """Object and interactor masks are dilated by this many pixels before fusion (default 6)."""
     carve_m: float = 0.01
-    """tsdf: fused surface above the support this near to points of the object masks is removed [m] (default 0.01)."""
+    """Fused surface above the support this near to points of the object masks is removed [m] (default 0.01)."""
     depth_max_m: float = 5.0
-    """tsdf: depth beyond this is not fused [m] (default 5: all a Kinect-class sensor gives)."""
+    """Depth beyond this is not fused [m] (default 5: all a Kinect-class sensor gives)."""
     pad_margin_m: float = 0.03
-    """tsdf: under each object resting on the surface before it is touched, the collider is a flat
+    """Under each object resting on the surface before it is touched, the collider is a flat
     pad at the surface's height around it, over its seen footprint grown by this much [m]; 0: no
     pads (default 0.03: a footprint seen through noisy depth can miss an edge of the object by more
     than a centimetre, and an object whose edge overhangs its pad tips in simulation)."""
     alpha_m: float = 0.03
-    """tsdf: alpha wrapping's alpha, the largest gap it bridges [m] (default 0.03)."""
+    """Alpha wrapping's alpha, the largest gap it bridges [m] (default 0.03)."""
     offset_m: float = 0.002
-    """tsdf: alpha wrapping's offset from the fused surface [m] (default 0.002)."""
+    """Alpha wrapping's offset from the fused surface [m] (default 0.002)."""
     thickness_m: float = 0.02
-    """tsdf: the collider is solidified this far below the fused surface [m] (default 0.02)."""
+    """The collider is solidified this far below the fused surface [m] (default 0.02)."""
     max_triangles: int = 60000
-    """tsdf: triangle budget of the scene mesh (default 60000)."""
+    """Triangle budget of the scene mesh (default 60000)."""
     texture_size: int = 2048
-    """tsdf: baked texture width and height [px] (default 2048)."""
+    """Baked texture width and height [px] (default 2048)."""
     texture_frames: int = 24
-    """tsdf: texels take the median color of their projections into this many frames spread over
+    """Texels take the median color of their projections into this many frames spread over
     the video; 0: the fused points' 3-NN colors (default 24)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneConfig:
+    backend: SceneBackend = SceneBackend.AUTO
+    """Which backend reconstructs the scene (default auto)."""
+    tsdf: TsdfConfig = field(default_factory=TsdfConfig)

@@ -2,7 +2,7 @@
 
 1. **Fuse** every ``frame_stride``-th frame's metric depth into a TSDF volume (Open3D, CPU),
    keeping only static pixels: not an object or the interactor (their masks dilated by
-   ``mask_margin_px``) and not nearer than the static world (segment.background), so neither the
+   ``mask_margin_px``) and not nearer than the static world (geometry.background), so neither the
    object's resting place nor the hand leaves a ghost.
 2. **Wrap** the fused surface with CGAL's 3D alpha wrapping (``alpha_m``, ``offset_m``): a
    closed, 2-manifold, consistently oriented, self-intersection-free shell around it and around
@@ -28,6 +28,7 @@
 
 from __future__ import annotations
 
+import functools
 import tempfile
 import warnings
 from dataclasses import dataclass
@@ -37,31 +38,35 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
-from rose_usd.core.color import linear_to_srgb8, srgb8_to_linear
+from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.pinhole import backproject, masked_world_points, pixels_of, sample_at, view_counts
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
+from rose_usd.geometry.background import StaticBackground
+from rose_usd.geometry.contact import first_contact, ring_height
+from rose_usd.geometry.mesh import faces_facing, self_intersects, submesh
+from rose_usd.geometry.texture import bake_texture, bilinear, transfer_colors
+from rose_usd.geometry.wrap import alpha_wrap
 from rose_usd.io.images import read_mask
+from rose_usd.layers.masks import INTERACTOR, read_masks
+from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
 from rose_usd.render.lighting import Lighting
 from rose_usd.scene.author import ScenePart, author_scene
-from rose_usd.segment.background import StaticBackground
-from rose_usd.segment.tracks import INTERACTOR
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths
-from rose_usd.usd.camera import read_camera
 from rose_usd.usd.geom import MeshData
 
 
 def _mask_files(ctx: StageContext, n: int) -> list[list[Path]]:
-    """Per frame, the mask PNGs of every object and the interactor (from layers/masks.usda)."""
-    folder = ctx.out_dir / "masks"
-    tracks = sorted(p for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+    """Per frame, the mask files of every object and the interactor (from the masks layer)."""
+    masks = read_masks(ctx.stage, n)
+    tracks = sorted(masks.names + ([INTERACTOR] if masks.has(INTERACTOR) else []))
     if not tracks:
-        raise InputError("no masks to exclude moving parts", path=folder, hint="run the segment stage")
-    return [[track / f"{t:06d}.png" for track in tracks] for t in range(n)]
+        raise InputError(
+            "no masks to exclude moving parts", path=ctx.stage.GetRootLayer().identifier, hint="run the segment stage"
+        )
+    return [[f for f in (masks.file(name, t) for name in tracks) if f is not None] for t in range(n)]
 
 
 def _read_frame_masks(files: list[Path], case) -> list[tuple[Path, np.ndarray]]:
@@ -185,7 +190,7 @@ def fuse_static(
     carved away."""
     case = ctx.case
     n = ctx.time_info.n_frames
-    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    cameras = read_cameras(ctx.stage, n)
     depth_of = metric_depth_reader(ctx.stage, case, cache=24)
     background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
     masks = _mask_files(ctx, n)
@@ -230,125 +235,6 @@ def fuse_static(
     return points, colors, normals, used, carved
 
 
-def alpha_wrap(points: np.ndarray, alpha_m: float, offset_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """CGAL 3D alpha wrap of a point set: (vertices, faces) of a closed 2-manifold."""
-    import trimesh
-    from CGAL import CGAL_Alpha_wrap_3 as aw
-    from CGAL.CGAL_Kernel import Point_3
-    from CGAL.CGAL_Polyhedron_3 import Polyhedron_3
-
-    pts = aw.Point_3_Vector()
-    pts.reserve(len(points))
-    for p in points.tolist():
-        pts.append(Point_3(*p))
-    out = Polyhedron_3()
-    aw.alpha_wrap_3(pts, float(alpha_m), float(offset_m), out)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = str(Path(tmp) / "wrap.off")
-        out.write_to_file(path)
-        mesh = trimesh.load(path, process=False, force="mesh")
-    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
-
-
-def self_intersects(vertices: np.ndarray, faces: np.ndarray) -> bool:
-    """CGAL's exact self-intersection test (the mesh goes to CGAL through an OFF file)."""
-    import trimesh
-    from CGAL import CGAL_Alpha_wrap_3  # noqa: F401  before PMP: once PMP is loaded first, SWIG no longer matches alpha_wrap_3's arguments (seen with cgal 6.0.1)
-    from CGAL import CGAL_Polygon_mesh_processing as pmp
-    from CGAL.CGAL_Polyhedron_3 import Polyhedron_3
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = str(Path(tmp) / "mesh.off")
-        trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(path)
-        poly = Polyhedron_3(path)
-    if poly.size_of_facets() != len(faces):
-        raise MeshError(
-            f"CGAL read {poly.size_of_facets()} of {len(faces)} triangles", hint="the mesh is not a valid polygon mesh"
-        )
-    return bool(pmp.does_self_intersect(poly))
-
-
-def transfer_colors(vertices: np.ndarray, points: np.ndarray, colors: np.ndarray, k: int = 3) -> np.ndarray:
-    """Distance-weighted mean color of the k nearest fused points (the paper's rule)."""
-    d, idx = cKDTree(points).query(vertices, k=k, workers=-1)
-    w = 1.0 / np.maximum(d, 1e-6)
-    return (colors[idx] * w[..., None]).sum(axis=1) / w.sum(axis=1, keepdims=True)
-
-
-def bake_texture(
-    vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, colors: np.ndarray, size: int, texel_colors=None
-):
-    """xatlas UVs and a texture whose every texel takes the 3-NN color of the fused points at its
-    3D position (sharper than interpolating vertex colors), or, with ``texel_colors`` (texel
-    positions (N, 3), normals (N, 3) -> linear colors (N, 3), seen (N,) bool), that color where
-    seen. Returns the seam-split mesh's (vertices, faces, uv, vertex colors) and the sRGB8
-    texture (size, size, 3)."""
-    import xatlas
-
-    vmap, new_faces, uv = xatlas.parametrize(vertices.astype(np.float32), faces.astype(np.uint32))
-    verts = vertices[vmap]
-    px = uv * (size - 1)
-    px[:, 1] = (size - 1) - px[:, 1]  # image rows grow downward, v upward
-    tri_id = np.full((size, size), -1, np.int32)
-    for i, tri in enumerate(np.round(px[new_faces] * 4).astype(np.int32)):
-        cv2.fillConvexPoly(tri_id, tri, i, lineType=cv2.LINE_8, shift=2)
-    tri_id = _dilate_ids(tri_id, 2)  # bleed past seams so filtering never reads the empty background
-    ys, xs = np.nonzero(tri_id >= 0)
-    f = new_faces[tri_id[ys, xs]]
-    a, b, c = px[f[:, 0]], px[f[:, 1]], px[f[:, 2]]
-    q = np.stack([xs, ys], axis=1).astype(float)
-    v0, v1, v2 = b - a, c - a, q - a
-    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-    den = np.where(np.abs(den) < 1e-12, 1e-12, den)
-    wb = np.clip((v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den, 0, 1)
-    wc = np.clip((v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den, 0, 1)
-    wa = np.clip(1.0 - wb - wc, 0, 1)
-    s = (wa + wb + wc)[:, None]
-    texel_xyz = (verts[f[:, 0]] * wa[:, None] + verts[f[:, 1]] * wb[:, None] + verts[f[:, 2]] * wc[:, None]) / s
-    texel_rgb, seen = np.zeros((len(texel_xyz), 3)), np.zeros(len(texel_xyz), bool)
-    if texel_colors is not None:
-        normals = np.cross(verts[f[:, 1]] - verts[f[:, 0]], verts[f[:, 2]] - verts[f[:, 0]])
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-        texel_rgb, seen = texel_colors(texel_xyz, normals)
-    if not seen.all():  # the 3-NN rule only where no frame saw the texel
-        texel_rgb[~seen] = transfer_colors(texel_xyz[~seen], points, colors)
-    tex = np.zeros((size, size, 3), np.uint8)
-    tex[ys, xs] = linear_to_srgb8(texel_rgb)
-    return verts, new_faces.astype(np.int64), uv.astype(float), transfer_colors(verts, points, colors), tex
-
-
-def faces_facing(vertices: np.ndarray, faces: np.ndarray, centers: np.ndarray) -> np.ndarray:
-    """Triangles (bool (F,)) whose front faces at least one of the camera ``centers`` (N, 3).
-    A closed mesh's other triangles are hidden from every one of them by the mesh itself."""
-    tri = vertices[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    centroid = tri.mean(axis=1)
-    out = np.zeros(len(faces), bool)
-    for c in centers:
-        out |= np.einsum("ij,ij->i", normal, c - centroid) > 0
-        if out.all():
-            break
-    return out
-
-
-def submesh(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The triangles ``keep`` (bool (F,)) with only the vertices they use, renumbered."""
-    kept = faces[keep]
-    used, inverse = np.unique(kept, return_inverse=True)
-    return vertices[used], inverse.reshape(kept.shape).astype(np.int64)
-
-
-def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``image`` (H, W, C) at continuous pixel coordinates (pixel centers at integers), clamped."""
-    h, w = image.shape[:2]
-    u, v = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
-    u0, v0 = np.minimum(u.astype(int), w - 2), np.minimum(v.astype(int), h - 2)
-    a, b = (u - u0)[:, None], (v - v0)[:, None]
-    return (image[v0, u0] * (1 - a) + image[v0, u0 + 1] * a) * (1 - b) + (
-        image[v0 + 1, u0] * (1 - a) + image[v0 + 1, u0 + 1] * a
-    ) * b
-
-
 class FrameColors:
     """Texel colors from the video itself: each texel is projected into ``count`` frames spread
     over the video and takes the median of its linear colors (bilinear) over the frames that see
@@ -369,7 +255,7 @@ class FrameColors:
         chunk: int = 400_000,
     ):
         case, n = ctx.case, ctx.time_info.n_frames
-        self.cameras = read_camera(ctx.stage, paths.CAMERA, n)
+        self.cameras = read_cameras(ctx.stage, n)
         self.depth_of = metric_depth_reader(ctx.stage, case, cache=4)
         self.frames = np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int)).tolist()
         background = StaticBackground(
@@ -402,7 +288,7 @@ class FrameColors:
                 if not ok.any():
                     continue
                 cam = se3.transform_points(se3.invert(pose), p[ok])
-                samples[k, ok] = _bilinear(
+                samples[k, ok] = bilinear(
                     self.rgb[t], K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
                 )
             got = ~np.isnan(samples[..., 0]).all(axis=0)
@@ -411,20 +297,6 @@ class FrameColors:
                 out[a : a + self.chunk][got] = np.nanmedian(samples[:, got], axis=0)
             seen[a : a + self.chunk] = got
         return out, seen
-
-
-def _dilate_ids(ids: np.ndarray, steps: int) -> np.ndarray:
-    for _ in range(steps):
-        empty = ids < 0
-        if not empty.any():
-            break
-        grown = ids.copy()
-        for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-            shifted = np.roll(ids, (dy, dx), axis=(0, 1))
-            take = empty & (grown < 0) & (shifted >= 0)
-            grown[take] = shifted[take]
-        ids = grown
-    return ids
 
 
 def fill_support_holes(
@@ -489,7 +361,7 @@ def support_pads(
     ctx: StageContext, *, margin_m: float, cell_m: float = 0.004, max_gap_m: float = 0.015, count: int = 8
 ) -> tuple[list[SupportPad], dict[str, str]]:
     """Where each object rests before the interactor first touches it, the support under it as a
-    flat pad at the height the object stage stands it on (``segment.contact.ring_height``).
+    flat pad at the height the object stage stands it on (``geometry.contact.ring_height``).
 
     The table under a resting object is never seen while it rests, and what is fused there from
     other frames is what the depth makes of it: with MegaSaM's, bumps and slopes of several
@@ -498,27 +370,27 @@ def support_pads(
     whose lowest seen points lie more than ``max_gap_m`` above the surface around it does not
     stand on it (held, or on another object) and gets no pad. Returns the pads and, per object
     without one, why."""
-    from rose_usd.segment.contact import first_contact, ring_height
-
     case, n = ctx.case, ctx.time_info.n_frames
-    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    cameras = read_cameras(ctx.stage, n)
     depth_of = metric_depth_reader(ctx.stage, case, cache=8)
+    layer = read_masks(ctx.stage, n)
+    hand_of = functools.partial(layer.mask, INTERACTOR) if layer.has(INTERACTOR) else (lambda t: None)
     pads, skipped = [], {}
     for spec in case.config.objects:
-        folder = ctx.out_dir / "masks" / spec.name
-        masks = [read_mask(folder / f"{t:06d}.png") if (folder / f"{t:06d}.png").is_file() else None for t in range(n)]
+        masks = layer.track(spec.name)
         area = np.array([0 if m is None else int(m.sum()) for m in masks])
         masks = [m if a >= 50 else None for m, a in zip(masks, area, strict=True)]
         if not np.any(area >= 50):
             skipped[spec.name] = "never visible"
             continue
-        touched = first_contact(masks, ctx.out_dir / "masks" / INTERACTOR, depth_of, n)
+        touched = first_contact(masks, hand_of, depth_of, n)
         clear = np.flatnonzero(area >= max(50, 0.5 * np.percentile(area[area >= 50], 90)))
         frames = [int(t) for t in clear if t < touched]
         if not frames:
             skipped[spec.name] = "touched before it is clearly seen"
             continue
-        height = ring_height(ctx, spec.name, [(t, 1.0) for t in frames], masks, depth_of, cameras, count=count)
+        occluders = functools.partial(layer.occluders, spec.name, grow_px=3)
+        height = ring_height(occluders, [(t, 1.0) for t in frames], masks, depth_of, cameras, count=count)
         seen = []
         for t in [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]:
             seen.append(
@@ -629,23 +501,11 @@ def flatten_pads(
     return out, moved
 
 
-def run(ctx: StageContext) -> None:
-    cfg = ctx.config
-    points, colors, normals, used, carved = fuse_static(
-        ctx,
-        voxel_m=cfg.voxel_m,
-        frame_stride=cfg.frame_stride,
-        margin_px=cfg.mask_margin_px,
-        depth_max_m=cfg.depth_max_m,
-        carve_m=cfg.carve_m,
-    )
-    pads, no_pad = support_pads(ctx, margin_m=cfg.pad_margin_m) if cfg.pad_margin_m > 0 else ([], {})
-    points, colors, normals, padded = lay_pads(points, colors, normals, pads)
-    filled = fill_support_holes(points)
-    if len(filled):  # colored by their nearest fused neighbors, like any other point
-        colors = np.concatenate([colors, transfer_colors(filled, points, colors)])
-        points = np.concatenate([points, filled])
-        normals = np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(filled), 1))])
+def wrap_collider(points: np.ndarray, normals: np.ndarray, pads: list[SupportPad], cfg):
+    """The collider: the fused surface moved ``offset_m`` into the material, solidified, alpha
+    wrapped (coarser until under ``max_triangles``), its top set flat over each pad, checked
+    watertight, 2-manifold and free of self-intersections. Returns (vertices, faces, the first
+    wrap's triangle count, the alpha used, vertices flattened onto pads)."""
     # the wrap lies offset_m outside what it wraps: it wraps the surface moved offset_m into the
     # material, so that its outside lands on the fused surface (a resting object is not lifted)
     inset = points - cfg.offset_m * normals
@@ -664,18 +524,40 @@ def run(ctx: StageContext) -> None:
     )
     problems = collider_problems(vertices, faces)
     if problems:
-        raise MeshError(f"the wrapped scene mesh is {', '.join(problems)}", hint="try a larger scene.alpha_m")
+        raise MeshError(f"the wrapped scene mesh is {', '.join(problems)}", hint="try a larger scene.tsdf.alpha_m")
     if self_intersects(vertices, faces):
-        raise MeshError("the wrapped scene mesh intersects itself", hint="try a larger scene.alpha_m or max_triangles")
+        raise MeshError(
+            "the wrapped scene mesh intersects itself",
+            hint="try a larger scene.tsdf.alpha_m or scene.tsdf.max_triangles",
+        )
+    return vertices, faces, first_triangles, alpha, flattened
+
+
+def run(ctx: StageContext) -> None:
+    cfg = ctx.config.tsdf
+    points, colors, normals, used, carved = fuse_static(
+        ctx,
+        voxel_m=cfg.voxel_m,
+        frame_stride=cfg.frame_stride,
+        margin_px=cfg.mask_margin_px,
+        depth_max_m=cfg.depth_max_m,
+        carve_m=cfg.carve_m,
+    )
+    pads, no_pad = support_pads(ctx, margin_m=cfg.pad_margin_m) if cfg.pad_margin_m > 0 else ([], {})
+    points, colors, normals, padded = lay_pads(points, colors, normals, pads)
+    filled = fill_support_holes(points)
+    if len(filled):  # colored by their nearest fused neighbors, like any other point
+        colors = np.concatenate([colors, transfer_colors(filled, points, colors)])
+        points = np.concatenate([points, filled])
+        normals = np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(filled), 1))])
+    vertices, faces, first_triangles, alpha, flattened = wrap_collider(points, normals, pads, cfg)
     frame_colors = (
         FrameColors(ctx, count=cfg.texture_frames, margin_px=cfg.mask_margin_px) if cfg.texture_frames > 0 else None
     )
     # only the triangles that face one of the video's cameras take texels: the slab's underside
     # and the wrap's far sides (about a third of its area) are never seen, and textured with the
     # rest they would take texture from the seen surface and make the packing vary between runs
-    facing = faces_facing(
-        vertices, faces, read_camera(ctx.stage, paths.CAMERA, ctx.time_info.n_frames).world_from_cv[:, :3, 3]
-    )
+    facing = faces_facing(vertices, faces, read_cameras(ctx.stage, ctx.time_info.n_frames).world_from_cv[:, :3, 3])
     seen_v, seen_f = submesh(vertices, faces, facing)
     tv, tf, uv, tcols, tex = bake_texture(seen_v, seen_f, points, colors, cfg.texture_size, frame_colors)
     with tempfile.TemporaryDirectory() as tmp:
@@ -695,7 +577,7 @@ def run(ctx: StageContext) -> None:
                 )
             )
         collision = MeshData(vertices=vertices, faces=faces)
-        author_scene(ctx, parts, collision, Lighting.unlit())
+        author_scene(ctx, parts, collision, Lighting.unlit(), support={p.name: p.height_m for p in pads})
     ctx.record(
         fused_frames=used,
         fused_points=int(len(points)),

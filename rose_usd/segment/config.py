@@ -1,7 +1,9 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+from rose_usd.case.config import ObjectPrompt, parse_object_prompts
 
 
 class SegmentBackend(enum.Enum):
@@ -12,24 +14,56 @@ class SegmentBackend(enum.Enum):
     ORACLE = "oracle"  # ground-truth masks from gt/masks (benchmark cases)
 
 
+def parse_sam2_ids(value) -> tuple[tuple[str, int], ...]:
+    """SAM 2 object ids from "Name=id,Name=id" or a table {Name = id}."""
+    if isinstance(value, str):
+        pairs = [item.partition("=")[::2] for item in value.split(",") if item.strip()]
+    elif isinstance(value, dict):
+        pairs = list(value.items())
+    else:
+        pairs = [tuple(p) for p in value]
+    out = []
+    for name, ident in pairs:
+        text = str(ident).strip()
+        if not str(name).strip() or isinstance(ident, bool) or not text.isdigit():
+            raise ValueError(f"{name}={ident} is not Name=id with a whole id")
+        out.append((str(name).strip(), int(text)))
+    return tuple(out)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FlowConfig:
+    """Settings of the flow backend."""
+
+    max_side_px: int = 640
+    """Frames are processed at this long side [px] (default 640)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sam2Config:
+    """Settings of the sam2 backend."""
+
+    ids: tuple[tuple[str, int], ...] = field(default=(), metadata={"parse": parse_sam2_ids})
+    """Object ids as "Name=id,Name=id" (default: the objects of rose.toml in order, ids 1, 2, ...)."""
+    interactor_id: int = 0
+    """The id SAM 2 gave the hand, 0 if it was not prompted (the interactor is then the static-world residual)."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class SegmentConfig:
     backend: SegmentBackend = SegmentBackend.AUTO
     """Which backend segments the object(s) and the interactor (default auto)."""
-    prompts: str = ""
+    prompts: tuple[ObjectPrompt, ...] = field(default=(), metadata={"parse": parse_object_prompts})
     """classical, flow: prompts overriding rose.toml's, ";"-separated "Name=frame:x0,y0,x1,y1" (a box)
     or "Name=frame:x,y" (a point) [px]; "Name=" may be left out when there is one object (default:
     rose.toml's)."""
     min_height_m: float = 0.004
-    """classical: a pixel stands on the support when its point is this high above it [m] (default 0.004)."""
+    """classical, sam2 (its interactor): a pixel stands on the support when its point is this high
+    above it [m] (default 0.004)."""
     core_m: float = 0.015
     """classical: pixels this close to the object's previous points seed its next mask [m] (default 0.015)."""
     foreground_m: float = 0.015
     """classical: the interactor is nearer than the static world by more than this (+1 % of depth) [m]
     (default 0.015)."""
-    flow_max_side_px: int = 640
-    """flow: frames are processed at this long side [px] (default 640)."""
-    sam2_ids: str = ""
-    """sam2: object ids as "Name=id,Name=id" (default: the objects of rose.toml in order, ids 1, 2, ...)."""
-    sam2_interactor_id: int = 0
-    """sam2: the id SAM 2 gave the hand, 0 if it was not prompted (the interactor is then the static-world residual)."""
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    sam2: Sam2Config = field(default_factory=Sam2Config)

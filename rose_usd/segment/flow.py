@@ -1,7 +1,7 @@
 """The ``flow`` segment backend: object masks in 2D, for videos without depth (RGB only).
 
 No learned model and no capture stage: it needs a prompt box (or point) per object, and works at
-a working resolution whose long side is at most ``flow_max_side_px``.
+a working resolution whose long side is at most ``segment.flow.max_side_px``.
 
 1. **Start.** GrabCut inside the prompt box gives the object; its color model is learned against
    the ring of pixels around the box. Regions elsewhere in the prompt frame that the object's
@@ -31,7 +31,8 @@ import numpy as np
 
 from rose_usd.errors import InputError
 from rose_usd.progress import progress
-from rose_usd.segment.classical import check_prompts, color_index, components, fill_holes, histogram, parse_prompts
+from rose_usd.segment.prompts import check_prompts, parse_prompts
+from rose_usd.segment.segmenter import color_index, components, fill_holes, histogram
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
@@ -276,7 +277,11 @@ def segment_video(
     """Masks of each prompted object and of the interactor over ``n`` frames (working resolution).
 
     ``prompts``: (name, frame, box, point) with box/point in working-resolution pixels. Returns
-    ({name: [mask per frame]}, [interactor mask per frame], {name: visible fraction per frame})."""
+    ({name: [mask per frame]}, [interactor mask per frame], {name: visible fraction per frame}).
+
+    GrabCut's color models start from OpenCV's random generator (per thread, shared with anything
+    else that ran before): it is reset here, so the masks depend on the video alone."""
+    cv2.setRNGSeed(0)  # the generator's initial state (0 selects OpenCV's default seed)
     tracker = FlowTracker(frame_of, size)
     starts = []
     for name, t, box, point in prompts:
@@ -336,7 +341,7 @@ def run(ctx: StageContext) -> None:
             hint="add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml, "
             "or pass --prompt NAME=FRAME:x0,y0,x1,y1",
         )
-    w, h, s = _work_size(case.width, case.height, cfg.flow_max_side_px)
+    w, h, s = _work_size(case.width, case.height, cfg.flow.max_side_px)
 
     @functools.lru_cache(maxsize=64)
     def frame_of(t: int) -> np.ndarray:

@@ -1,7 +1,7 @@
 """The sam2 segment backend: import SAM 2's video masks (formats.md) from ``perception/masks``.
 
-Object ids map to rose.toml's objects by ``sam2_ids`` ("Name=id,..."), by default in order
-(1, 2, ...). The hand is SAM 2's ``sam2_interactor_id`` when it was prompted; otherwise the
+Object ids map to rose.toml's objects by ``segment.sam2.ids`` ("Name=id,..."), by default in order
+(1, 2, ...). The hand is SAM 2's ``segment.sam2.interactor_id`` when it was prompted; otherwise the
 interactor is what stands in front of the static world (as in the classical backend).
 """
 
@@ -9,34 +9,30 @@ from __future__ import annotations
 
 import numpy as np
 
-from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.errors import ConfigError, InputError
+from rose_usd.geometry.background import StaticBackground
 from rose_usd.io.sam2 import read_masks, read_object_mask
-from rose_usd.segment.background import StaticBackground
-from rose_usd.segment.classical import Segmenter, _interactor
+from rose_usd.layers.world import metric_depth_reader, read_cameras
+from rose_usd.segment.segmenter import Segmenter, interactor_mask
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths
-from rose_usd.usd.camera import read_camera
 
 
-def object_ids(spec: str, names: list[str]) -> dict[str, int]:
-    if not spec.strip():
+def object_ids(given: tuple[tuple[str, int], ...], names: list[str]) -> dict[str, int]:
+    """Object name -> SAM 2 id: ``segment.sam2.ids``, by default the objects in order, 1, 2, ..."""
+    if not given:
         return {name: i for i, name in enumerate(names, start=1)}
-    ids = {}
-    for item in spec.split(","):
-        name, _, value = item.partition("=")
-        name = name.strip()
-        if name not in names or not value.strip().isdigit():
-            raise ConfigError(
-                f"segment.sam2_ids item {item!r} is not Name=id for an object of rose.toml",
-                hint=f"objects: {', '.join(names)}",
-            )
-        ids[name] = int(value)
+    ids = dict(given)
+    unknown = [n for n in ids if n not in names]
+    if unknown:
+        raise ConfigError(
+            f"segment.sam2.ids names {', '.join(unknown)}, not an object of rose.toml",
+            hint=f"objects: {', '.join(names)}",
+        )
     missing = [n for n in names if n not in ids]
     if missing:
         raise ConfigError(
-            f"segment.sam2_ids names no id for {', '.join(missing)}", hint="give every object of rose.toml an id"
+            f"segment.sam2.ids names no id for {', '.join(missing)}", hint="give every object of rose.toml an id"
         )
     return ids
 
@@ -54,8 +50,8 @@ def run(ctx: StageContext) -> None:
             hint="run SAM 2 on this video's frames",
         )
     names = [o.name for o in case.config.objects]
-    ids = object_ids(ctx.config.sam2_ids, names)
-    hand_id = int(ctx.config.sam2_interactor_id)
+    ids = object_ids(ctx.config.sam2.ids, names)
+    hand_id = ctx.config.sam2.interactor_id
 
     def mask_of(t: int, obj_id: int) -> np.ndarray:
         entries = frames.get(t)
@@ -85,7 +81,7 @@ def run(ctx: StageContext) -> None:
         hands = [mask_of(t, hand_id) for t in range(n)]
         interactor_source = "sam2"
     else:
-        cameras = read_camera(ctx.stage, paths.CAMERA, n)
+        cameras = read_cameras(ctx.stage, n)
         depth_of = metric_depth_reader(ctx.stage, case, cache=24)
         seg = Segmenter(
             case.rgb,
@@ -94,7 +90,7 @@ def run(ctx: StageContext) -> None:
             ctx.config,
             StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height),
         )
-        hands = [_interactor(seg, t, [obj_masks[name][t] for name in names]) for t in range(n)]
+        hands = [interactor_mask(seg, t, [obj_masks[name][t] for name in names]) for t in range(n)]
         interactor_source = "static-world residual"
     tracks = [MaskTrack(name, iter(obj_masks[name])) for name in names] + [MaskTrack(INTERACTOR, iter(hands))]
     author_and_check(
@@ -103,7 +99,7 @@ def run(ctx: StageContext) -> None:
         lambda name: InputError(
             f"object {name!r} (SAM 2 id {ids[name]}) is in no mask",
             path=folder,
-            hint="check segment.sam2_ids against the ids SAM 2 used",
+            hint="check segment.sam2.ids against the ids SAM 2 used",
         ),
         object_ids=ids,
         interactor=interactor_source,

@@ -10,11 +10,10 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
 from rose_usd.io.images import write_mask
+from rose_usd.layers.masks import INTERACTOR  # noqa: F401  (segment backends import it from here)
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths, schema
+from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import relative_asset
-
-INTERACTOR = "Interactor"
 
 
 @dataclass(frozen=True)
@@ -45,11 +44,11 @@ def author_tracks(ctx: StageContext, tracks: list[MaskTrack]) -> dict[str, np.nd
         prim_path = paths.INTERACTOR_MASK if is_interactor else paths.object_mask(track.name)
         prim = UsdGeom.Scope.Define(stage, prim_path).GetPrim()
         prim.ApplyAPI(schema.MASK_API)
-        prim.GetAttribute("rose:masks:role").Set("interactor" if is_interactor else "object")
-        prim.GetAttribute("rose:masks:objectName").Set("" if is_interactor else track.name)
-        file_attr = prim.GetAttribute("rose:masks:file")
-        count_attr = prim.GetAttribute("rose:masks:visiblePixels")
-        conf_attr = prim.GetAttribute("rose:masks:confidence")
+        prim.GetAttribute(tokens.MASKS_ROLE).Set("interactor" if is_interactor else "object")
+        prim.GetAttribute(tokens.MASKS_OBJECT_NAME).Set("" if is_interactor else track.name)
+        file_attr = prim.GetAttribute(tokens.MASKS_FILE)
+        count_attr = prim.GetAttribute(tokens.MASKS_VISIBLE_PIXELS)
+        conf_attr = prim.GetAttribute(tokens.MASKS_CONFIDENCE)
         conf = np.ones(n) if track.confidence is None else np.asarray(track.confidence, dtype=float)
         visible = np.zeros(n, dtype=np.int64)
         t = -1

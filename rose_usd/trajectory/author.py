@@ -7,10 +7,12 @@ from __future__ import annotations
 import numpy as np
 from pxr import Usd, UsdGeom
 
+from rose_usd.core import se3
 from rose_usd.errors import StageError
 from rose_usd.io.tum import write_tum
+from rose_usd.layers.objects import default_pose
 from rose_usd.stage_api import StageContext
-from rose_usd.usd import paths, schema
+from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.physics import set_pose_ops
 
 
@@ -30,10 +32,10 @@ def author_trajectory(
     for t in range(n):
         set_pose_ops(xform, world_from_object[t], Usd.TimeCode(t))
     prim.ApplyAPI(schema.TRAJECTORY_API)
-    conf = prim.GetAttribute("rose:trajectory:confidence")
+    conf = prim.GetAttribute(tokens.TRAJECTORY_CONFIDENCE)
     for t in range(n):
         conf.Set(float(confidence[t]), Usd.TimeCode(t))
-    prim.GetAttribute("rose:trajectory:source").Set(source)
+    prim.GetAttribute(tokens.TRAJECTORY_SOURCE).Set(source)
     write_tum(
         ctx.side_dir("trajectory") / f"{name}.tum",
         np.arange(n) / ctx.time_info.fps,
@@ -49,11 +51,24 @@ def from_default_pose(ctx: StageContext, name: str, world_from_object: np.ndarra
     object side, W_t (W_0^-1 D): the two may disagree on the object frame (a can's yaw is
     arbitrary), and a world-side correction D W_0^-1 would turn the whole path about the world
     origin by that disagreement."""
-    prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
-    if not prim:
-        raise StageError(
-            f"object {name!r} has no prim in the stage", hint="run the object stage first (rose-usd run object ...)"
-        )
-    default = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T
+    default = default_pose(ctx.stage, name)
     offset = np.linalg.inv(world_from_object[0]) @ default
     return np.einsum("nij,jk->nik", world_from_object, offset)
+
+
+def fill_gaps(poses: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (N, 4, 4) with the missing ones interpolated (SE(3) slerp between the nearest present
+    frames) or held at the ends; and the confidence per frame (1 read, 0.5 interpolated, 0 held)."""
+    have = np.flatnonzero(present)
+    out = poses.copy()
+    confidence = np.where(present, 1.0, 0.0)
+    for t in np.flatnonzero(~present):
+        after = have[have > t]
+        before = have[have < t]
+        if len(before) and len(after):
+            a, b = before[-1], after[0]
+            out[t] = se3.slerp_poses(poses[a], poses[b], (t - a) / (b - a))
+            confidence[t] = 0.5
+        else:
+            out[t] = poses[before[-1] if len(before) else after[0]]
+    return out, confidence

@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 class TrajectoryBackend(enum.Enum):
@@ -12,29 +12,36 @@ class TrajectoryBackend(enum.Enum):
 
 
 @dataclass(frozen=True, kw_only=True)
-class TrajectoryConfig:
-    backend: TrajectoryBackend = TrajectoryBackend.AUTO
-    """Which backend tracks the object(s) (default auto)."""
+class TrackerConfig:
+    """Settings of the tracker backend."""
+
     model_points: int = 3000
-    """tracker: points sampled on the object mesh to register against (default 3000)."""
+    """Points sampled on the object mesh to register against (default 3000)."""
     max_points: int = 1500
-    """tracker: at most this many masked depth points per frame (default 1500)."""
+    """At most this many masked depth points per frame (default 1500)."""
     erode_px: int = 2
-    """tracker: the object's mask is eroded by this many pixels (mixed depth at its border) [px] (default 2)."""
+    """The object's mask is eroded by this many pixels (mixed depth at its border) [px] (default 2)."""
     min_points: int = 60
-    """tracker: a frame with fewer masked depth points is lost (default 60)."""
+    """A frame with fewer masked depth points is lost (default 60)."""
     min_fitness: float = 0.3
-    """tracker: a fit with fewer observed points within 5 mm of the mesh is lost [-] (default 0.3)."""
+    """A fit with fewer observed points within 5 mm of the mesh is lost [-] (default 0.3)."""
     prior_weight: float = 0.001
-    """tracker: pull toward the constant-velocity prediction, a fraction of the depth's mean stiffness
+    """Pull toward the constant-velocity prediction, a fraction of the depth's mean stiffness
     (trace of the ICP Hessian / 6) [-] (default 0.001)."""
     smooth_window: int = 5
-    """tracker: frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""
+    """Frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""
     release_frames: int = 10
-    """tracker: an object may move for this many frames after the interactor last touched it (it
+    """An object may move for this many frames after the interactor last touched it (it
     settles) (default 10)."""
     slide_span_m: float = 0.0
-    """tracker: where depth leaves a direction free (a can seen only by its wall), slide the pose
+    """Where depth leaves a direction free (a can seen only by its wall), slide the pose
     along it up to this far to where fitness plus silhouette IoU is best; 0 turns it off [m]
     (default 0: it rarely changes the pose by more than a fraction of a millimetre and can cost
     twice the tracking time; try 0.03)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrajectoryConfig:
+    backend: TrajectoryBackend = TrajectoryBackend.AUTO
+    """Which backend tracks the object(s) (default auto)."""
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)

@@ -18,31 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.io import foundationpose
+from rose_usd.layers.world import read_cameras
 from rose_usd.stage_api import StageContext
-from rose_usd.trajectory.author import author_trajectory, from_default_pose
-from rose_usd.usd import paths
-from rose_usd.usd.camera import read_camera
-
-
-def fill_gaps(poses: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Poses (N, 4, 4) with the missing ones interpolated (SE(3) slerp between the nearest present
-    frames) or held at the ends; and the confidence per frame (1 read, 0.5 interpolated, 0 held)."""
-    have = np.flatnonzero(present)
-    out = poses.copy()
-    confidence = np.where(present, 1.0, 0.0)
-    for t in np.flatnonzero(~present):
-        after = have[have > t]
-        before = have[have < t]
-        if len(before) and len(after):
-            a, b = before[-1], after[0]
-            out[t] = se3.slerp_poses(poses[a], poses[b], (t - a) / (b - a))
-            confidence[t] = 0.5
-        else:
-            out[t] = poses[before[-1] if len(before) else after[0]]
-    return out, confidence
+from rose_usd.trajectory.author import author_trajectory, fill_gaps, from_default_pose
 
 
 def _gaps(missing: np.ndarray) -> str:
@@ -60,7 +40,7 @@ def _gaps(missing: np.ndarray) -> str:
 
 def run(ctx: StageContext) -> None:
     case, n = ctx.case, ctx.time_info.n_frames
-    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    cameras = read_cameras(ctx.stage, n)
     specs = case.config.objects
     frame_ids = [case.frame_name(t) for t in range(n)]
     tracks = {}

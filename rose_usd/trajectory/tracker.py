@@ -29,7 +29,7 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    fitness and silhouette IoU against the mask. Frames lost between two tracked ones are then
    interpolated on SE(3) (confidence 0.5); lost at the end they hold (confidence 0).
 5. **Rest.** Objects move only when touched: while the interactor's mask has not come near the
-   object's (``segment.contact.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames
+   object's (``geometry.contact.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames
    and the last pose still fits the depth, the pose holds. When it first holds after a touch, the
    pose is moved along gravity to where fitness plus silhouette IoU is best
    (``settle_along_gravity``): a can's wall fits its depth at any height, and a hand on its top
@@ -42,6 +42,7 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -51,20 +52,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from rose_usd.capture.depth import metric_depth_reader
 from rose_usd.core import se3
 from rose_usd.core.pinhole import backproject, silhouette
 from rose_usd.core.watertight import is_closed
-from rose_usd.errors import InputError, StageError
-from rose_usd.io.images import read_mask
+from rose_usd.errors import InputError
+from rose_usd.geometry.contact import touches
+from rose_usd.layers.masks import INTERACTOR, read_masks
+from rose_usd.layers.objects import default_pose, visual_mesh
+from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
-from rose_usd.segment.tracks import INTERACTOR
 from rose_usd.stage_api import StageContext
-from rose_usd.trajectory.author import author_trajectory, from_default_pose
-from rose_usd.trajectory.foundationpose import fill_gaps
-from rose_usd.usd import paths
-from rose_usd.usd.camera import read_camera
-from rose_usd.usd.geom import read_mesh
+from rose_usd.trajectory.author import author_trajectory, fill_gaps, from_default_pose
 
 SCHEDULE = ((0.03, 6), (0.015, 6), (0.008, 8))
 """(correspondence radius [m], Gauss-Newton iterations) of each ICP level."""
@@ -327,17 +325,21 @@ def settle_along_gravity(
 
 def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tuple[np.ndarray, np.ndarray, dict]:
     """Motions D_t (N, 4, 4), confidence (N,) and facts of object ``name``."""
-    cfg, n = ctx.config, ctx.time_info.n_frames
-    folder = ctx.out_dir / "masks" / name
-    if not folder.is_dir():
-        raise InputError(f"no masks of object {name!r}", path=folder, hint="run the segment stage")
-    from rose_usd.segment.contact import occluders, touches
+    cfg, n = ctx.config.tracker, ctx.time_info.n_frames
+    shape = (ctx.case.height, ctx.case.width)
+    layer = read_masks(ctx.stage, n, shape)
+    if not layer.has(name):
+        raise InputError(
+            f"no masks of object {name!r}", path=ctx.stage.GetRootLayer().identifier, hint="run the segment stage"
+        )
+    has_hand = layer.has(INTERACTOR)
 
-    hands = ctx.out_dir / "masks" / INTERACTOR
+    def occluders(t: int) -> np.ndarray:
+        return layer.occluders(name, t, shape, grow_px=2)
 
     def silhouette_score(t: int, mask: np.ndarray):
         """Fitness plus silhouette IoU at frame t, the hand and other objects left out (read once)."""
-        ignore = occluders(ctx, name, t, mask.shape, grow_px=2)
+        ignore = occluders(t)
         return lambda f: (
             f.fitness + silhouette_iou(model, f.motion, mask, ignore, cameras.world_from_cv[t], cameras.K[t])
         )
@@ -345,16 +347,11 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
     motions, tracked, fitness = [np.eye(4)], np.zeros(n, bool), np.zeros(n)
     lost_since, reacquired, iou0, last_touch, moved_untouched, settled, slid = None, 0, float("nan"), -n, 0, 0, 0
     for t in progress(range(n), f"trajectory {name}: tracking", total=n):
-        mask = read_mask(folder / f"{t:06d}.png")
-        if mask.shape != (ctx.case.height, ctx.case.width):
-            raise InputError(
-                f"mask is {mask.shape[1]}x{mask.shape[0]}, frames are {ctx.case.width}x{ctx.case.height}",
-                path=folder / f"{t:06d}.png",
-                hint="re-run the segment stage",
-            )
+        mask = layer.mask(name, t)
+        mask = np.zeros(shape, bool) if mask is None else mask
         cam, K, depth = cameras.world_from_cv[t], cameras.K[t], depth_of(t)
-        hand = hands / f"{t:06d}.png"
-        if not hands.is_dir() or (hand.is_file() and mask.any() and touches(read_mask(hand), mask, depth)):
+        hand = layer.mask(INTERACTOR, t) if has_hand and mask.any() else None
+        if not has_hand or (hand is not None and touches(hand, mask, depth)):
             last_touch = t
         observed = (
             _observed(depth, mask, K, cam, cfg.erode_px, cfg.max_points)
@@ -379,24 +376,11 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
             fit = _reacquire(model, observed, cam[:3, 3], prev, silhouette_score(t, mask))
             reacquired += 1
         else:
-            start = _predict(motions) if t else np.eye(4)
-            fit = register(model, observed, cam[:3, 3], start, prior_weight=cfg.prior_weight)
-            axis = weak_axis(model, observed, fit.motion, cam[:3, 3]) if t and cfg.slide_span_m > 0 else None
-            if axis is not None:  # depth leaves a direction free: the silhouette decides (step 3)
-                registered = fit
-                fit = slide(
-                    model,
-                    observed,
-                    fit,
-                    axis,
-                    silhouette_score(t, mask),
-                    span_m=cfg.slide_span_m,
-                    step_m=0.004,
-                    margin=0.005,
-                )
-                slid += fit is not registered
+            score = functools.partial(silhouette_score, t, mask)
+            fit, moved = _registered(model, observed, cam[:3, 3], motions, t, cfg, score)
+            slid += moved
         if t == 0:
-            iou0 = silhouette_iou(model, fit.motion, mask, occluders(ctx, name, 0, mask.shape, grow_px=2), cam, K)
+            iou0 = silhouette_iou(model, fit.motion, mask, occluders(0), cam, K)
         if fit.fitness < cfg.min_fitness:
             motions.append(prev) if t else None
             lost_since = t if lost_since is None else lost_since
@@ -409,11 +393,18 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
         else:
             motions[0] = fit.motion
         tracked[t], fitness[t] = True, fit.fitness
-    motions = np.stack(motions)
+    counts = {"reacquired": reacquired, "moved_untouched": moved_untouched}
+    counts |= {"settled_along_gravity": settled, "slid_along_weak_axis": slid}
+    return _finish(name, np.stack(motions), tracked, fitness, cfg, counts, iou0, layer.where(name))
+
+
+def _finish(name: str, motions, tracked, fitness, cfg, counts: dict, iou0: float, where):
+    """Smoothed motions with the lost frames filled, confidence per frame, and the facts."""
+    n = len(tracked)
     if not tracked.any():
         raise InputError(
             f"object {name!r} was never tracked: no frame has {cfg.min_points} masked depth points fitting its mesh",
-            path=folder,
+            path=where,
             hint="check its masks (segment stage) and the object mesh",
         )
     motions = smooth(motions, tracked, cfg.smooth_window)
@@ -422,30 +413,34 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
     facts = {
         "frames_tracked": int(tracked.sum()),
         "frames_lost": int(n - tracked.sum()),
-        "reacquired": reacquired,
-        "moved_untouched": moved_untouched,
-        "settled_along_gravity": settled,
-        "slid_along_weak_axis": slid,
+        **counts,
         "fitness_mean": round(float(fitness[tracked].mean()), 3),
         "silhouette_iou_frame0": round(iou0, 3),
     }
     return filled, confidence, facts
 
 
+def _registered(model: Model, observed: np.ndarray, cam_pos: np.ndarray, motions: list, t: int, cfg, score):
+    """Registration from the damped constant-velocity prediction; where depth leaves a direction
+    free, slid along it to where ``score()`` (fitness plus silhouette IoU) is best (module step 3).
+    Returns the fit and whether the slide moved it."""
+    start = _predict(motions) if t else np.eye(4)
+    fit = register(model, observed, cam_pos, start, prior_weight=cfg.prior_weight)
+    axis = weak_axis(model, observed, fit.motion, cam_pos) if t and cfg.slide_span_m > 0 else None
+    if axis is None:
+        return fit, False
+    slid = slide(model, observed, fit, axis, score(), span_m=cfg.slide_span_m, step_m=0.004, margin=0.005)
+    return slid, slid is not fit
+
+
 def run(ctx: StageContext) -> None:
     n = ctx.time_info.n_frames
-    cameras = read_camera(ctx.stage, paths.CAMERA, n)
+    cameras = read_cameras(ctx.stage, n)
     depth_of = metric_depth_reader(ctx.stage, ctx.case, cache=4)
     results, facts = {}, {}
     for spec in ctx.case.config.objects:  # every object tracked before anything is written
-        prim = ctx.stage.GetPrimAtPath(paths.object_visual(spec.name))
-        if not prim:
-            raise StageError(
-                f"object {spec.name!r} has no visual mesh in the stage",
-                hint="run the object stage first (rose-usd run object ...)",
-            )
-        mesh = read_mesh(prim)  # world coordinates at the default (frame-0) pose
-        model = Model.from_mesh(mesh.vertices, mesh.faces, ctx.config.model_points)
+        mesh = visual_mesh(ctx.stage, spec.name)  # world coordinates at the default (frame-0) pose
+        model = Model.from_mesh(mesh.vertices, mesh.faces, ctx.config.tracker.model_points)
         start = time.perf_counter()
         motions, confidence, fact = track(ctx, spec.name, model, cameras, depth_of)
         fact["frames_per_s"] = round(n / (time.perf_counter() - start), 1)
@@ -455,16 +450,9 @@ def run(ctx: StageContext) -> None:
                 f"object {spec.name!r}: lost in {lost} of {n} frames (too few masked depth points, or no fit): "
                 "interpolated between tracked frames (confidence 0.5) or held at the ends (0)"
             )
-        world0 = _default_pose(ctx, spec.name)
+        world0 = default_pose(ctx.stage, spec.name)
         results[spec.name] = (np.einsum("nij,jk->nik", motions, world0), confidence)
         facts[spec.name] = fact
     for name, (poses, confidence) in results.items():
         author_trajectory(ctx, name, from_default_pose(ctx, name, poses), confidence, "tracker")
     ctx.record(objects=facts)
-
-
-def _default_pose(ctx: StageContext, name: str) -> np.ndarray:
-    from pxr import Usd, UsdGeom
-
-    prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
-    return np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T

@@ -14,7 +14,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom
 
 from rose_usd.errors import InputError, StageError
-from rose_usd.usd import schema
+from rose_usd.usd import schema, tokens
 
 # Camera-axis change between OpenCV and USD: x stays, y and z flip. Its own inverse.
 _CV_USD_AXES = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -156,7 +156,7 @@ def author_camera(
     }
     prim = cam.GetPrim()
     prim.ApplyAPI(schema.CAMERA_API)
-    k_attr = prim.GetAttribute("rose:camera:K")
+    k_attr = prim.GetAttribute(tokens.CAMERA_K)
     for t in range(n) if varying else [None]:
         intr = intrinsics_to_usd(Ks[t or 0], width, height)
         code = Usd.TimeCode.Default() if t is None else Usd.TimeCode(t)
@@ -165,8 +165,8 @@ def author_camera(
         k_attr.Set(Gf.Matrix3d(Ks[t or 0].tolist()), code)
     cam.CreateClippingRangeAttr(Gf.Vec2f(*clipping_range_m))
     cam.CreateProjectionAttr(UsdGeom.Tokens.perspective)
-    prim.GetAttribute("rose:camera:resolution").Set(Gf.Vec2i(int(width), int(height)))
-    prim.GetAttribute("rose:camera:intrinsicsSource").Set(intrinsics_source)
+    prim.GetAttribute(tokens.CAMERA_RESOLUTION).Set(Gf.Vec2i(int(width), int(height)))
+    prim.GetAttribute(tokens.CAMERA_INTRINSICS_SOURCE).Set(intrinsics_source)
     return cam
 
 
@@ -188,10 +188,10 @@ def read_camera(stage: Usd.Stage, path: Sdf.Path, n_frames: int) -> CameraTrack:
     if not prim or not prim.IsA(UsdGeom.Camera):
         raise StageError(f"no camera at {path}", path=stage.GetRootLayer().identifier, hint="run the capture stage")
     cam = UsdGeom.Camera(prim)
-    width, height = (int(v) for v in prim.GetAttribute("rose:camera:resolution").Get())
+    width, height = (int(v) for v in prim.GetAttribute(tokens.CAMERA_RESOLUTION).Get())
     poses = np.empty((n_frames, 4, 4))
     Ks = np.empty((n_frames, 3, 3))
-    k_attr = prim.GetAttribute("rose:camera:K")
+    k_attr = prim.GetAttribute(tokens.CAMERA_K)
     for t in range(n_frames):
         code = Usd.TimeCode(t)
         poses[t] = np_pose(cam.ComputeLocalToWorldTransform(code))

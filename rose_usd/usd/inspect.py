@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdPhysics, UsdShade
 
-from rose_usd.usd import paths
+from rose_usd.usd import paths, tokens
 from rose_usd.usd import stage as stage_mod
 from rose_usd.usd.geom import read_mesh
 
@@ -255,76 +255,89 @@ def to_text(data: dict[str, Any]) -> str:
             lines.append(f"      warning: {warning}")
     lines.append("prims:")
     for path, p in data["prims"].items():
-        depth = path.count("/") - 1
-        tag = p["type"] or "(over)"
-        extra = []
-        if "apiSchemas" in p:
-            extra.append("[" + ", ".join(p["apiSchemas"]) + "]")
-        if "purpose" in p:
-            extra.append(f"purpose={p['purpose']}")
-        lines.append(f"  {'  ' * depth}{path.rsplit('/', 1)[-1]} <{tag}> {' '.join(extra)}".rstrip())
-        pad = "  " * depth + "      "
-        if "mesh" in p:
-            m = p["mesh"]
-            vol = f", volume {m['volume_m3'] * 1e6:.1f} cm^3" if m.get("volume_m3") else ""
-            lines.append(
-                f"{pad}mesh: {m['points']} points, {m['triangles']} triangles, "
-                f"{'watertight' if m['watertight'] else 'NOT watertight'}{vol}, color {m['color']}"
-            )
-        if "physics" in p:
-            ph = p["physics"]
-            if "mass_kg" in ph:
-                lines.append(
-                    f"{pad}mass {ph['mass_kg']:.4g} kg, "
-                    f"inertia {np.round(ph.get('diagonal_inertia', []), 8).tolist()} kg m^2, "
-                    f"CoM {np.round(ph.get('center_of_mass_m', []), 4).tolist()} m"
-                )
-            if "approximation" in ph:
-                mat = ph.get("material")
-                fr = f", friction {mat['dynamic_friction']:.3g}, restitution {mat['restitution']:.3g}" if mat else ""
-                lines.append(f"{pad}collider: approximation {ph['approximation']}{fr}")
-            if "gravity_magnitude" in ph:
-                lines.append(f"{pad}gravity {ph['gravity_magnitude']:g} m/s^2 along {ph['gravity_direction']}")
-        if "xform" in p and "time_samples" in p["xform"]:
-            xf = p["xform"]
-            lines.append(
-                f"{pad}trajectory: {xf['time_samples']} samples, path {xf['path_length_m'] * 100:.1f} cm, "
-                f"from {np.round(xf['first_translation_m'], 3).tolist()} "
-                f"to {np.round(xf['last_translation_m'], 3).tolist()} m"
-            )
-        if "camera" in p:
-            c = p["camera"]
-            K = c["K_frame0"]
-            lines.append(
-                f"{pad}camera: {c['resolution'][0]}x{c['resolution'][1]}, "
-                f"fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}, "
-                f"{c['frames']} frames, path {c['path_length_m'] * 100:.1f} cm"
-            )
-        if "light" in p:
-            lines.append(
-                f"{pad}light: intensity {p['light']['intensity']:.3g}, "
-                f"color {np.round(p['light']['color'], 3).tolist()}"
-            )
+        lines += _prim_lines(path, p)
     if "gate" in data:
-        g = data["gate"]
-        ssim = g.get("rose:gate:ssim", {})
-        lines.append("gate:")
-        lines.append(
-            f"  SSIM mean {g.get('rose:gate:ssimMean', float('nan')):.4f} "
-            f"(min {ssim.get('min', float('nan')):.4f}) vs threshold "
-            f"{g.get('rose:gate:ssimThreshold', float('nan')):.2f}: "
-            f"{'pass' if g.get('rose:gate:ssimPassed') else 'FAIL'}"
-        )
-        objs = g.get("rose:gate:physics:objects", [])
-        disp = g.get("rose:gate:physics:displacement", [])
-        moves = ", ".join(f"{o} {d * 1000:.2f} mm" for o, d in zip(objs, disp))
-        lines.append(
-            f"  physics: rest check over {g.get('rose:gate:physics:duration', 0):g} s: {moves or 'not run'}: "
-            f"{'pass' if g.get('rose:gate:physics:passed') else 'FAIL'}"
-        )
-        lines.append(
-            "  geometry: "
-            f"{'pass' if g.get('rose:gate:geometry:passed') else 'FAIL: ' + g.get('rose:gate:geometry:report', '')}"
-        )
-        lines.append(f"  overall: {'PASS' if g.get('rose:gate:passed') else 'FAIL'}")
+        lines += _gate_lines(data["gate"])
     return "\n".join(lines)
+
+
+def _prim_lines(path: str, p: dict[str, Any]) -> list[str]:
+    """One prim of a dump: its type, schemas and purpose, then its mesh, physics, trajectory,
+    camera and light, each on a line."""
+    lines = []
+    depth = path.count("/") - 1
+    tag = p["type"] or "(over)"
+    extra = []
+    if "apiSchemas" in p:
+        extra.append("[" + ", ".join(p["apiSchemas"]) + "]")
+    if "purpose" in p:
+        extra.append(f"purpose={p['purpose']}")
+    lines.append(f"  {'  ' * depth}{path.rsplit('/', 1)[-1]} <{tag}> {' '.join(extra)}".rstrip())
+    pad = "  " * depth + "      "
+    if "mesh" in p:
+        m = p["mesh"]
+        vol = f", volume {m['volume_m3'] * 1e6:.1f} cm^3" if m.get("volume_m3") else ""
+        lines.append(
+            f"{pad}mesh: {m['points']} points, {m['triangles']} triangles, "
+            f"{'watertight' if m['watertight'] else 'NOT watertight'}{vol}, color {m['color']}"
+        )
+    if "physics" in p:
+        ph = p["physics"]
+        if "mass_kg" in ph:
+            lines.append(
+                f"{pad}mass {ph['mass_kg']:.4g} kg, "
+                f"inertia {np.round(ph.get('diagonal_inertia', []), 8).tolist()} kg m^2, "
+                f"CoM {np.round(ph.get('center_of_mass_m', []), 4).tolist()} m"
+            )
+        if "approximation" in ph:
+            mat = ph.get("material")
+            fr = f", friction {mat['dynamic_friction']:.3g}, restitution {mat['restitution']:.3g}" if mat else ""
+            lines.append(f"{pad}collider: approximation {ph['approximation']}{fr}")
+        if "gravity_magnitude" in ph:
+            lines.append(f"{pad}gravity {ph['gravity_magnitude']:g} m/s^2 along {ph['gravity_direction']}")
+    if "xform" in p and "time_samples" in p["xform"]:
+        xf = p["xform"]
+        lines.append(
+            f"{pad}trajectory: {xf['time_samples']} samples, path {xf['path_length_m'] * 100:.1f} cm, "
+            f"from {np.round(xf['first_translation_m'], 3).tolist()} "
+            f"to {np.round(xf['last_translation_m'], 3).tolist()} m"
+        )
+    if "camera" in p:
+        c = p["camera"]
+        K = c["K_frame0"]
+        lines.append(
+            f"{pad}camera: {c['resolution'][0]}x{c['resolution'][1]}, "
+            f"fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}, "
+            f"{c['frames']} frames, path {c['path_length_m'] * 100:.1f} cm"
+        )
+    if "light" in p:
+        lines.append(
+            f"{pad}light: intensity {p['light']['intensity']:.3g}, color {np.round(p['light']['color'], 3).tolist()}"
+        )
+    return lines
+
+
+def _gate_lines(g: dict[str, Any]) -> list[str]:
+    """The gate's results of a dump."""
+    lines = []
+    ssim = g.get(tokens.GATE_SSIM, {})
+    lines.append("gate:")
+    lines.append(
+        f"  SSIM mean {g.get(tokens.GATE_SSIM_MEAN, float('nan')):.4f} "
+        f"(min {ssim.get('min', float('nan')):.4f}) vs threshold "
+        f"{g.get(tokens.GATE_SSIM_THRESHOLD, float('nan')):.2f}: "
+        f"{'pass' if g.get(tokens.GATE_SSIM_PASSED) else 'FAIL'}"
+    )
+    objs = g.get(tokens.GATE_PHYSICS_OBJECTS, [])
+    disp = g.get(tokens.GATE_PHYSICS_DISPLACEMENT, [])
+    moves = ", ".join(f"{o} {d * 1000:.2f} mm" for o, d in zip(objs, disp))
+    lines.append(
+        f"  physics: rest check over {g.get(tokens.GATE_PHYSICS_DURATION, 0):g} s: {moves or 'not run'}: "
+        f"{'pass' if g.get(tokens.GATE_PHYSICS_PASSED) else 'FAIL'}"
+    )
+    lines.append(
+        "  geometry: "
+        f"{'pass' if g.get(tokens.GATE_GEOMETRY_PASSED) else 'FAIL: ' + g.get(tokens.GATE_GEOMETRY_REPORT, '')}"
+    )
+    lines.append(f"  overall: {'PASS' if g.get(tokens.GATE_PASSED) else 'FAIL'}")
+    return lines

@@ -15,7 +15,9 @@ from pxr import Usd
 
 from rose_usd.case.layout import Case
 from rose_usd.errors import StageError
-from rose_usd.usd import paths
+from rose_usd.io.megasam import metric_from_megasam, read_megasam
+from rose_usd.usd import paths, tokens
+from rose_usd.usd.camera import CameraTrack, read_camera
 
 SENSOR_SOURCES = ("sensor", "oracle")
 """Scale sources under which later stages read the case's own depth/."""
@@ -24,7 +26,7 @@ SENSOR_SOURCES = ("sensor", "oracle")
 def _scale_source(stage: Usd.Stage) -> str | None:
     """The world layer's ``rose:world:scaleSource``, None when the capture stage has not run."""
     world = stage.GetPrimAtPath(paths.WORLD)
-    attr = world.GetAttribute("rose:world:scaleSource") if world else None
+    attr = world.GetAttribute(tokens.WORLD_SCALE_SOURCE) if world else None
     return attr.Get() if attr and attr.HasAuthoredValue() else None
 
 
@@ -48,13 +50,17 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
             )
         read = case.depth_m
     else:
-        from rose_usd.capture.megasam import find_npz, metric_from_megasam
-        from rose_usd.io.megasam import read_megasam
-
         world = stage.GetPrimAtPath(paths.WORLD)
-        alpha = float(world.GetAttribute("rose:world:scaleAlpha").Get())
-        beta = float(world.GetAttribute("rose:world:scaleBeta").Get())
-        depths = read_megasam(find_npz(case)).depths
+        alpha = float(world.GetAttribute(tokens.WORLD_SCALE_ALPHA).Get())
+        beta = float(world.GetAttribute(tokens.WORLD_SCALE_BETA).Get())
+        npz = case.megasam_file()
+        if npz is None:
+            raise StageError(
+                f"capture used MegaSaM depth ({source}) but the case has no MegaSaM output",
+                path=case.perception_dir,
+                hint="re-run capture",
+            )
+        depths = read_megasam(npz).depths
 
         def read(t: int) -> np.ndarray:
             return metric_from_megasam(depths[t], alpha, beta, case.width, case.height)
@@ -72,3 +78,8 @@ def cached_frames(read: Callable[[int], np.ndarray], size: int) -> Callable[[int
         return np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32)
 
     return depth_of
+
+
+def read_cameras(stage: Usd.Stage, n_frames: int) -> CameraTrack:
+    """The world layer's camera: OpenCV poses and intrinsics per frame."""
+    return read_camera(stage, paths.CAMERA, n_frames)

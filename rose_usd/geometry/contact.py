@@ -1,17 +1,16 @@
-"""Contact and support read from the masks: whether the interactor touches an object, the first
-frame it does, what may hide an object (the other masks), and the height of the surface around
-an object. Shared by the scene stage (its support pads), the object stage (the rest it fuses, the
-support it stands on) and the tracker (when it registers instead of holding)."""
+"""Contact and support from masks and depth: whether the interactor touches an object, the first
+frame it does, and the height of the surface around an object. Shared by the scene stage (its
+support pads), the object stage (the rest it fuses, the support it stands on) and the tracker
+(when it registers instead of holding); the masks come from ``rose_usd.layers.masks``."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import cv2
 import numpy as np
 
 from rose_usd.core.pinhole import masked_world_points
-from rose_usd.io.images import read_mask
-from rose_usd.segment.tracks import INTERACTOR
-from rose_usd.stage_api import StageContext
 
 TOUCH_REACH_PX = 5
 """The tracker's touch: the interactor touches an object whose mask it comes this near [px].
@@ -22,19 +21,21 @@ at 3 px (``first_contact``)."""
 
 
 def first_contact(
-    masks: list, hand_folder, depth_of, n: int, *, reach_px: int = 3, depth_m: float = 0.02, min_px: int = 20
+    masks: list, hand_of: Callable, depth_of, n: int, *, reach_px: int = 3, depth_m: float = 0.02, min_px: int = 20
 ) -> int:
     """The first frame in which the interactor touches the object: its mask comes within
     ``reach_px`` of the object's with depths within ``depth_m`` over ``min_px`` pixels (n if never).
     Nothing moves an object before that. Closer than the tracker's ``TOUCH_REACH_PX``: here a
     touch seen too early ends the rest and loses views (at 5 px a hand reaching for the upper
     object of a stack can seem to touch the lower one long before it does), where for the
-    tracker it only means registering instead of holding."""
+    tracker it only means registering instead of holding.
+    ``hand_of(t)``: the interactor's mask in frame t, None where it has none."""
     for t in range(n):
-        if masks[t] is None or not (hand_folder / f"{t:06d}.png").is_file():
+        hand = hand_of(t) if masks[t] is not None else None
+        if hand is None:
             continue
         if touches(
-            read_mask(hand_folder / f"{t:06d}.png"),
+            hand,
             masks[t],
             depth_of(t),
             reach_px=reach_px,
@@ -73,26 +74,16 @@ def _extent_m(mask: np.ndarray, depth: np.ndarray) -> float:
     return float(np.percentile(d, 95) - np.percentile(d, 5)) if len(d) else 0.0
 
 
-def occluders(ctx: StageContext, name: str, t: int, shape: tuple[int, int], *, grow_px: int) -> np.ndarray:
-    """What may stand in front of object ``name`` or beside it in frame t: the masks of the other
-    objects and of the interactor, grown by ``grow_px`` (bool, ``shape``)."""
-    out = np.zeros(shape, np.uint8)
-    for other in [o.name for o in ctx.case.config.objects if o.name != name] + [INTERACTOR]:
-        f = ctx.out_dir / "masks" / other / f"{t:06d}.png"
-        if f.is_file():
-            out |= read_mask(f).astype(np.uint8)
-    return cv2.dilate(out, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8)).astype(bool)
-
-
 def ring_height(
-    ctx: StageContext, name: str, views: list[tuple[int, float]], masks, depth_of, cameras, *, count: int = 8
+    occluders: Callable, views: list[tuple[int, float]], masks, depth_of, cameras, *, count: int = 8
 ) -> float:
-    """The height of the surface around object ``name``: the median z of a ring of pixels 3-12 px
+    """The height of the surface around an object: the median z of a ring of pixels 3-12 px
     outside its mask (other objects and the interactor left out) in up to ``count`` of ``views``
     ((frame, depth scale): each frame's depth is multiplied by its scale), spread over them; 0
     when the ring has under 50 points. The world's z = 0 is one plane fitted for the whole scene;
     under a given object the table may sit a few mm (or, with MegaSaM depth, centimeters) off it.
-    ``masks[t]``: the object's mask in frame t. The object stage stands objects on this height
+    ``masks[t]``: the object's mask in frame t; ``occluders(t, shape)``: what may hide it there
+    (``Masks.occluders``). The object stage stands objects on this height
     and the scene stage flattens its collider under them to it (``scene.tsdf.support_pads``)."""
     zs = []
     for t, scale in [views[i] for i in np.unique(np.linspace(0, len(views) - 1, min(count, len(views))).astype(int))]:
@@ -100,7 +91,7 @@ def ring_height(
         ring = cv2.dilate(mask, np.ones((25, 25), np.uint8)).astype(bool) & ~cv2.dilate(
             mask, np.ones((7, 7), np.uint8)
         ).astype(bool)
-        ring &= ~occluders(ctx, name, t, mask.shape, grow_px=3)
+        ring &= ~occluders(t, mask.shape)
         pts, _ = masked_world_points(depth_of(t) * np.float32(scale), ring, cameras.K[t], cameras.world_from_cv[t])
         zs.append(pts[:, 2])
     z = np.concatenate(zs) if zs else np.zeros(0)

@@ -1,0 +1,2 @@
+"""Mesh operations several stages share: validity checks, CGAL wrapping, color transfer and
+texture baking. Neutral ground: it imports no stage package."""

@@ -1,0 +1,60 @@
+"""Object prompts (a box or a point on one frame): parsed from ``segment.prompts`` and checked
+against the video, for every segment backend that takes them."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from rose_usd.errors import ConfigError, InputError
+
+
+def parse_prompts(prompts, specs) -> list:
+    """The objects (``ObjectSpec``) with ``segment.prompts`` (ObjectPrompts) applied; a prompt
+    without a name is the only object's."""
+    out = {s.name: s for s in specs}
+    for item in prompts:
+        name = item.name or (specs[0].name if len(specs) == 1 else "")
+        if name not in out:
+            raise ConfigError(
+                f"segment.prompts item {str(item)!r} names no object of rose.toml",
+                hint=f"objects: {', '.join(out) or 'none'}; e.g. {next(iter(out), 'Box')}=0:120,80,200,170",
+            )
+        out[name] = replace(out[name], prompt=item.prompt)
+    return list(out.values())
+
+
+def check_prompts(specs, width: int, height: int, n: int, where) -> list:
+    """The objects that have a prompt, after checking each lies in the video and that either every
+    object or none has one."""
+    prompted = [s for s in specs if s.prompt is not None]
+    for s in prompted:
+        if not 0 <= s.prompt.frame < n:
+            raise InputError(
+                f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has {n}",
+                path=where,
+                hint="prompt a frame of this video",
+            )
+        _check_prompt_inside(s, width, height, where)
+    if prompted and len(prompted) != len(specs):
+        raise InputError("some objects have a prompt and some do not", path=where, hint="prompt every object, or none")
+    return prompted
+
+
+def _check_prompt_inside(spec, width: int, height: int, where) -> None:
+    p = spec.prompt
+    if p.box is not None:
+        x0, y0, x1, y1 = p.box
+        if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+            raise InputError(
+                f"prompt box of {spec.name!r} {list(p.box)} is not inside the {width}x{height} image",
+                path=where,
+                hint="give x0 < x1 <= width, y0 < y1 <= height in pixels",
+            )
+    elif p.point is not None:
+        x, y = p.point
+        if not (0 <= x < width and 0 <= y < height):
+            raise InputError(
+                f"prompt point of {spec.name!r} {list(p.point)} is outside the {width}x{height} image",
+                path=where,
+                hint="give the point in pixels of the prompt frame",
+            )

@@ -1,0 +1,493 @@
+"""The depth segmenter (the classical backend's, whose interactor the sam2 backend also uses):
+object masks from a prompt (or from what the hand touches) propagated through the video in 3D,
+and the interactor as the other moving region. No learned model.
+
+The capture stage gives metric depth, cameras and a gravity-aligned world whose z = 0 is the
+support plane, so every pixel has a world point and a height above the support.
+
+1. **Start.** On the prompt frame, the object is the depth-connected region of pixels standing on
+   the support (height > ``min_height_m``) inside the prompt box (or containing the prompt
+   point). Without a prompt it is the region standing on the support at the first frame that the
+   interactor comes nearest to over the video ("what the hand moves"); with several objects
+   named, that region is first split into the part that later leaves its place (seen past in a
+   later frame) and the part that stays, for objects stacked on each other. Names of rose.toml
+   go to regions in that order (unprompted, nothing else tells which object is which). Prompt
+   regions of one frame that overlap (a stack's boxes) are separated: a shared pixel goes to the
+   object whose colors make it likelier, else to the nearest pixel only one region claims.
+2. **Propagate** (forward from the prompt frame, then backward). In each frame, a pixel belongs to
+   the object when its world point lies within ``max(diameter, 3 cm)`` of the object's previous
+   points (shifted by its last velocity), its color is more likely under the object's color model
+   than under the model of its surroundings and the hand, and it is depth-connected to a core of
+   pixels within ``core_m`` of the previous points. A pixel belongs to one object at most.
+   Color models are updated as the object turns. The motion between frames is translation-only
+   ICP of the seen points (not the shift of their mean, which occlusion moves), and points that
+   something now stands in front of are kept, moved along. When the object is hidden (the hand
+   covers it), its last points are kept and the search widens until it reappears.
+3. **Interactor.** Pixels nearer than the static world (geometry.background) by more than
+   ``foreground_m``, minus the objects, in regions of at least ``min_region_px`` pixels.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+from scipy.ndimage import gaussian_filter
+from scipy.spatial import cKDTree
+
+from rose_usd.core.pinhole import backproject, pixels_of, sample_at
+from rose_usd.errors import InputError
+from rose_usd.geometry.background import StaticBackground
+from rose_usd.segment.config import SegmentConfig
+
+BINS = 16
+
+
+# ----------------------------------------------------------------------------- pixel geometry
+def world_points(depth: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
+    """World point of every pixel (H, W, 3); NaN where depth is 0."""
+    h, w = depth.shape
+    u = np.arange(w, dtype=np.float32)[None, :]
+    v = np.arange(h, dtype=np.float32)[:, None]
+    z = np.where(depth > 0, depth, np.nan).astype(np.float32)
+    cam = backproject(u, v, z, K)
+    return cam @ world_from_cv[:3, :3].T.astype(np.float32) + world_from_cv[:3, 3].astype(np.float32)
+
+
+def depth_edges(depth: np.ndarray, *, rel: float = 0.02, abs_m: float = 0.008) -> np.ndarray:
+    """Pixels at a depth discontinuity (a jump to a neighbor beyond ``abs_m + rel * depth``)."""
+    d = depth.astype(np.float32)
+    tol = abs_m + rel * d
+    edge = np.zeros(d.shape, bool)
+    dx = np.abs(np.diff(d, axis=1)) > tol[:, :-1]
+    dy = np.abs(np.diff(d, axis=0)) > tol[:-1, :]
+    edge[:, :-1] |= dx
+    edge[:, 1:] |= dx
+    edge[:-1, :] |= dy
+    edge[1:, :] |= dy
+    return edge | (d <= 0)
+
+
+def components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """4-connected components: count, labels (H, W) and the area of each label."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=4)
+    return n, labels, stats[:, cv2.CC_STAT_AREA]
+
+
+def fill_holes(mask: np.ndarray, max_hole_px: int) -> np.ndarray:
+    inv = ~mask
+    n, labels, areas = components(inv)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    small = np.zeros(n, bool)
+    small[1:] = areas[1:] <= max_hole_px
+    small[border] = False
+    return mask | small[labels]
+
+
+# ----------------------------------------------------------------------------- color models
+def color_index(rgb: np.ndarray) -> np.ndarray:
+    q = (rgb // (256 // BINS)).astype(np.int32)
+    return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
+
+
+def histogram(idx: np.ndarray) -> np.ndarray:
+    hist = np.bincount(idx.ravel(), minlength=BINS**3).astype(np.float64).reshape(BINS, BINS, BINS)
+    hist = gaussian_filter(hist, sigma=1.0, mode="constant").reshape(-1)  # shading shifts colors by a bin or two
+    return (hist + 1e-3) / (hist.sum() + 1e-3 * hist.size)
+
+
+@dataclass
+class ObjectTrack:
+    name: str
+    points: np.ndarray
+    """World points of the object's last visible pixels (subsampled), (M, 3)."""
+    color: np.ndarray
+    """Color histogram of the object."""
+    diameter: float
+    area: float
+    """Visible pixels at the start."""
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    hidden: int = 0
+    first_color: np.ndarray | None = None
+    """The color model of the start: half of the model always, so a face lost once is not forgotten."""
+
+    def __post_init__(self):
+        if self.first_color is None:
+            self.first_color = self.color.copy()
+
+    def copy(self) -> "ObjectTrack":
+        """An independent copy (propagation updates tracks in place)."""
+        return replace(
+            self,
+            points=self.points.copy(),
+            color=self.color.copy(),
+            velocity=self.velocity.copy(),
+            first_color=self.first_color.copy(),
+        )
+
+
+def _subsample(points: np.ndarray, k: int = 4000, seed: int = 0) -> np.ndarray:
+    if len(points) <= k:
+        return points
+    return points[np.random.default_rng(seed).choice(len(points), k, replace=False)]
+
+
+def _diameter(points: np.ndarray) -> float:
+    p = _subsample(points, 1500)
+    lo, hi = np.percentile(p, 2, axis=0), np.percentile(p, 98, axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+def separate(regions: list[np.ndarray], cidx: np.ndarray, *, sure: float = 2.0) -> list[np.ndarray]:
+    """Regions that share no pixel: an object hides what is behind it, so a pixel shows one object.
+
+    Prompt boxes of stacked objects overlap, and the depth-connected region inside the lower
+    object's box runs up into the upper object. A pixel claimed by several regions goes to the
+    one whose colors (of the pixels it alone claims) make it more likely, by a factor ``sure``;
+    where no color model is that sure, to the nearest pixel claimed by one region alone. Each
+    region then keeps its largest 4-connected part."""
+    claims = np.sum(regions, axis=0) if regions else np.zeros(cidx.shape, int)
+    if not np.any(claims > 1):
+        return [r.copy() for r in regions]
+    alone = [r & (claims == 1) for r in regions]
+    hists = [histogram(cidx[a] if a.sum() >= 50 else cidx[r]) for a, r in zip(alone, regions)]
+    contested = claims > 1
+    cy, cx = np.nonzero(contested)
+    c = cidx[cy, cx]
+    k = len(regions)
+    likely = np.stack([np.where(regions[i][cy, cx], np.log(hists[i][c]), -np.inf) for i in range(k)])
+    ranked = np.sort(likely, axis=0)
+    by_color = np.argmax(likely, axis=0)
+    distance = np.stack(
+        [
+            np.where(
+                regions[i][cy, cx], cv2.distanceTransform((~alone[i]).astype(np.uint8), cv2.DIST_L2, 5)[cy, cx], np.inf
+            )
+            for i in range(k)
+        ]
+    )
+    winner = np.where(ranked[-1] - ranked[-2] >= np.log(sure), by_color, np.argmin(distance, axis=0))
+    out = []
+    for i, region in enumerate(regions):
+        mine = region & ~contested
+        mine[cy[winner == i], cx[winner == i]] = True
+        n, labels, areas = components(mine)
+        out.append(labels == 1 + int(np.argmax(areas[1:])) if n > 1 else mine)
+    return out
+
+
+# ----------------------------------------------------------------------------- the segmenter
+MIN_REGION_PX = 150
+"""The smallest region taken for an object or the interactor, at 640x480 (scaled with the image area)."""
+
+
+class Segmenter:
+    def __init__(self, rgb_of, depth_of, cameras, config: SegmentConfig, background: StaticBackground):
+        self.rgb_of, self.depth_of, self.cam, self.config, self.bg = rgb_of, depth_of, cameras, config, background
+        self.width, self.height = cameras.width, cameras.height
+        self.scale_px = self.width * self.height / (640 * 480)
+        self.frame = functools.lru_cache(maxsize=5)(self._frame)
+        """(rgb, depth, world points, edges, color index) of frame t (the last few are cached)."""
+
+    def _frame(self, t: int):
+        rgb, depth = self.rgb_of(t), self.depth_of(t)
+        pts = world_points(depth, self.cam.K[t], self.cam.world_from_cv[t])
+        return rgb, depth, pts, depth_edges(depth), color_index(rgb)
+
+    # ----------------------------------------------------------------- start
+    def start_from_prompts(self, specs, where) -> list[tuple[int, ObjectTrack]]:
+        """(prompt frame, track) of every prompted object; objects prompted on the same frame get
+        regions that share no pixel (``separate``)."""
+        regions = {s.name: self.prompt_region(s.name, s.prompt, where) for s in specs}
+        for frame in sorted({s.prompt.frame for s in specs}):
+            names = [s.name for s in specs if s.prompt.frame == frame]
+            for name, region in zip(names, separate([regions[m] for m in names], self.frame(frame)[4])):
+                regions[name] = region
+        return [(s.prompt.frame, self._new_track(s.name, s.prompt.frame, regions[s.name])) for s in specs]
+
+    def prompt_region(self, name: str, prompt, where) -> np.ndarray:
+        """The object's pixels on its prompt frame: the depth-connected region standing on the
+        support inside the prompt box (or the one nearest the prompt point)."""
+        t = prompt.frame
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        height = pts[..., 2]
+        standing = (depth > 0) & (height > self.config.min_height_m) & ~edges
+        inside = np.zeros_like(standing)
+        if prompt.box is not None:
+            x0, y0, x1, y1 = (int(round(c)) for c in prompt.box)
+            inside[max(y0, 0) : y1 + 1, max(x0, 0) : x1 + 1] = True
+        else:
+            x, y = (int(round(c)) for c in prompt.point)
+            r = max(4, int(0.03 * self.width))
+            inside[max(y - r, 0) : y + r + 1, max(x - r, 0) : x + r + 1] = True
+        n, labels, areas = components(standing & inside)
+        areas[0] = 0
+        if n <= 1 or areas.max() < max(0.1 * inside.sum(), MIN_REGION_PX * self.scale_px / 4):
+            raise InputError(
+                f"nothing stands on the support inside the prompt of {name!r} on frame {t}",
+                path=where,
+                hint="draw the box around the object on a frame where it is visible",
+            )
+        if prompt.box is not None:
+            label = 1 + int(np.argmax(areas[1:]))
+        else:
+            x, y = (int(round(c)) for c in prompt.point)
+            ys, xs = np.nonzero(labels > 0)
+            nearest = int(np.argmin((xs - x) ** 2 + (ys - y) ** 2))
+            label = int(labels[ys[nearest], xs[nearest]])
+        return labels == label
+
+    def _new_track(self, name: str, t: int, mask: np.ndarray) -> ObjectTrack:
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        obj_pts = pts[mask & (depth > 0)]
+        return ObjectTrack(
+            name, _subsample(obj_pts), histogram(cidx[mask]), max(_diameter(obj_pts), 0.02), float(mask.sum())
+        )
+
+    def discover(self, names: list[str], interactor_of, n_frames: int, where) -> list[ObjectTrack]:
+        """Objects with no prompt: regions standing on the support at frame 0, ranked by how near
+        the interactor comes to them over the video."""
+        rgb, depth, pts, edges, cidx = self.frame(0)
+        height = pts[..., 2]
+        standing = (depth > 0) & (height > self.config.min_height_m) & (height < 0.6) & ~edges
+        n, labels, areas = components(standing)
+        border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+        regions = []
+        for label in range(1, n):
+            if label in border or areas[label] < MIN_REGION_PX * self.scale_px:
+                continue
+            p = pts[labels == label]
+            if _diameter(p) > 0.4:
+                continue
+            regions.append((label, cKDTree(_subsample(p, 2000))))
+        if not regions:
+            raise InputError(
+                "no object stands on the support in the first frame",
+                path=where,
+                hint="give a prompt box in rose.toml ([[objects]] prompt = { frame = F, box = [x0, y0, x1, y1] })",
+            )
+        nearest = np.full(len(regions), np.inf)
+        for t in range(0, n_frames, max(1, n_frames // 40)):
+            hand = interactor_of(t)
+            if hand.sum() < MIN_REGION_PX * self.scale_px:
+                continue
+            hp = _subsample(self.frame(t)[2][hand & (self.frame(t)[1] > 0)], 3000)
+            for i, (_, tree) in enumerate(regions):
+                d, _ = tree.query(hp, k=1)
+                nearest[i] = min(nearest[i], float(d.min()))
+        order = list(np.argsort(nearest))
+        if len(names) > 1:
+            # objects standing on each other (a stack) form one region: split the most
+            # approached region into what later leaves its place and what stays
+            i = order[0]
+            parts = self._split_by_motion(labels == regions[i][0], n_frames)
+            if parts is not None:
+                moved, stayed = parts
+                labels = labels.copy()
+                new_label = labels.max() + 1
+                labels[stayed] = new_label
+                regions.append((new_label, cKDTree(_subsample(pts[stayed], 2000))))
+                nearest = np.append(nearest, nearest[i])
+                order = [i, len(regions) - 1] + order[1:]
+        if len(regions) < len(names) or not np.isfinite(nearest[order[len(names) - 1]]):
+            raise InputError(
+                f"found {int(np.isfinite(nearest).sum())} region(s) the interactor approaches, "
+                f"rose.toml names {len(names)} object(s)",
+                path=where,
+                hint="give each object a prompt box in rose.toml",
+            )
+        return [self._new_track(name, 0, labels == regions[order[i]][0]) for i, name in enumerate(names)]
+
+    def _split_by_motion(
+        self, region: np.ndarray, n_frames: int, *, leave_m: float = 0.02
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Split a frame-0 region into the pixels whose point later leaves its place (a later
+        frame sees past it, by more than ``leave_m``) and the rest; None unless both parts are
+        sizable regions."""
+        _, _, pts, _, _ = self.frame(0)
+        v, u = np.nonzero(region)
+        world = pts[v, u]
+        left = np.zeros(len(v), bool)
+        for t in range(n_frames // 2, n_frames, max(1, n_frames // 20)):
+            uu, vv, z = pixels_of(world, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
+            left |= (uu >= 0) & (sample_at(self.frame(t)[1], uu, vv) > z + leave_m)
+        moved = np.zeros_like(region)
+        moved[v[left], u[left]] = True
+        moved = cv2.morphologyEx(moved.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)).astype(bool)
+        stayed = region & ~cv2.dilate(moved.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        least = MIN_REGION_PX * self.scale_px
+        if moved.sum() < least or stayed.sum() < least:
+            return None
+        n, labels, areas = components(moved)
+        moved = labels == 1 + int(np.argmax(areas[1:]))
+        n, labels, areas = components(stayed)
+        stayed = labels == 1 + int(np.argmax(areas[1:]))
+        return moved, stayed
+
+    # ----------------------------------------------------------------- propagate
+    def step(self, t: int, tracks: list[ObjectTrack], hand_hist: np.ndarray | None) -> list[np.ndarray]:
+        """Masks of every track in frame t (updating the tracks)."""
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        p = self.config
+        valid = (depth > 0) & (pts[..., 2] > -0.01)
+        best = np.full(depth.shape, np.inf, np.float32)
+        owner = np.full(depth.shape, -1, np.int32)
+        cores = []
+        for k, track in enumerate(tracks):
+            reach = max(track.diameter, 0.03) * (1.0 + 0.5 * min(track.hidden, 10))
+            pred = track.points + track.velocity
+            core = np.zeros(depth.shape, bool)
+            cores.append(core)
+            box = self._image_box(t, pred, reach)
+            if box is None:
+                continue
+            y0, y1, x0, x1 = box
+            sub = pts[y0:y1, x0:x1]
+            lo, hi = pred.min(axis=0) - reach, pred.max(axis=0) + reach
+            near = valid[y0:y1, x0:x1] & np.all((sub >= lo) & (sub <= hi), axis=-1)
+            ys, xs = np.nonzero(near)
+            if not len(ys):
+                continue
+            c = cidx[y0:y1, x0:x1][ys, xs]
+            ring = histogram(c)
+            denominator = ring if hand_hist is None else 0.5 * (ring + hand_hist)
+            colored = np.flatnonzero(track.color[c] > denominator[c])  # object colors, before the costlier 3D test
+            ys, xs = ys[colored] + y0, xs[colored] + x0
+            d, _ = cKDTree(pred).query(pts[ys, xs], k=1, distance_upper_bound=reach)
+            ok = np.isfinite(d)
+            better = ok & (d < best[ys, xs])
+            best[ys[better], xs[better]] = d[better]
+            owner[ys[better], xs[better]] = k
+            sel = ok & (d < p.core_m + 0.5 * np.linalg.norm(track.velocity)) & (pts[ys, xs, 2] > p.min_height_m)
+            core[ys[sel], xs[sel]] = True
+        masks = []
+        max_hole = int(200 * self.scale_px)
+        for k, track in enumerate(tracks):
+            grow = (owner == k) & ~edges
+            n, labels, _ = components(grow)
+            keep = np.unique(labels[cores[k] & grow])
+            keep = keep[keep > 0]
+            mask = np.isin(labels, keep) if len(keep) else np.zeros_like(grow)
+            mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+            mask = self._color_border(mask, cidx, track, hand_hist, owner, k)
+            masks.append(fill_holes(mask, max_hole))
+        # closing, color borders and filled holes may reach into another object's pixels: each
+        # pixel stays with the track that owns it (the nearest), or the first that claims it
+        claims = np.sum(masks, axis=0) if masks else None
+        for k, (track, mask) in enumerate(zip(tracks, masks)):
+            shared = mask & (claims > 1)
+            if shared.any():
+                others_own = (owner != k) & (owner >= 0)
+                earlier = np.any(masks[:k], axis=0) if k else np.zeros_like(mask)
+                mask &= ~(shared & (others_own | ((owner < 0) & earlier)))
+            self._update(track, t, mask)
+        return masks
+
+    def _color_border(self, mask, cidx, track, hand_hist, owner, k, *, ring_px: int = 5) -> np.ndarray:
+        """Grow the mask by object-colored pixels within ``ring_px``: at silhouettes, depth is
+        missing or (registered only approximately to color) belongs to what is behind."""
+        if not mask.any():
+            return mask
+        kernel = np.ones((3, 3), np.uint8)
+        outer = cv2.dilate(mask.astype(np.uint8), np.ones((2 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask
+        around_px = (
+            cv2.dilate(mask.astype(np.uint8), np.ones((6 * ring_px + 1,) * 2, np.uint8)).astype(bool) & ~mask & ~outer
+        )
+        if not around_px.any():
+            return mask
+        around = histogram(cidx[around_px])
+        other = around if hand_hist is None else np.maximum(around, hand_hist)
+        colored = outer & (track.color[cidx] > 2.0 * other[cidx]) & ((owner == k) | (owner < 0))
+        grown = mask.copy()
+        for _ in range(ring_px):  # grow only through colored pixels connected to the mask
+            grown |= cv2.dilate(grown.astype(np.uint8), kernel).astype(bool) & colored
+        return grown
+
+    def _image_box(self, t: int, points: np.ndarray, reach: float):
+        """Pixel rows/cols (y0, y1, x0, x1) that points within ``reach`` of ``points`` can
+        project to in frame t; None when none is in front of the camera."""
+        pose, k = self.cam.world_from_cv[t], self.cam.K[t]
+        cam = (points - pose[:3, 3]) @ pose[:3, :3]
+        cam = cam[cam[:, 2] > 0.05]
+        if not len(cam):
+            return None
+        u = k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2]
+        v = k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]
+        margin = k[0, 0] * reach / max(float(cam[:, 2].min()) - reach, 0.05)
+        x0, x1 = int(max(u.min() - margin, 0)), int(min(u.max() + margin + 1, self.width))
+        y0, y1 = int(max(v.min() - margin, 0)), int(min(v.max() + margin + 1, self.height))
+        return None if x0 >= x1 or y0 >= y1 else (y0, y1, x0, x1)
+
+    def _update(self, track: ObjectTrack, t: int, mask: np.ndarray) -> None:
+        rgb, depth, pts, edges, cidx = self.frame(t)
+        area = float(mask.sum())
+        if area < 0.25 * track.area:
+            track.hidden += 1
+            track.velocity *= 0.5
+            return
+        new = _subsample(pts[mask & (depth > 0)], 4000, seed=t)
+        if len(new) < 20:
+            track.hidden += 1
+            return
+        shift = _shift(track.points, new)
+        track.velocity = 0.5 * track.velocity + 0.5 * shift if track.hidden == 0 else np.zeros(3)
+        # the part hidden now (something in front of it: a hand) is still there, moved with the
+        # part seen; keeping only the seen part loses a box whose seen face the hand then covers
+        moved = track.points + shift
+        u, v, z = pixels_of(moved, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
+        d = sample_at(depth, u, v)
+        behind = (u >= 0) & (d > 0) & (d < z - 0.01)
+        track.points = _subsample(np.concatenate([new, moved[behind]]), 4000, seed=t)
+        track.hidden = 0
+        track.color = 0.5 * track.first_color + 0.5 * (
+            0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask])
+        )
+
+
+def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """How far the points moved from ``old`` to ``new``: translation-only ICP (the median offset
+    of each new point to its nearest old one), started from no motion and from the difference of
+    the means, whichever ends nearer. The means alone are wrong under occlusion: a hand covering
+    the top of a box that stands still moves the mean of what is seen down, and a velocity read
+    from that carries the box's track into the table (the track is lost, and the scene fuses the
+    box as a ghost)."""
+    tree = cKDTree(old)
+    best, best_gap = np.zeros(3), np.inf
+    for shift in (np.zeros(3), new.mean(axis=0) - old.mean(axis=0)):
+        for _ in range(iterations):
+            _, nearest = tree.query(new - shift)
+            shift = np.median(new - old[nearest], axis=0)
+        gap = float(np.median(tree.query(new - shift)[0]))
+        if gap < best_gap:
+            best, best_gap = shift, gap
+    return best
+
+
+def interactor_mask(
+    seg: Segmenter, t: int, objects: list[np.ndarray], hand_hist: np.ndarray | None = None
+) -> np.ndarray:
+    """The other moving region: nearer than the static world, not an object. With a color model
+    of the hand, it grows through hand-colored pixels connected to it whose depth is missing or
+    disagrees with the static world (too near for the sensor, or misregistered at the rim)."""
+    rgb, depth, pts, edges, cidx = seg.frame(t)
+    fg, static = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
+    taken = np.zeros_like(fg)
+    for m in objects:
+        taken |= m
+    taken = cv2.dilate(taken.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    fg = cv2.morphologyEx((fg & ~taken).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+    n, labels, areas = components(fg)
+    big = np.zeros(n, bool)
+    big[1:] = areas[1:] >= MIN_REGION_PX * seg.scale_px
+    hand = big[labels]
+    if hand_hist is not None and hand.any() and static.any():
+        bg_hist = histogram(cidx[static][:: max(1, int(static.sum()) // 20000)])
+        maybe = (hand_hist[cidx] > 2.0 * bg_hist[cidx]) & ~static & ~taken
+        n, labels, _ = components(hand | maybe)
+        keep = np.zeros(n, bool)
+        keep[np.unique(labels[hand])] = True
+        keep[0] = False
+        hand = keep[labels]
+    return hand

@@ -1,0 +1,177 @@
+"""Stage configs: built from settings (rose.toml, ``--set``, the Python API), type-checked, and
+hashed for staleness.
+
+A stage config is a frozen dataclass with a ``backend`` enum, the fields every backend of the stage
+reads, and one nested frozen dataclass per backend that has settings of its own, in a field named
+after the backend (``ObjectConfig.fusion``). A setting is addressed ``field`` or
+``backend.field`` (``--set object.fusion.voxel_m=0.003``, ``[object.fusion]`` in rose.toml). The
+staleness hash and the layer's provenance cover the shared fields and the running backend's
+nested config only: a setting of another backend never makes a layer stale.
+
+Values are converted to the field's type only where nothing is lost: ``"3"`` and ``3.0`` make an
+int 3, ``2.9`` is an error; a field may name its own parser in ``metadata["parse"]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import functools
+import hashlib
+import json
+import math
+import typing
+from collections.abc import Mapping
+from typing import Any
+
+from rose_usd.errors import ConfigError
+
+
+def backend_configs(cls: type) -> dict[str, type]:
+    """Field name -> nested config class, for each backend that has one."""
+    hints = _hints(cls)
+    return {
+        f.name: hints[f.name]
+        for f in dataclasses.fields(cls)
+        if isinstance(hints[f.name], type) and dataclasses.is_dataclass(hints[f.name])
+    }
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _plain(value: Any) -> Any:
+    """JSON-ready: enums by value, dataclasses as dicts, tuples as lists."""
+    if isinstance(value, enum.Enum):
+        return value.value
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    return value
+
+
+def config_to_dict(config: Any, *, running_only: bool = True) -> dict[str, Any]:
+    """The config as plain values; with ``running_only``, of the nested backend configs only the
+    running backend's (what the staleness hash and the provenance cover)."""
+    nested = backend_configs(type(config))
+    backend = getattr(config, "backend", None)
+    backend = backend.value if isinstance(backend, enum.Enum) else backend
+    out = {}
+    for f in dataclasses.fields(config):
+        if f.name in nested and running_only and f.name != backend:
+            continue
+        out[f.name] = _plain(getattr(config, f.name))
+    return out
+
+
+def config_hash(config: Any) -> str:
+    text = json.dumps(config_to_dict(config), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def setting_names(cls: type) -> list[str]:
+    """Every setting of a stage config: ``field`` and ``backend.field``."""
+    nested = backend_configs(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.name in nested:
+            out += [f"{f.name}.{g.name}" for g in dataclasses.fields(nested[f.name])]
+        else:
+            out.append(f.name)
+    return out
+
+
+def flatten(overrides: Mapping[str, Any], names: list[str] | None = None, prefix: str = "") -> dict[str, Any]:
+    """{"fusion": {"voxel_m": 1}} and {"fusion.voxel_m": 1} alike as {"fusion.voxel_m": 1}; a
+    table given for a setting of ``names`` (a mapping-valued setting) stays whole."""
+    out = {}
+    for key, value in overrides.items():
+        name = f"{prefix}{str(key).strip().replace('-', '_')}"
+        if isinstance(value, Mapping) and not (names and name in names):
+            out.update(flatten(value, names, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def build_config(stage: str, cls: type, overrides: Mapping[str, Any], *, source: str | None) -> Any:
+    """``cls`` with ``overrides`` (setting -> value, see :func:`flatten`) applied and type-checked."""
+    nested = backend_configs(cls)
+    names = setting_names(cls)
+    shared: dict[str, Any] = {}
+    per_backend: dict[str, dict[str, Any]] = {}
+    for key, value in flatten(overrides, names).items():
+        if key not in names:
+            raise ConfigError(
+                f"stage {stage!r} has no setting {key!r}", path=source, hint=_setting_hint(key, names, stage)
+            )
+        owner, _, name = key.rpartition(".")
+        target_cls = nested[owner] if owner else cls
+        field = next(f for f in dataclasses.fields(target_cls) if f.name == name)
+        converted = coerce(f"{stage}.{key}", value, _hints(target_cls)[name], field, source)
+        (per_backend.setdefault(owner, {}) if owner else shared)[name] = converted
+    for owner, values in per_backend.items():
+        shared[owner] = nested[owner](**values)
+    return cls(**shared)
+
+
+def _setting_hint(key: str, names: list[str], stage: str) -> str:
+    moved = [n for n in names if n.rpartition(".")[2] == key.rpartition(".")[2]]
+    if moved:
+        return f"did you mean {' or '.join(f'{stage}.{n}' for n in moved)}?"
+    return f"settings: {', '.join(names)}"
+
+
+def coerce(where: str, value: Any, kind: Any, field: dataclasses.Field, source: str | None) -> Any:
+    """``value`` as type ``kind``, or a ConfigError naming ``where``; never a lossy conversion."""
+    try:
+        parse = field.metadata.get("parse")
+        if parse is not None:
+            return parse(value)
+        return _convert(value, kind)
+    except (ValueError, TypeError) as exc:
+        allowed = ""
+        if isinstance(kind, type) and issubclass(kind, enum.Enum):
+            allowed = f" (one of {', '.join(m.value for m in kind)})"
+        default = field.default if field.default is not dataclasses.MISSING else None
+        detail = f": {exc}" if str(exc) and not allowed else ""
+        raise ConfigError(
+            f"{where} = {value!r} is not valid{allowed}{detail}",
+            path=source,
+            hint=f"the default is {_plain(default)!r}",
+        ) from None
+
+
+def _convert(value: Any, kind: Any) -> Any:
+    if isinstance(kind, type) and issubclass(kind, enum.Enum):
+        return kind(value.value if isinstance(value, enum.Enum) else value)
+    if kind is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.strip().lower() in ("true", "false", "1", "0", "yes", "no"):
+            return value.strip().lower() in ("true", "1", "yes")
+        raise ValueError("not true or false")
+    if kind is int:
+        if isinstance(value, bool):
+            raise TypeError("not an integer")
+        number = float(value.strip()) if isinstance(value, str) else float(value)
+        if not number.is_integer():
+            raise ValueError("not an integer")
+        return int(number)
+    if kind is float:
+        if isinstance(value, bool):
+            raise TypeError("not a number")
+        number = float(value.strip()) if isinstance(value, str) else float(value)
+        if not math.isfinite(number):
+            raise ValueError("not finite")
+        return number
+    if kind is str:
+        if not isinstance(value, str):
+            raise TypeError("not text")
+        return value
+    raise TypeError(f"settings of type {kind} need a parser")

@@ -1,0 +1,61 @@
+"""Every ``rose:`` attribute name, defined once (``schemas/schema.usda`` declares them; a test
+checks the two agree). Stage code names attributes only through these."""
+
+# camera
+CAMERA_K = "rose:camera:K"
+CAMERA_INTRINSICS_SOURCE = "rose:camera:intrinsicsSource"
+CAMERA_RESOLUTION = "rose:camera:resolution"
+
+# gate
+GATE_GEOMETRY_PASSED = "rose:gate:geometry:passed"
+GATE_GEOMETRY_REPORT = "rose:gate:geometry:report"
+GATE_PASSED = "rose:gate:passed"
+GATE_PHYSICS_DISPLACEMENT = "rose:gate:physics:displacement"
+GATE_PHYSICS_DURATION = "rose:gate:physics:duration"
+GATE_PHYSICS_OBJECTS = "rose:gate:physics:objects"
+GATE_PHYSICS_PASSED = "rose:gate:physics:passed"
+GATE_PHYSICS_ROTATION = "rose:gate:physics:rotation"
+GATE_PHYSICS_THRESHOLD = "rose:gate:physics:threshold"
+GATE_RENDER_VARIANT = "rose:gate:renderVariant"
+GATE_SAMPLES_PER_PIXEL = "rose:gate:samplesPerPixel"
+GATE_SSIM = "rose:gate:ssim"
+GATE_SSIM_MEAN = "rose:gate:ssimMean"
+GATE_SSIM_PASSED = "rose:gate:ssimPassed"
+GATE_SSIM_THRESHOLD = "rose:gate:ssimThreshold"
+
+# masks
+MASKS_CONFIDENCE = "rose:masks:confidence"
+MASKS_FILE = "rose:masks:file"
+MASKS_OBJECT_NAME = "rose:masks:objectName"
+MASKS_ROLE = "rose:masks:role"
+MASKS_VISIBLE_PIXELS = "rose:masks:visiblePixels"
+
+# prior
+PRIOR_CATEGORY = "rose:prior:category"
+PRIOR_DENSITY = "rose:prior:density"
+PRIOR_DENSITY_RANGE = "rose:prior:densityRange"
+PRIOR_FRICTION = "rose:prior:friction"
+PRIOR_FRICTION_UNCERTAINTY = "rose:prior:frictionUncertainty"
+PRIOR_HOLLOW = "rose:prior:hollow"
+PRIOR_MASS_UNCERTAINTY = "rose:prior:massUncertainty"
+PRIOR_RESTITUTION = "rose:prior:restitution"
+PRIOR_RESTITUTION_UNCERTAINTY = "rose:prior:restitutionUncertainty"
+PRIOR_SHELL_THICKNESS = "rose:prior:shellThickness"
+PRIOR_SOURCE = "rose:prior:source"
+
+# trajectory
+TRAJECTORY_CONFIDENCE = "rose:trajectory:confidence"
+TRAJECTORY_SOURCE = "rose:trajectory:source"
+
+# world
+WORLD_GRAVITY_SOURCE = "rose:world:gravitySource"
+WORLD_GRAVITY_UNCERTAINTY_DEG = "rose:world:gravityUncertaintyDeg"
+WORLD_SCALE_ALPHA = "rose:world:scaleAlpha"
+WORLD_SCALE_BETA = "rose:world:scaleBeta"
+WORLD_SCALE_RESIDUAL = "rose:world:scaleResidual"
+WORLD_SCALE_SOURCE = "rose:world:scaleSource"
+WORLD_WORLD_FROM_INPUT = "rose:world:worldFromInput"
+
+# support
+SUPPORT_HEIGHTS = "rose:support:heights"
+SUPPORT_OBJECTS = "rose:support:objects"

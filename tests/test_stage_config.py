@@ -1,0 +1,96 @@
+"""Stage configs: per-backend settings, strict types, and a staleness hash over what runs."""
+
+from __future__ import annotations
+
+import pytest
+
+from rose_usd.errors import ConfigError
+from rose_usd.object.config import ObjectBackend, ObjectConfig
+from rose_usd.segment.config import SegmentConfig
+from rose_usd.stage_config import build_config, config_hash, config_to_dict, flatten, setting_names
+from rose_usd.trajectory.config import TrajectoryConfig
+
+
+def _object(**values):
+    return build_config("object", ObjectConfig, values, source=None)
+
+
+def test_settings_are_shared_or_a_backends_own():
+    names = setting_names(ObjectConfig)
+    assert "voxel_m" in names and "fusion.revolution_tolerance" in names and "imported.scale_search_steps" in names
+    assert flatten({"fusion": {"revolution_tolerance": 0.04}, "voxel_m": 0.003}) == {
+        "fusion.revolution_tolerance": 0.04,
+        "voxel_m": 0.003,
+    }
+    cfg = _object(**{"backend": "fusion", "fusion.revolution_tolerance": "0.04", "voxel_m": 0.003})
+    assert cfg.backend is ObjectBackend.FUSION and cfg.fusion.revolution_tolerance == 0.04 and cfg.voxel_m == 0.003
+
+
+def test_hash_covers_the_running_backend_only():
+    """An imported-only setting leaves a fusion layer current; a fusion one does not."""
+    base = _object(backend="fusion")
+    assert config_hash(_object(backend="fusion", imported={"scale_search_steps": 9})) == config_hash(base)
+    assert config_hash(_object(backend="fusion", fusion={"revolution_tolerance": 0.04})) != config_hash(base)
+    assert config_hash(_object(backend="fusion", voxel_m=0.003)) != config_hash(base)
+    assert "imported" not in config_to_dict(base) and "imported" in config_to_dict(base, running_only=False)
+
+
+@pytest.mark.parametrize(
+    ("values", "needle"),
+    [
+        ({"imported.scale_search_steps": 2.9}, "is not valid: not an integer"),
+        ({"imported.scale_search_steps": "2.9"}, "not an integer"),
+        ({"imported.scale_search_steps": True}, "not an integer"),
+        ({"voxel_m": "high"}, "object.voxel_m = 'high' is not valid"),
+        ({"voxel_m": float("nan")}, "not finite"),
+        ({"backend": "colmap"}, "one of auto, fusion, imported, oracle"),
+        ({"revolution_tolerance": 0.04}, "did you mean object.fusion.revolution_tolerance"),
+    ],
+)
+def test_a_value_that_does_not_fit_is_one_line_error(values, needle):
+    with pytest.raises(ConfigError) as err:
+        _object(**values)
+    assert needle in err.value.one_line(), err.value.one_line()
+
+
+def test_whole_numbers_are_kept():
+    assert _object(**{"imported.scale_search_steps": "9"}).imported.scale_search_steps == 9
+    assert _object(**{"imported.scale_search_steps": 9.0}).imported.scale_search_steps == 9
+    assert (
+        build_config("trajectory", TrajectoryConfig, {"tracker.min_points": "40"}, source=None).tracker.min_points == 40
+    )
+
+
+def test_prompts_and_sam2_ids_are_typed():
+    cfg = build_config(
+        "segment", SegmentConfig, {"prompts": "Box=3:10,20,30,40;Cup=0:5,6", "sam2.ids": "Box=1, Cup=2"}, source=None
+    )
+    assert [(p.name, p.prompt.frame, p.prompt.box, p.prompt.point) for p in cfg.prompts] == [
+        ("Box", 3, (10.0, 20.0, 30.0, 40.0), None),
+        ("Cup", 0, None, (5.0, 6.0)),
+    ]
+    assert cfg.sam2.ids == (("Box", 1), ("Cup", 2))
+    assert build_config("segment", SegmentConfig, {"sam2": {"ids": {"Box": 3}}}, source=None).sam2.ids == (("Box", 3),)
+    assert config_to_dict(cfg)["prompts"][0] == {
+        "name": "Box",
+        "prompt": {"frame": 3, "box": [10, 20, 30, 40], "point": None},
+    }
+    for bad in ({"sam2.ids": "Box=x"}, {"sam2.ids": "Box=1.5"}, {"prompts": "Box=0:1,2,3"}):
+        with pytest.raises(ConfigError):
+            build_config("segment", SegmentConfig, bad, source=None)
+
+
+def test_rose_toml_tables_and_command_line_settings(case_copy, tmp_path):
+    """[object.fusion] in rose.toml sets the fusion backend's own setting; --set overrides it."""
+    from rose_usd import registry
+    from rose_usd.pipeline import Options, Pipeline
+
+    toml = case_copy / "rose.toml"
+    toml.write_text(
+        toml.read_text() + "\n[object.fusion]\nrevolution_tolerance = 0.04\n[segment.sam2]\nids = { Box = 2 }\n"
+    )
+    pipe = Pipeline(case_copy, tmp_path / "out")
+    assert pipe.config(registry.get("object")).fusion.revolution_tolerance == 0.04
+    assert pipe.config(registry.get("segment")).sam2.ids == (("Box", 2),)
+    pipe = Pipeline(case_copy, tmp_path / "out", Options(settings={"object": {"fusion.revolution_tolerance": "0.06"}}))
+    assert pipe.config(registry.get("object")).fusion.revolution_tolerance == 0.06
