@@ -62,3 +62,25 @@ def test_hands_found_on_a_real_clip():
     assert found >= 50, found
     assert 100 < np.median(areas) < 0.05 * 640 * 360, np.median(areas)
     assert task_file().stat().st_size > 7_000_000  # both full models, stored uncompressed
+
+
+def test_found_hands_are_the_interactors_and_no_objects(monkeypatch, sample_case, tmp_path):
+    """The classical segmenter gives a found hand's pixels to the interactor, never to an object:
+    a hand placed over the box's left half in frames 10-19 (the sample's proxy hand is a cylinder
+    the models do not see) leaves those pixels out of the box's masks there."""
+    from rose_usd.io.images import read_mask
+    from rose_usd.pipeline import Options, Pipeline
+    from rose_usd.segment import classical
+
+    area = np.zeros((240, 320), bool)
+    area[80:140, 170:192] = True  # over the box's left half at the start of the push
+    box = Hand(np.array([[181.0, 110.0]] * 21), np.zeros(21), "Right", 1.0)
+    monkeypatch.setattr(classical, "hand_mask", lambda hands, shape: area.copy())
+    monkeypatch.setattr(classical, "_found_hands", lambda ctx: [[box] if 10 <= t < 20 else [] for t in range(48)])
+    out = tmp_path / "out"
+    options = Options(backends={"capture": "oracle", "segment": "classical"}, force=True)
+    Pipeline(sample_case, out, options).run("segment")
+    for t in (10, 15, 19):
+        assert not (read_mask(out / "masks" / "Box" / f"{t:06d}.png") & area).any(), t
+        assert read_mask(out / "masks" / "Interactor" / f"{t:06d}.png")[area].all(), t
+    assert read_mask(out / "masks" / "Box" / "000005.png").any()

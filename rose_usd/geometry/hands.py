@@ -14,7 +14,9 @@ mask drawn from them may cover object pixels, so callers treat it as the hand's 
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +53,22 @@ class Hand:
     def palm_width_px(self) -> float:
         """Index to little finger base distance [px]: the hand's scale in the image."""
         return float(np.linalg.norm(self.landmarks_px[5] - self.landmarks_px[17]))
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """MediaPipe's C++ side writes a few lines to stderr as its graph starts and first runs
+    (TFLite's delegate, absl warnings about features it does not use): fd 2 goes to /dev/null
+    for the duration of such a call (Python exceptions still propagate)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _mediapipe():
@@ -104,8 +122,9 @@ class HandDetector:
             min_hand_presence_confidence=min_confidence,
             min_tracking_confidence=min_confidence,
         )
-        self._mp, self._landmarker = mp, vision.HandLandmarker.create_from_options(options)
-        self.fps, self._last_ms = float(fps), -1
+        with _quiet_stderr():
+            self._landmarker = vision.HandLandmarker.create_from_options(options)
+        self._mp, self.fps, self._last_ms = mp, float(fps), -1
 
     def detect(self, rgb: np.ndarray, t: int) -> list[Hand]:
         """The hands in frame t (RGB uint8 (H, W, 3)); frames must come in increasing t."""
@@ -113,7 +132,8 @@ class HandDetector:
         ms = max(ms, self._last_ms + 1)
         self._last_ms = ms
         image = self._mp.Image(image_format=self._mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
-        result = self._landmarker.detect_for_video(image, ms)
+        with _quiet_stderr():  # its first runs and first landmarks log too
+            result = self._landmarker.detect_for_video(image, ms)
         h, w = rgb.shape[:2]
         hands = [
             Hand(

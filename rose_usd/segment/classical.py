@@ -7,8 +7,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from rose_usd.errors import InputError
+from rose_usd.errors import EnvironmentProblem, InputError
 from rose_usd.geometry.background import StaticBackground
+from rose_usd.geometry.hands import Hand, HandDetector, hand_mask
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
 from rose_usd.segment.prompts import check_prompts, parse_prompts
@@ -37,6 +38,7 @@ def run(ctx: StageContext) -> None:
         found = seg.discover([s.name for s in specs], lambda t: interactor_mask(seg, t, []), n, where)
         starts = [(0, tr) for tr in found]
         how = "interactor-contact"
+    found_hands = _found_hands(ctx) if cfg.classical.hands else None
     t0 = min((f for f, _ in starts), default=0)
     masks = {s.name: [None] * n for s in specs}
     hands: list[np.ndarray | None] = [None] * n
@@ -47,11 +49,14 @@ def run(ctx: StageContext) -> None:
         if not tracks or (direction < 0 and t == t0 - 1):  # (re)start from the prompts
             tracks = [tr.copy() for _, tr in starts]
         active = [k for k, (f, _) in enumerate(starts) if direction < 0 or f <= t]
-        out = seg.step(t, [tracks[k] for k in active], hand_hist)
+        found = hand_mask(found_hands[t], (case.height, case.width)) if found_hands and found_hands[t] else None
+        out = seg.step(t, [tracks[k] for k in active], hand_hist, found)
         objs = [np.zeros((case.height, case.width), bool) for _ in specs]
         for k, m in zip(active, out):
             objs[k] = m
         hand = interactor_mask(seg, t, objs, hand_hist)
+        if found is not None:
+            hand |= found
         # the hand's colors, from its pixels away from the objects (a missed bit of an object
         # must not teach the hand model the object's colors)
         near_obj = (
@@ -77,4 +82,18 @@ def run(ctx: StageContext) -> None:
         tracks_out,
         lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"),
         start=how,
+        frames_with_hands_found=None if found_hands is None else sum(bool(h) for h in found_hands),
     )
+
+
+def _found_hands(ctx: StageContext) -> list[list[Hand]] | None:
+    """The hands in every frame (a forward pass: the detector tracks them from frame to frame),
+    None with a warning when the hand models are not installed."""
+    try:
+        detector = HandDetector(ctx.case.fps)
+    except EnvironmentProblem as exc:
+        ctx.warn(f"hands are not detected ({exc.message}); the interactor is what stands in front of the static world")
+        return None
+    with detector:
+        n = ctx.time_info.n_frames
+        return [detector.detect(ctx.case.rgb(t), t) for t in progress(range(n), "segment: hands", total=n)]

