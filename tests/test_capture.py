@@ -160,6 +160,29 @@ def test_plane_gravity_prefers_the_support_under_the_object():
     assert abs(est.support.normal @ anchor - est.support.offset - 0.04) < 0.003
 
 
+@pytest.mark.parametrize("check", [True, False])
+def test_plane_gravity_with_an_upside_down_camera(check):
+    """A camera mounted upside down (rolled 180 deg) sees the table's normal along its image-down,
+    and a wall behind the table passes the upright camera's test. With a point on the object
+    and the check on, up is the table's normal, not the wall's or its opposite, and the support is
+    the table, not the larger floor; without the check (no prompted object) the upright choice
+    stands."""
+    rng = np.random.default_rng(2)
+    table = np.c_[rng.uniform(-0.5, 0.5, 4000), rng.uniform(-0.4, 0.4, 4000), np.zeros(4000)]
+    floor = np.c_[rng.uniform(-2, 2, 6000), rng.uniform(-2, 2, 6000), np.full(6000, -0.75)]
+    wall = np.c_[rng.uniform(-2, 2, 6000), np.full(6000, 1.0), rng.uniform(-0.75, 1.5, 6000)]
+    flip = np.diag([-1.0, -1.0, 1.0, 1.0])  # roll 180 deg about the optical axis
+    cams = np.array([se3.look_at([x, -0.6, 0.6], [0, 0.1, 0]) @ flip for x in np.linspace(-0.1, 0.1, 5)])
+    points = np.concatenate([table, floor, wall])
+    est = gravity_from_planes(points, cams, anchor=np.array([0.0, 0.0, 0.04]), upside_down_check=check)
+    error_deg = np.degrees(np.arccos(est.up @ [0, 0, 1.0]))
+    if check:
+        assert error_deg < 0.5
+        assert abs(est.support.offset) < 0.003  # the table (z = 0), not the floor
+    else:
+        assert error_deg > 45.0  # the wall: what an upright camera's test picks
+
+
 def test_imu_gravity_in_camera_axes(tmp_path):
     """imu/gravity.txt holds per-frame gravity in OpenCV camera axes; up is its world average, negated."""
     cams = np.array([se3.look_at([0.5, -0.5, 0.5 + 0.01 * i], [0, 0, 0]) for i in range(4)])

@@ -122,6 +122,7 @@ def gravity_from_planes(
     anchor_min_height_m: float = 0.005,
     max_roll_deg: float = 25.0,
     max_pitch_deg: float = 80.0,
+    upside_down_check: bool = False,
 ) -> GravityEstimate:
     """Up from the horizontal planes of ``points`` (tracking frame).
 
@@ -134,25 +135,57 @@ def gravity_from_planes(
     looks, which may lie on the support itself) wins, else the group with the most support,
     weighted toward image-up. Up is the group's inlier-weighted normal; the support plane is its
     plane under the anchor (or its largest).
+
+    A camera mounted upside down (rolled 180 deg, as on some rigs) sees the table's normal along
+    its image-down. With ``upside_down_check`` (the anchor is on a prompted object) the candidates
+    are also chosen with the prior reversed, and the camera is taken to be upside down when that
+    finds a plane under the anchor more than 1 cm nearer to it (or the upright choice finds none):
+    the object stands on the plane right under it, a far wall that passes the upright test lies
+    farther below. (Where a view merely centers, on a cupboard's front say, nothing stands on it.)
     """
     prior = camera_up_prior(world_from_camera)
     right = world_from_camera[:, :3, 0].mean(axis=0)
     right /= np.linalg.norm(right)
     planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
-    planes = [
+    choice = _horizontal_group(planes, prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
+    if anchor is not None and upside_down_check:
+        flipped = _horizontal_group(planes, -prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
+        if flipped is not None and flipped[1] is not None:
+            if choice is None or choice[1] is None or _height(flipped[1], anchor) < _height(choice[1], anchor) - 0.01:
+                choice = flipped
+    if choice is None:
+        raise InputError(
+            f"no horizontal support plane among {len(planes)} planes found in the depth",
+            hint="film the surface the object rests on, or give gravity (perception/geocalib.json or imu/gravity.txt)",
+        )
+    group, under, rated = choice
+    weights = np.array([p.inliers for p in group], dtype=float)
+    up = (weights[:, None] * np.array([p.normal for p in group])).sum(axis=0)
+    up /= np.linalg.norm(up)
+    main = under or group[0]
+    support = Plane(up, float(up @ (main.offset * main.normal)), main.inliers, main.angle_to_prior_deg)
+    sigma = float(np.degrees(0.01 / np.sqrt(max(main.inliers, 1)) / 0.1))  # ~1 cm noise over ~10 cm of lever
+    return GravityEstimate(up, "plane", support, rated, sigma)
+
+
+def _height(plane: Plane, point: np.ndarray) -> float:
+    return float(plane.normal @ point - plane.offset)
+
+
+def _horizontal_group(planes, prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg):
+    """(group, its plane under the anchor or None, planes rated against ``prior``) of the winning
+    group of parallel candidate planes (see gravity_from_planes), None without candidates."""
+    rated = [
         Plane(p.normal, p.offset, p.inliers, float(np.degrees(np.arccos(np.clip(p.normal @ prior, -1, 1)))))
         for p in planes
     ]
     candidates = [
         p
-        for p in planes
+        for p in rated
         if abs(p.normal @ right) < np.sin(np.radians(max_roll_deg)) and p.angle_to_prior_deg < max_pitch_deg
     ]
     if not candidates:
-        raise InputError(
-            f"no horizontal support plane among {len(planes)} planes found in the depth",
-            hint="film the surface the object rests on, or give gravity (perception/geocalib.json or imu/gravity.txt)",
-        )
+        return None
     groups: list[list[Plane]] = []
     for p in sorted(candidates, key=lambda p: -p.inliers):
         for group in groups:
@@ -163,21 +196,13 @@ def gravity_from_planes(
             groups.append([p])
     biggest = max(p.inliers for p in candidates)
 
-    def under_anchor(group: list[Plane]) -> Plane | None:
-        return plane_under(group, anchor, biggest, anchor_min_height_m)
-
     def score(group: list[Plane]) -> float:
         return sum(p.inliers for p in group) * max(float(np.cos(np.radians(group[0].angle_to_prior_deg))), 0.0)
 
-    with_object = [g for g in groups if under_anchor(g) is not None]
+    under = {id(g): plane_under(g, anchor, biggest, anchor_min_height_m) for g in groups}
+    with_object = [g for g in groups if under[id(g)] is not None]
     group = max(with_object or groups, key=score)
-    weights = np.array([p.inliers for p in group], dtype=float)
-    up = (weights[:, None] * np.array([p.normal for p in group])).sum(axis=0)
-    up /= np.linalg.norm(up)
-    main = under_anchor(group) or group[0]
-    support = Plane(up, float(up @ (main.offset * main.normal)), main.inliers, main.angle_to_prior_deg)
-    sigma = float(np.degrees(0.01 / np.sqrt(max(main.inliers, 1)) / 0.1))  # ~1 cm noise over ~10 cm of lever
-    return GravityEstimate(up, "plane", support, planes, sigma)
+    return group, under[id(group)], rated
 
 
 def refine_with_planes(

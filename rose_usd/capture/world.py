@@ -4,7 +4,7 @@ Every capture backend ends here, so all of them write the same layer."""
 from __future__ import annotations
 
 import numpy as np
-from pxr import UsdGeom
+from pxr import Gf, UsdGeom
 
 from rose_usd.capture.anchor import anchor_from_prompt, anchor_from_view_center
 from rose_usd.capture.gravity import (
@@ -38,6 +38,7 @@ def author_world(
     scale_residual: float = 0.0,
     gravity_uncertainty_deg: float = 0.0,
     intrinsics_source: str = "file",
+    depth_shift_px: tuple[int, int] = (0, 0),
 ) -> None:
     """Write the world layer.
 
@@ -45,6 +46,7 @@ def author_world(
         world_from_camera: OpenCV camera poses in the gravity-aligned metric world, (N, 4, 4) [m].
         K: (3, 3) or (N, 3, 3) intrinsics [px].
         world_from_input: transform from the input frame to the world (4, 4).
+        depth_shift_px: (dx, dy) sensor depth pixel (x, y) shows colour pixel (x + dx, y + dy).
     """
     n = ctx.time_info.n_frames
     if len(world_from_camera) != n:
@@ -63,6 +65,8 @@ def author_world(
     prim.GetAttribute(tokens.WORLD_SCALE_ALPHA).Set(float(scale_alpha))
     prim.GetAttribute(tokens.WORLD_SCALE_BETA).Set(float(scale_beta))
     prim.GetAttribute(tokens.WORLD_SCALE_RESIDUAL).Set(float(scale_residual))
+    if tuple(depth_shift_px) != (0, 0):
+        prim.GetAttribute(tokens.WORLD_DEPTH_SHIFT_PX).Set(Gf.Vec2i(*(int(v) for v in depth_shift_px)))
     author_physics_scene(stage, paths.PHYSICS_SCENE)
     UsdGeom.Scope.Define(stage, paths.CAMERAS)
     author_camera(
@@ -78,10 +82,10 @@ def author_world(
 
 
 def author_tracked_world(
-    ctx: StageContext, poses: np.ndarray, K: np.ndarray, world_from_track: np.ndarray, gravity, k_source: str, **scale
+    ctx: StageContext, poses: np.ndarray, K: np.ndarray, world_from_track: np.ndarray, gravity, k_source: str, **more
 ) -> None:
     """Write the world layer from cameras tracked in their own frame (``poses``) and the world
-    ``locate`` found; ``scale`` holds author_world's scale_* arguments."""
+    ``locate`` found; ``more`` holds author_world's scale_* and depth_shift_px arguments."""
     author_world(
         ctx,
         world_from_camera=np.einsum("ij,njk->nik", world_from_track, poses),
@@ -90,7 +94,7 @@ def author_tracked_world(
         gravity_source=gravity.source,
         gravity_uncertainty_deg=gravity.uncertainty_deg,
         intrinsics_source=k_source,
-        **scale,
+        **more,
     )
 
 
@@ -129,7 +133,9 @@ def locate(
     if prompt is not None and 0 <= prompt.frame < len(poses):
         anchor = anchor_from_prompt(prompt, depth_of(prompt.frame), K, poses[prompt.frame])
     if anchor is not None:
-        gravity, support = choose_gravity(ctx, poses, points, anchor, plane_floor_deg=plane_floor_deg)
+        gravity, support = choose_gravity(
+            ctx, poses, points, anchor, plane_floor_deg=plane_floor_deg, upside_down_check=True
+        )
     else:
         # no object to stand on the support: the support is the plane the first view centers on
         # (a casual video frames the table, while a floor may fill more of the fused points)
@@ -154,10 +160,12 @@ def choose_gravity(
     *,
     plane_floor_deg: float = 0.1,
     anchor_min_height_m: float = 0.005,
+    upside_down_check: bool = False,
 ):
     """Gravity by the configured method, and the support plane (the one under ``anchor``, a point
     on the object, when given). ``auto``: the IMU; else GeoCalib fused with the support plane
-    (plane sigma at least ``plane_floor_deg``); else the support plane alone."""
+    (plane sigma at least ``plane_floor_deg``); else the support plane alone, checked for an
+    upside-down camera when ``upside_down_check`` (the anchor is on a prompted object)."""
     method = ctx.config.gravity.value
     folder = ctx.case.folder
     imu, geocalib = folder / "imu" / "gravity.txt", folder / "perception" / "geocalib.json"
@@ -183,7 +191,13 @@ def choose_gravity(
                 est, points, poses, anchor=anchor, floor_deg=plane_floor_deg, anchor_min_height_m=anchor_min_height_m
             )
     else:
-        est = gravity_from_planes(points, poses, anchor=anchor, anchor_min_height_m=anchor_min_height_m)
+        est = gravity_from_planes(
+            points,
+            poses,
+            anchor=anchor,
+            anchor_min_height_m=anchor_min_height_m,
+            upside_down_check=upside_down_check,
+        )
     support = (
         est.support
         if est.support is not None
