@@ -52,6 +52,22 @@ def test_readers_on_the_oracle_reconstruction(oracle_out, sample_case):
     assert read_gate(stage).passed
 
 
+def test_depth_reader_applies_the_world_layers_depth_shift(oracle_out, sample_case):
+    """A world layer that records rose:world:depthShiftPx makes every reader's depth shifted."""
+    from pxr import Gf
+
+    from rose_usd.usd import paths, tokens
+
+    stage = open_stage(oracle_out / "rose.usda")
+    case = load_case(sample_case, registry.STAGE_NAMES)
+    raw = metric_depth_reader(stage, case)(3)
+    stage.SetEditTarget(stage.GetSessionLayer())  # this stage only: the layers on disk stay as they are
+    stage.GetPrimAtPath(paths.WORLD).GetAttribute(tokens.WORLD_DEPTH_SHIFT_PX).Set(Gf.Vec2i(-5, 2))
+    shifted = metric_depth_reader(stage, case)(3)
+    assert np.array_equal(shifted[2:, :-5], raw[:-2, 5:])
+    assert not shifted[:2].any() and not shifted[:, -5:].any()
+
+
 def test_readers_name_the_missing_layer(tmp_path, oracle_out):
     """A stage without the masks layer: the reader says which stage to run, in one line."""
     stage = open_stage(oracle_out / "layers" / "world.usda")

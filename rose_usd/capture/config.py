@@ -33,6 +33,9 @@ class RgbdConfig:
     """Images are downscaled by an integer factor to about this width for tracking [px] (default 320)."""
     keyframe_every: int = 8
     """A new keyframe after at most this many frames (default 8)."""
+    static_fraction: float = 0.3
+    """The camera is static (identity poses, no tracking; capture.static) when at least this
+    fraction of the first frame's corners stay within 0.5 px; above 1 never (default 0.3)."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -1,6 +1,9 @@
 """The rgbd capture backend: a depth sensor or phone LiDAR video.
 
-Cameras by keyframe RGB-D tracking with a pose graph (capture.tracking); gravity from the
+Cameras: a static camera (most first-frame corners stay put, capture.static) keeps the first
+frame's pose, and its depth is checked for a shift against the colour (geometry.registration,
+applied and recorded in the world layer when found); a moving one is tracked by keyframe RGB-D
+tracking with a pose graph (capture.tracking). Gravity from the
 support plane of the fused points, GeoCalib or an IMU (capture.gravity); the world origin under the
 prompted object (capture.anchor). Sensor depth is metric: alpha = 1, beta = 0.
 """
@@ -10,9 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 from rose_usd.capture.intrinsics import resolve_K
+from rose_usd.capture.static import still_fraction
 from rose_usd.capture.tracking import RgbdTracker, TrackingParams
 from rose_usd.capture.world import author_tracked_world, fused_points, locate
 from rose_usd.errors import InputError
+from rose_usd.geometry.registration import DepthShift, find_depth_shift, shift_depth
 from rose_usd.layers.world import cached_frames
 from rose_usd.stage_api import StageContext
 
@@ -32,26 +37,80 @@ def run(ctx: StageContext) -> None:
     depth_of = cached_frames(case.depth_m, 64)
 
     n = case.n_frames
-    result = RgbdTracker(K, case.width, case.height, params).track(n, lambda t: (case.rgb(t), depth_of(t), None))
-    poses = result.world_from_camera
-    points = fused_points(depth_of, result.keyframes, K, poses, depth_max_m=cfg.depth_max_m)
+    still = still_fraction(case.rgb, n)
+    shift = DepthShift(0, 0, 0.0, 0.0, 0)
+    if still >= cfg.rgbd.static_fraction:
+        poses = np.repeat(np.eye(4)[None], n, axis=0)
+        keyframes = list(range(0, n, max(1, n // 24)))
+        tracking = {"static_camera": True}
+        shift = _registration(ctx, depth_of)
+        if shift.applies:
+            depth_of = cached_frames(lambda t: shift_depth(case.depth_m(t), shift.dx, shift.dy), 64)
+    else:
+        poses, keyframes, tracking = _track(ctx, K, params, depth_of)
+    points = fused_points(depth_of, keyframes, K, poses, depth_max_m=cfg.depth_max_m)
     gravity, support, world_from_track, how = locate(ctx, poses, points, depth_of, K)
+    author_tracked_world(
+        ctx,
+        poses,
+        K,
+        world_from_track,
+        gravity,
+        k_source,
+        scale_source="sensor",
+        depth_shift_px=(shift.dx, shift.dy) if shift.applies else (0, 0),
+    )
+    ctx.record(
+        **tracking,
+        still_corners=round(still, 3),
+        gravity=gravity.source,
+        support_plane_inliers=support.inliers,
+        planes=[{"inliers": p.inliers, "tilt_deg": round(p.angle_to_prior_deg, 2)} for p in gravity.planes],
+        origin=how,
+        depth_shift={
+            "dx": shift.dx,
+            "dy": shift.dy,
+            "overlap": round(shift.overlap, 3),
+            "overlap_unshifted": round(shift.overlap_unshifted, 3),
+            "frames": shift.frames,
+            "applied": shift.applies,
+        },
+    )
+
+
+def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of):
+    """Poses of a moving camera by keyframe RGB-D tracking: (poses, keyframes, what to record)."""
+    case = ctx.case
+    result = RgbdTracker(K, case.width, case.height, params).track(
+        case.n_frames, lambda t: (case.rgb(t), depth_of(t), None)
+    )
     low = int(np.sum(result.fitness < params.min_fitness))
     if low:
         ctx.warn(
             f"{low} frame(s) overlap their keyframe poorly (fitness < {params.min_fitness}); "
             "their poses are less certain"
         )
-    author_tracked_world(ctx, poses, K, world_from_track, gravity, k_source, scale_source="sensor")
-    ctx.record(
-        keyframes=len(result.keyframes),
-        photometric_keyframes=result.hybrid_keyframes,
-        normal_spread=None if result.normal_spread is None else round(result.normal_spread, 3),
-        keyframe_edges=len(result.keyframe_edges),
-        fitness_min=round(float(result.fitness.min()), 3),
-        fitness_mean=round(float(result.fitness.mean()), 3),
-        gravity=gravity.source,
-        support_plane_inliers=support.inliers,
-        planes=[{"inliers": p.inliers, "tilt_deg": round(p.angle_to_prior_deg, 2)} for p in gravity.planes],
-        origin=how,
-    )
+    record = {
+        "static_camera": False,
+        "keyframes": len(result.keyframes),
+        "photometric_keyframes": result.hybrid_keyframes,
+        "normal_spread": None if result.normal_spread is None else round(result.normal_spread, 3),
+        "keyframe_edges": len(result.keyframe_edges),
+        "fitness_min": round(float(result.fitness.min()), 3),
+        "fitness_mean": round(float(result.fitness.mean()), 3),
+    }
+    return result.world_from_camera, result.keyframes, record
+
+
+def _registration(ctx: StageContext, depth_of) -> DepthShift:
+    """The depth-to-colour shift of a static camera's video (geometry.registration), with a
+    warning when it is applied."""
+    case = ctx.case
+    shift = find_depth_shift(case.rgb, depth_of, case.n_frames)
+    if shift.applies:
+        ctx.warn(
+            f"depth/ is not registered to rgb/: its silhouettes sit ({-shift.dx}, {-shift.dy}) px off the colour "
+            f"(what moves overlaps {shift.overlap_unshifted:.2f} -> {shift.overlap:.2f}); depth is shifted by "
+            f"({shift.dx}, {shift.dy}) px"
+        )
+    return shift

@@ -15,6 +15,7 @@ from pxr import Usd
 
 from rose_usd.case.layout import Case
 from rose_usd.errors import StageError
+from rose_usd.geometry.registration import shift_depth
 from rose_usd.io.megasam import metric_from_megasam, read_megasam
 from rose_usd.usd import paths, tokens
 from rose_usd.usd.camera import CameraTrack, read_camera
@@ -48,7 +49,10 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
             raise StageError(
                 f"capture used {source} depth but the case has no depth/", path=case.folder, hint="re-run capture"
             )
-        read = case.depth_m
+        dx, dy = depth_shift_px(stage)
+
+        def read(t: int) -> np.ndarray:
+            return shift_depth(case.depth_m(t), dx, dy)
     else:
         world = stage.GetPrimAtPath(paths.WORLD)
         alpha = float(world.GetAttribute(tokens.WORLD_SCALE_ALPHA).Get())
@@ -66,6 +70,12 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
             return metric_from_megasam(depths[t], alpha, beta, case.width, case.height)
 
     return cached_frames(read, cache)
+
+
+def depth_shift_px(stage: Usd.Stage) -> tuple[int, int]:
+    """(dx, dy): sensor depth pixel (x, y) shows colour pixel (x + dx, y + dy)."""
+    value = stage.GetPrimAtPath(paths.WORLD).GetAttribute(tokens.WORLD_DEPTH_SHIFT_PX).Get()
+    return (0, 0) if value is None else (int(value[0]), int(value[1]))
 
 
 def cached_frames(read: Callable[[int], np.ndarray], size: int) -> Callable[[int], np.ndarray]:

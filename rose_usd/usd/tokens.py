@@ -50,6 +50,7 @@ TRAJECTORY_SOURCE = "rose:trajectory:source"
 # world
 WORLD_GRAVITY_SOURCE = "rose:world:gravitySource"
 WORLD_GRAVITY_UNCERTAINTY_DEG = "rose:world:gravityUncertaintyDeg"
+WORLD_DEPTH_SHIFT_PX = "rose:world:depthShiftPx"
 WORLD_SCALE_ALPHA = "rose:world:scaleAlpha"
 WORLD_SCALE_BETA = "rose:world:scaleBeta"
 WORLD_SCALE_RESIDUAL = "rose:world:scaleResidual"
