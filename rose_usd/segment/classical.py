@@ -13,7 +13,7 @@ from rose_usd.geometry.hands import Hand, HandDetector, hand_mask
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, histogram, interactor_mask
+from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, histogram, interactor_mask
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
@@ -50,7 +50,8 @@ def run(ctx: StageContext) -> None:
             tracks = [tr.copy() for _, tr in starts]
         active = [k for k, (f, _) in enumerate(starts) if direction < 0 or f <= t]
         found = hand_mask(found_hands[t], (case.height, case.width)) if found_hands and found_hands[t] else None
-        out = seg.step(t, [tracks[k] for k in active], hand_hist, found)
+        arm = arm_mask(seg, t, found) if found is not None else None
+        out = seg.step(t, [tracks[k] for k in active], hand_hist, found, arm)
         objs = [np.zeros((case.height, case.width), bool) for _ in specs]
         for k, m in zip(active, out):
             objs[k] = m

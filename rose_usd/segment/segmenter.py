@@ -358,10 +358,17 @@ class Segmenter:
 
     # ----------------------------------------------------------------- propagate
     def step(
-        self, t: int, tracks: list[ObjectTrack], hand_hist: np.ndarray | None, exclude: np.ndarray | None = None
+        self,
+        t: int,
+        tracks: list[ObjectTrack],
+        hand_hist: np.ndarray | None,
+        exclude: np.ndarray | None = None,
+        arm: np.ndarray | None = None,
     ) -> list[np.ndarray]:
         """Masks of every track in frame t (updating the tracks); pixels of ``exclude`` (a hand
-        found by its landmarks) belong to no object."""
+        found by its landmarks) belong to no object, pixels of ``arm`` (what stands in front of
+        the static world connected to that hand: the arm, and the object the hand holds) only
+        when they are within ``core_m`` of the object's predicted points."""
         rgb, depth, pts, edges, cidx = self.frame(t)
         p = self.config
         valid = (depth > 0) & (pts[..., 2] > self.lift)
@@ -392,6 +399,8 @@ class Segmenter:
             ys, xs = ys[colored] + y0, xs[colored] + x0
             d, _ = cKDTree(pred).query(pts[ys, xs], k=1, distance_upper_bound=reach)
             ok = np.isfinite(d)
+            if arm is not None:
+                ok &= ~arm[ys, xs] | (d < p.core_m + 0.5 * np.linalg.norm(track.velocity))
             better = ok & (d < best[ys, xs])
             best[ys[better], xs[better]] = d[better]
             owner[ys[better], xs[better]] = k
@@ -407,6 +416,7 @@ class Segmenter:
             mask = np.isin(labels, keep) if len(keep) else np.zeros_like(grow)
             mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
             mask = fill_holes(self._color_border(mask, cidx, track, hand_hist, owner, k), max_hole)
+            mask &= self._within_size(t, track, mask)
             masks.append(mask if exclude is None else mask & ~exclude)
         # closing, color borders and filled holes may reach into another object's pixels: each
         # pixel stays with the track that owns it (the nearest), or the first that claims it
@@ -419,6 +429,16 @@ class Segmenter:
                 mask &= ~(shared & (others_own | ((owner < 0) & earlier)))
             self._update(track, t, mask)
         return masks
+
+    def _within_size(self, t: int, track: ObjectTrack, mask: np.ndarray, *, slack_m: float = 0.015) -> np.ndarray:
+        """The object is rigid: pixels whose point lies farther than half its diameter (measured at
+        the start) plus ``slack_m`` from its predicted centre are not its (an arm of the same colour
+        that touches it would otherwise be taken, and the track would climb it frame by frame).
+        Pixels without depth stay."""
+        pts = self.frame(t)[2]
+        centre = np.median(track.points, axis=0) + track.velocity
+        far = np.linalg.norm(np.nan_to_num(pts - centre, nan=0.0), axis=-1) > 0.5 * track.diameter + slack_m
+        return ~(far & mask)
 
     def _color_border(self, mask, cidx, track, hand_hist, owner, k, *, ring_px: int = 5) -> np.ndarray:
         """Grow the mask by object-colored pixels within ``ring_px``: at silhouettes, depth is
@@ -498,6 +518,19 @@ def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
         if gap < best_gap:
             best, best_gap = shift, gap
     return best
+
+
+def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
+    """What stands in front of the static world (geometry.background) in frame t and connects to
+    ``hand`` (pixels of a hand found by its landmarks): the arm, and whatever the hand holds."""
+    depth = seg.frame(t)[1]
+    fg, _ = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
+    n, labels, _ = components(fg | hand)
+    touched = np.unique(labels[cv2.dilate(hand.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)])
+    keep = np.zeros(n, bool)
+    keep[touched] = True
+    keep[0] = False
+    return keep[labels] & ~hand
 
 
 def interactor_mask(
