@@ -347,3 +347,18 @@ def test_walls_fused_over_many_frames_lie_where_the_frames_put_them():
     # a single frame: nothing to compare, every voxel counts
     _, _, often = seen_voxels(frames[0], colors[: len(frames[0])], 0.002)
     assert often.all()
+
+
+def test_support_height_ignores_a_few_points_below_the_table():
+    """A real sensor's flying pixels at the silhouette fall below the table: a handful of the
+    object's points 1 cm under the ground do not sink the support; a stack's lower object does
+    raise it, and an object seen well below the ground lowers it."""
+    from rose_usd.object.rest import support_height
+
+    rng = np.random.default_rng(0)
+    wall = np.c_[rng.uniform(-0.02, 0.02, (2000, 2)), rng.uniform(0.0, 0.05, 2000)]
+    flying = np.c_[rng.uniform(-0.02, 0.02, (8, 2)), np.full(8, -0.01)]
+    assert support_height(np.concatenate([wall, flying]), [], ground=0.0) == 0.0
+    lower = np.c_[rng.uniform(-0.03, 0.03, (500, 2)), rng.uniform(0.0, 0.03, 500)]
+    assert support_height(wall + [0, 0, 0.03], [lower], ground=0.0) == pytest.approx(0.03, abs=0.002)
+    assert support_height(wall - [0, 0, 0.02], [], ground=0.0) < -0.019

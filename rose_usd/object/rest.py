@@ -189,9 +189,12 @@ def support_height(
     points: np.ndarray, others: list[np.ndarray], *, ground: float = 0.0, margin_m: float = 0.01
 ) -> float:
     """What the object stands on: the top of another object under its footprint (a stack), else
-    the surface around it (``ground``). Another object's points count when they lie under the
-    object's footprint (grown by ``margin_m``) and no higher than its lowest seen point plus ``margin_m``."""
-    lowest = float(points[:, 2].min())
+    the surface around it (``ground``), but never above the object's lowest seen points (their
+    1st percentile: a real sensor's flying pixels at the silhouette fall a centimetre below the
+    table, and the single lowest put cups-rgbd's ball 8 mm into it). Another object's points
+    count when they lie under the object's footprint (grown by ``margin_m``) and no higher than
+    its lowest seen point plus ``margin_m``."""
+    lowest = float(np.percentile(points[:, 2], 1.0))
     lo, hi = points[:, :2].min(axis=0) - margin_m, points[:, :2].max(axis=0) + margin_m
     best = ground
     for other in others:
