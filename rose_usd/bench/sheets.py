@@ -1,0 +1,120 @@
+"""Contact sheets of a reconstruction, every few frames, optionally cropped to a region of
+interest and enlarged (real clips' objects can be 20-40 px wide):
+
+- ``mask_sheet``: each object's mask (its own colour) and the interactor's (blue) over the video;
+- ``object_sheet``: each object's mesh posed by the trajectory layer, drawn through the world
+  layer's camera (filled outline in the object's colour), with the mask's outline in red.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from rose_usd.case.layout import Case
+from rose_usd.core import se3
+from rose_usd.core.pinhole import silhouette
+from rose_usd.layers.masks import INTERACTOR, read_masks
+from rose_usd.layers.objects import object_paths, visual_mesh
+from rose_usd.layers.trajectory import object_poses
+from rose_usd.layers.world import read_cameras
+from rose_usd.usd.stage import open_stage
+
+COLOURS = [(0, 230, 0), (255, 60, 200), (255, 200, 0), (0, 220, 255)]
+HAND = (40, 80, 255)
+
+
+def mask_sheet(
+    case: Case,
+    run_dir: Path,
+    path: Path,
+    *,
+    every: int = 20,
+    crop: tuple[int, int, int, int] | None = None,
+    tile_w: int = 320,
+    cols: int = 4,
+    label=None,
+) -> Path:
+    """Write ``path``: the masks of ``run_dir`` (an output folder with a masks layer) over the
+    frames of ``case``, every ``every`` frames; ``crop`` is (x0, y0, x1, y1) in pixels;
+    ``label(t)`` adds text under the frame number."""
+    n = case.n_frames
+    masks = read_masks(open_stage(run_dir / "rose.usda"), n, (case.height, case.width))
+    tiles = []
+    for t in range(0, n, every):
+        rgb = case.rgb(t)
+        over = rgb.copy()
+        hand = masks.mask(INTERACTOR, t) if masks.has(INTERACTOR) else None
+        if hand is not None:
+            over[hand] = HAND
+        for k, name in enumerate(masks.names):
+            m = masks.mask(name, t)
+            if m is not None:
+                over[m] = COLOURS[k % len(COLOURS)]
+        tiles.append(_tile(cv2.addWeighted(rgb, 0.45, over, 0.55, 0), t, crop, tile_w, label))
+    return _write(tiles, cols, path)
+
+
+def object_sheet(
+    case: Case,
+    run_dir: Path,
+    path: Path,
+    *,
+    every: int = 20,
+    crop: tuple[int, int, int, int] | None = None,
+    tile_w: int = 320,
+    cols: int = 4,
+) -> Path:
+    """Write ``path``: every object's mesh at its trajectory pose over the frames of ``case``
+    (shaded in the object's colour, outlined), with its mask's outline (red)."""
+    n = case.n_frames
+    stage = open_stage(run_dir / "rose.usda")
+    cams = read_cameras(stage, n)
+    masks = read_masks(stage, n, (case.height, case.width))
+    names = list(object_paths(stage))
+    meshes = {name: visual_mesh(stage, name) for name in names}
+    poses = {name: object_poses(stage, name, n) for name in names}
+    tiles = []
+    for t in range(0, n, every):
+        rgb = case.rgb(t)
+        image = rgb.copy()
+        for k, name in enumerate(names):
+            moved = poses[name][t] @ se3.invert(poses[name][0])
+            vertices = se3.transform_points(moved, meshes[name].vertices)
+            sil = silhouette(vertices, meshes[name].faces, cams.world_from_cv[t], cams.K[t], case.width, case.height)
+            colour = COLOURS[k % len(COLOURS)]
+            image[sil] = (0.5 * image[sil] + 0.5 * np.array(colour)).astype(np.uint8)
+            _outline(image, sil, colour)
+            m = masks.mask(name, t) if name in masks.names else None
+            if m is not None:
+                _outline(image, m, (255, 0, 0))
+        tiles.append(_tile(image, t, crop, tile_w, None))
+    return _write(tiles, cols, path)
+
+
+def _outline(image: np.ndarray, mask: np.ndarray, colour) -> None:
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(image, contours, -1, colour, 1)
+
+
+def _tile(image: np.ndarray, t: int, crop, tile_w: int, label) -> np.ndarray:
+    if crop is not None:
+        x0, y0, x1, y1 = crop
+        image = image[y0:y1, x0:x1]
+    tile = cv2.resize(
+        image, (tile_w, int(round(tile_w * image.shape[0] / image.shape[1]))), interpolation=cv2.INTER_AREA
+    )
+    text = f"{t}" + (f"  {label(t)}" if label is not None else "")
+    cv2.putText(tile, text, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1, cv2.LINE_AA)
+    return tile
+
+
+def _write(tiles: list[np.ndarray], cols: int, path: Path) -> Path:
+    while len(tiles) % cols:
+        tiles.append(np.zeros_like(tiles[0]))
+    sheet = np.vstack([np.hstack(tiles[i : i + cols]) for i in range(0, len(tiles), cols)])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+    return path
