@@ -41,6 +41,19 @@ def test_icp_recovers_a_known_motion_from_the_visible_side():
     assert se3.rotation_angle_deg(err[:3, :3]) < 0.1
 
 
+def test_icp_on_one_face_without_a_prior_does_not_fail():
+    """Only the box's top face seen and no prior (re-acquisition): the point-to-plane system is
+    singular (a plane leaves three directions free). The fit moves along none of them and
+    recovers the height offset (the small suite's lift-can case raised 'Singular matrix')."""
+    box, model = _box_model()
+    camera = np.array([0.1, 0.0, 0.6])
+    xs, ys = np.meshgrid(np.linspace(0.05, 0.15, 30), np.linspace(-0.03, 0.03, 20))
+    top = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.062)])
+    fit = register(model, top, camera, np.eye(4), prior_weight=0.0)
+    assert abs(fit.motion[2, 3] - 0.002) < 2e-4
+    assert np.allclose(fit.motion[:2, 3], 0.0, atol=1e-6) and np.allclose(fit.motion[:3, :3], np.eye(3), atol=1e-6)
+
+
 def test_smoothing_keeps_a_steady_motion_and_removes_jitter():
     """A constant-velocity slide is unchanged (a centered window has no lag); jitter shrinks."""
     n = 30

@@ -146,7 +146,10 @@ def register(
             # rotation terms are ~(object size)^2 smaller than the translation terms, so for a
             # 5-10 cm object this is a weak pull on position and a strong one on the turn
             lam = prior_weight * np.trace(H) / 6.0
-            xi = np.linalg.solve(H + lam * np.eye(6), -g - lam * acc)
+            try:
+                xi = np.linalg.solve(H + lam * np.eye(6), -g - lam * acc)
+            except np.linalg.LinAlgError:  # all matches on one plane, no prior: move along none of its free directions
+                xi = np.linalg.lstsq(H + lam * np.eye(6), -g - lam * acc, rcond=None)[0]
             step = se3.make_pose(np.eye(3), c) @ _exp(xi) @ se3.make_pose(np.eye(3), -c)
             inv = step @ inv
             acc += xi
