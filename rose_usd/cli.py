@@ -389,7 +389,12 @@ def _add_bench_commands(bench) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing case folder")
     p.set_defaults(func=cmd_bench_generate)
     p = bsub.add_parser("run", help="run a suite of generated cases in one perception mode and score every stage")
-    p.add_argument("--suite", default="small", help="suite name: small (CI) or default (5 tasks x 2 seeds, 640x480)")
+    p.add_argument(
+        "--suite",
+        default="small",
+        help="suite name: small (CI), default (5 tasks x 2 seeds, 640x480) or realistic"
+        " (5 tasks, a fingered hand, printed objects, 480x360)",
+    )
     p.add_argument(
         "--mode", default="rgbd", choices=["rgbd", "mono-imported", "rgb"], help="what the cases give the pipeline"
     )

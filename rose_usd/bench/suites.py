@@ -29,10 +29,14 @@ class CaseSpec:
     width: int
     height: int
     spp: int
+    realistic: bool = False
+    static_camera: bool = False
+    lying: bool = False
 
     @property
     def name(self) -> str:
-        return f"{self.task.value}-{self.shape.value}-s{self.seed}"
+        extra = ("-lying" if self.lying else "") + ("-static" if self.static_camera else "")
+        return f"{self.task.value}-{self.shape.value}{extra}-s{self.seed}"
 
     def generate_config(self) -> GenerateConfig:
         return GenerateConfig(
@@ -43,6 +47,9 @@ class CaseSpec:
             width=self.width,
             height=self.height,
             spp=self.spp,
+            realistic=self.realistic,
+            static_camera=self.static_camera,
+            lying=self.lying,
         )
 
     def matches(self, generator: dict, n_frames: int, width: int, height: int) -> bool:
@@ -53,6 +60,9 @@ class CaseSpec:
             and generator.get("shape") == self.shape.value
             and generator.get("seed") == self.seed
             and generator.get("spp") == self.spp
+            and generator.get("realistic", False) == self.realistic
+            and generator.get("static_camera", False) == self.static_camera
+            and generator.get("lying", False) == self.lying
             and (n_frames, width, height) == (self.n_frames, self.width, self.height)
         )
 
@@ -75,7 +85,26 @@ def _small() -> tuple[CaseSpec, ...]:
     )
 
 
-SUITES: dict[str, tuple[CaseSpec, ...]] = {"default": _default(), "small": _small()}
+def _realistic() -> tuple[CaseSpec, ...]:
+    """As hard as a real video: a skin-toned hand whose fingers wrap and hide the object, printed
+    and speckled objects on a cloth, same-colored clutter, lying objects, static and hand-held
+    cameras (rose_usd.synth.generate, ``realistic``)."""
+    layout = {  # task: (shape, static camera, lying)
+        Task.UNSTACK: (ObjectShape.CAN, False, False),
+        Task.PLACE: (ObjectShape.MUG, True, True),
+        Task.LIFT: (ObjectShape.CAN, False, True),
+        Task.PUSH: (ObjectShape.BOX, True, False),
+        Task.ROTATE: (ObjectShape.MUG, False, False),
+    }
+    return tuple(
+        CaseSpec(
+            task, shape, 300 + ti, n_frames=64, width=480, height=360, spp=8, realistic=True, static_camera=st, lying=ly
+        )
+        for ti, (task, (shape, st, ly)) in enumerate(layout.items())
+    )
+
+
+SUITES: dict[str, tuple[CaseSpec, ...]] = {"default": _default(), "small": _small(), "realistic": _realistic()}
 
 
 def get_suite(name: str) -> tuple[CaseSpec, ...]:

@@ -32,8 +32,9 @@ from rose_usd.object.priors import PRIORS
 from rose_usd.progress import progress, say
 from rose_usd.render.lighting import Lighting, PointLight
 from rose_usd.render.scene import RenderItem, RenderScene
+from rose_usd.synth import hand as handmod
 from rose_usd.synth import shapes, textures
-from rose_usd.synth.motion import Task, hand_trajectory, handheld_camera, task_motion
+from rose_usd.synth.motion import Task, hand_trajectory, handheld_camera, phases, task_motion
 from rose_usd.synth.sensor import sample_depth_extrinsic, sensor_depth
 from rose_usd.usd.geom import MeshData
 
@@ -63,6 +64,14 @@ class GenerateConfig:
     """Frame rate [1/s]."""
     spp: int = 16
     """Samples per pixel of the RGB renders (anti-aliasing only: the shading is noise-free)."""
+    realistic: bool = False
+    """A case as hard as a real video: a hand with fingers wrapped around the object, in a skin
+    tone and a sleeve, casting shadows; printed and speckled objects; a cloth under the object;
+    clutter in the object's colors."""
+    static_camera: bool = False
+    """The camera stands on a tripod (no sweep, no shake)."""
+    lying: bool = False
+    """The manipulated object starts lying on its side (cans and mugs)."""
 
 
 @dataclass
@@ -72,6 +81,8 @@ class _Part:
     color_linear: tuple[float, float, float] | None = None
     texture: np.ndarray | None = None
     uv: np.ndarray | None = None
+    vertex_colors: np.ndarray | None = None
+    """Rendered only; the written mesh carries ``color_linear`` (their mean)."""
 
 
 @dataclass
@@ -203,6 +214,7 @@ def _mesh_data(part: _Part, texture_path: Path | None) -> MeshData:
     return MeshData(
         vertices=np.asarray(part.mesh.vertices, dtype=float),
         faces=np.asarray(part.mesh.faces, dtype=np.int64),
+        vertex_colors=part.vertex_colors,
         color=part.color_linear,
         uv=part.uv,
         texture=texture_path,
@@ -243,6 +255,56 @@ def _make_object(rng, shape: shapes.ObjectShape, name: str, label: int) -> _Obje
         poses=np.zeros((0, 4, 4)),
         label=label,
     )
+
+
+def _lying_rotation(mesh: trimesh.Trimesh, rng: np.random.Generator) -> np.ndarray:
+    """A rotation that lays an object (built standing, +Z up) on its side, resting on its body
+    and, for a mug, on its handle too (the stable way a mug lies)."""
+    lay = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])  # object X up, object Z along world X
+    v = np.asarray(mesh.vertices, float)
+    radial = np.hypot(v[:, 0], v[:, 1])
+    body_r = float(np.percentile(radial[v[:, 0] <= 0], 99)) if (v[:, 0] <= 0).any() else float(radial.max())
+    handle = radial > body_r + 0.002
+    roll = 0.0
+    if handle.any():
+        # roll about the (now horizontal) axis until the handle's lowest point meets the table
+        best = np.inf
+        for a in np.radians(np.arange(90.0, 180.0, 0.5)):
+            z = (v @ (se3.rotation_about([1, 0, 0], a) @ lay).T)[:, 2]
+            gap = abs(z[handle].min() - z[~handle].min())
+            if gap < best:
+                best, roll = gap, a
+    roll *= float(rng.choice([-1.0, 1.0])) if handle.any() else 1.0
+    return se3.rotation_about([1, 0, 0], roll) @ lay
+
+
+def _realistic_scene(parts: list[_Part], objects: list[_Object], rng: np.random.Generator) -> list[_Part]:
+    """Make a generated scene as hard as a real one: the table gets a cloth under the objects
+    (the table top sinks by its thickness), the clutter takes the manipulated object's hues, and
+    the objects are printed or speckled (per-vertex colors on a 2 mm mesh)."""
+    thickness = 0.004
+    for part in parts:
+        if part.name == "TableTop":
+            part.mesh.apply_translation([0.0, 0.0, -thickness])
+    ext = (rng.uniform(0.36, 0.46), rng.uniform(0.28, 0.36), thickness)
+    cloth = shapes.box(ext, center=(0.0, 0.0, -thickness / 2))
+    cloth.apply_transform(
+        se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-0.4, 0.4)), [*rng.uniform(-0.03, 0.03, 2), 0.0])
+    )
+    parts.append(_Part("Cloth", cloth, texture=textures.felt(rng), uv=_planar_uv(cloth.vertices, (0, 1), 0.3)))
+    hue = colorsys.rgb_to_hsv(*np.clip(np.asarray(objects[-1].part.color_linear) ** (1 / 2.2), 0, 1))[0]
+    for part in parts:
+        if part.name.startswith("Clutter"):
+            h = (hue + rng.uniform(-0.05, 0.05)) % 1.0
+            rgb = colorsys.hsv_to_rgb(h, rng.uniform(0.5, 0.9), rng.uniform(0.45, 0.9))
+            part.color_linear = tuple(srgb_to_linear(np.array(rgb)).tolist())
+    for obj in objects:
+        mesh = obj.spec.mesh.subdivide_to_size(0.002, max_iter=12)
+        obj.spec = dataclasses.replace(obj.spec, mesh=mesh)
+        obj.part.mesh = mesh
+        obj.part.vertex_colors = textures.object_colors(mesh.vertices, obj.spec.shape.value, obj.part.color_linear, rng)
+        obj.part.color_linear = tuple(float(c) for c in obj.part.vertex_colors.mean(axis=0))
+    return parts
 
 
 def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: bool = False) -> Path:
@@ -294,11 +356,33 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
     else:
         obj = _make_object(rng, config.shape, config.shape.value.capitalize(), 1)
         start = se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-np.pi, np.pi)), [0.0, 0.0, 0.0])
+        if config.lying:
+            start[:3, :3] = start[:3, :3] @ _lying_rotation(obj.spec.mesh, rng)
+            start[2, 3] = -float((obj.spec.mesh.vertices @ start[:3, :3].T)[:, 2].min())
         motion = task_motion(config.task, n, start, obj.spec.size_m, rng, **table)
         obj.poses = motion.world_from_object
         objects = [obj]
         manipulated = obj
-    hand_part = _Part("Interactor", shapes.hand_proxy(), color_linear=SKIN_LINEAR)
+    if config.realistic:
+        parts = _realistic_scene(parts, objects, rng)
+        contact = motion.world_from_object[phases(n).contact]
+        hand_mesh, hand_colors = handmod.build_hand(
+            manipulated.spec.mesh,
+            motion.object_from_hand,
+            contact[:3, :3].T @ np.array([0.0, 0.0, 1.0]),
+            handmod.Grip.CLAW if config.task is Task.ROTATE else handmod.Grip.WRAP,
+            handmod.sample_look(rng),
+            rng,
+            avoid=np.array([1.0, 0.0, 0.0]) if manipulated.spec.shape is shapes.ObjectShape.MUG else None,
+        )
+        hand_part = _Part(
+            "Interactor",
+            hand_mesh,
+            color_linear=tuple(float(c) for c in hand_colors.mean(axis=0)),
+            vertex_colors=hand_colors,
+        )
+    else:
+        hand_part = _Part("Interactor", shapes.hand_proxy(), color_linear=SKIN_LINEAR)
 
     # camera: looks at the middle of the manipulated object's path, from a hand-held path
     path_center = manipulated.poses[:, :3, 3].mean(axis=0) + np.array([0.0, 0.0, 0.5 * manipulated.spec.size_m[2]])
@@ -313,6 +397,8 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
         shake_m=float(rng.uniform(0.002, 0.004)),
         shake_deg=float(rng.uniform(0.3, 0.6)),
     )
+    if config.static_camera:
+        cam_poses = np.repeat(cam_poses[n // 2][None], n, axis=0)
 
     # the hand reaches in from above and from the far side of the objects, not past the camera
     away = manipulated.poses[0, :3, 3] - cam_poses[:, :3, 3].mean(axis=0)
@@ -358,12 +444,16 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
             )
         )
     hand_appearance, _ = _write_part(gt_dir, "interactor.obj", hand_part)
-    # the interactor proxy casts no shadow: the reconstruction does not contain the hand, and a
-    # shadow of it (often of an arm outside the image) is not something a perfect reconstruction
-    # could reproduce, so it would only blur what the SSIM gate measures
+    # the plain interactor proxy casts no shadow: the reconstruction does not contain the hand,
+    # and a shadow of it is not something a perfect reconstruction could reproduce, so it would
+    # only blur what the SSIM gate measures; a realistic case's hand casts one, as a real hand does
     items.append(
         RenderItem(
-            "Interactor", _mesh_data(hand_part, None), label=INTERACTOR_LABEL, pose=hand_poses[0], casts_shadow=False
+            "Interactor",
+            _mesh_data(hand_part, None),
+            label=INTERACTOR_LABEL,
+            pose=hand_poses[0],
+            casts_shadow=config.realistic,
         )
     )
     write_tum(gt_dir / "camera.tum", timestamps, cam_poses, header="world_from_camera, OpenCV camera axes")
@@ -386,6 +476,11 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
                 "shape": config.shape.value,
                 "seed": config.seed,
                 "spp": config.spp,
+                **(
+                    {"realistic": True, "static_camera": config.static_camera, "lying": config.lying}
+                    if config.realistic or config.static_camera or config.lying
+                    else {}
+                ),
                 "color_from_depth_camera": color_from_depth.tolist(),
             },
             "fps": config.fps,

@@ -189,6 +189,12 @@ def task_motion(
         hand_pos = np.array([0.0, 0.0, sz + 0.035])
         toward = np.array([0.0, 0.0, -1.0])
         approach = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 1.0])
+    elif abs(start_pose[2, 2]) < 0.5:  # lying on its side: from above, around its axis
+        toward = start_pose[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+        toward[2] = 0.0
+        toward /= np.linalg.norm(toward)
+        hand_pos = np.array([0.0, 0.0, 0.5 * sz]) - (0.5 * sy + 0.035) * toward
+        approach = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 1.0])
     else:  # side grip, a little above the middle
         side = rng.choice([-1.0, 1.0])
         toward = np.array([0.0, side, 0.0])

@@ -84,3 +84,70 @@ def cloth(rng: np.random.Generator, size: int = 512) -> np.ndarray:
 
 
 TABLE_TEXTURES = {"wood": wood, "marble": marble, "cloth": cloth}
+
+
+def felt(rng: np.random.Generator, size: int = 512) -> np.ndarray:
+    """A plain grey or beige cloth with a fine weave and soft folds: sRGB uint8 (size, size, 3)."""
+    base = np.array(rng.choice([[128, 128, 126], [150, 146, 138], [104, 108, 112], [170, 160, 140]]), dtype=float)
+    y, x = np.mgrid[0:size, 0:size]
+    weave = 0.94 + 0.06 * ((x // 2 + y // 2) % 2)
+    folds = 0.9 + 0.1 * value_noise(rng, size, 4) + 0.05 * (value_noise(rng, size, 48) - 0.5)
+    return np.clip(base[None, None] * (weave * folds)[..., None], 0, 255).astype(np.uint8)
+
+
+def _print_ink(u: np.ndarray, v: np.ndarray, rng: np.random.Generator, line_m: float = 0.008) -> np.ndarray:
+    """Where text-like print is, for surface coordinates u, v [m]: lines of glyph-sized blocks
+    with word gaps."""
+    table = rng.random((64, 256))
+    line = np.floor(v / line_m).astype(int)
+    char = np.floor(u / 0.003).astype(int)
+    in_line = (v / line_m) % 1.0 < 0.45
+    return in_line & (table[line % 64, char % 256] < 0.62) & (table[(line + 7) % 64, (char // 5) % 256] < 0.85)
+
+
+def object_colors(vertices: np.ndarray, shape: str, base_linear, rng: np.random.Generator) -> np.ndarray:
+    """Linear RGB per vertex for a target object in its own frame (origin at the bottom center,
+    +Z up): a speckled glaze for a mug, a printed label around a can, a printed panel on a box."""
+    from rose_usd.core.color import srgb_to_linear
+
+    v = np.asarray(vertices, float)
+    base = np.asarray(base_linear, float)
+    colors = np.repeat(base[None], len(v), axis=0)
+    height = float(v[:, 2].max() - v[:, 2].min())
+    angle = np.arctan2(v[:, 1], v[:, 0])
+    radius = np.hypot(v[:, 0], v[:, 1])
+    ink = srgb_to_linear(np.array(rng.choice([[20, 20, 24], [240, 240, 236], [30, 40, 110]]), float) / 255.0)
+    if shape == "mug":
+        # speckles: small dots, lighter and darker than the glaze
+        n = 900
+        centers = v[rng.integers(len(v), size=n)] + rng.normal(scale=0.002, size=(n, 3))
+        from scipy.spatial import cKDTree
+
+        dist, idx = cKDTree(centers).query(v)
+        spot = dist < rng.uniform(0.0012, 0.0022)
+        light = idx % 3 != 0
+        colors[spot & light] = np.clip(base * 0.3 + 0.7, 0, 1)
+        colors[spot & ~light] = base * 0.35
+    elif shape == "can":
+        band = (v[:, 2] > 0.15 * height) & (v[:, 2] < 0.85 * height)
+        colors[~band] = srgb_to_linear(np.array([190, 192, 196]) / 255.0)
+        u = (angle + np.pi) * np.maximum(radius, 1e-6)
+        label = srgb_to_linear(np.array(rng.choice([[236, 232, 220], [250, 210, 60], [40, 120, 70]]), float) / 255.0)
+        colors[band] = label
+        text = band & _print_ink(u, v[:, 2], rng) & ((angle + np.pi) % np.pi < 2.2)
+        colors[text] = ink
+        logo = (
+            band
+            & (np.abs(v[:, 2] - 0.5 * height) < 0.18 * height)
+            & (np.abs(np.angle(np.exp(1j * (angle - 1.0)))) < 0.5)
+        )
+        colors[logo] = base
+    else:  # box: a printed panel on the four sides, text on it
+        ext = v.max(axis=0) - v.min(axis=0)
+        side_x = np.abs(np.abs(v[:, 0]) - 0.5 * ext[0]) < 1e-4
+        side_y = np.abs(np.abs(v[:, 1]) - 0.5 * ext[1]) < 1e-4
+        u = np.where(side_x, v[:, 1], v[:, 0]) + 0.5 * max(ext[0], ext[1])
+        panel = (side_x | side_y) & (v[:, 2] > 0.25 * height) & (v[:, 2] < 0.8 * height)
+        colors[panel] = np.clip(base * 0.25 + 0.7, 0, 1)
+        colors[panel & _print_ink(u, v[:, 2], rng, line_m=0.007)] = ink
+    return colors
