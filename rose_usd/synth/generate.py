@@ -67,7 +67,7 @@ class GenerateConfig:
     realistic: bool = False
     """A case as hard as a real video: a hand with fingers wrapped around the object, in a skin
     tone and a sleeve, casting shadows; printed and speckled objects; a cloth under the object;
-    clutter in the object's colors."""
+    clutter in the object's colors; a can's label is paper, not metal, to the depth sensor."""
     static_camera: bool = False
     """The camera stands on a tripod (no sweep, no shake)."""
     lying: bool = False
@@ -299,6 +299,7 @@ def _realistic_scene(parts: list[_Part], objects: list[_Object], rng: np.random.
             rgb = colorsys.hsv_to_rgb(h, rng.uniform(0.5, 0.9), rng.uniform(0.45, 0.9))
             part.color_linear = tuple(srgb_to_linear(np.array(rgb)).tolist())
     for obj in objects:
+        obj.specular = False  # a printed paper label covers most of a can: the sensor sees it
         mesh = obj.spec.mesh.subdivide_to_size(0.002, max_iter=12)
         obj.spec = dataclasses.replace(obj.spec, mesh=mesh)
         obj.part.mesh = mesh
