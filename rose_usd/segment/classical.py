@@ -35,10 +35,14 @@ def run(ctx: StageContext) -> None:
         starts = seg.start_from_prompts(specs, where)
         how = "prompt"
     else:
-        found = seg.discover([s.name for s in specs], lambda t: interactor_mask(seg, t, []), n, where)
-        starts = [(0, tr) for tr in found]
-        how = "interactor-contact"
+        starts, how = [], ""  # found below, once the hands are known
     found_hands = _found_hands(ctx) if cfg.classical.hands else None
+    if specs and not prompted:
+        # hands found in a tenth of the frames or more are what touches the objects
+        by_hand = found_hands is not None and sum(bool(h) for h in found_hands) >= max(3, 0.1 * n)
+        toucher = (lambda t: _hand_pixels(seg, t, found_hands)) if by_hand else (lambda t: interactor_mask(seg, t, []))
+        starts = [(0, tr) for tr in seg.discover([s.name for s in specs], toucher, n, where)]
+        how = "hand-contact" if by_hand else "interactor-contact"
     t0 = min((f for f, _ in starts), default=0)
     masks = {s.name: [None] * n for s in specs}
     hands: list[np.ndarray | None] = [None] * n
@@ -85,6 +89,11 @@ def run(ctx: StageContext) -> None:
         start=how,
         frames_with_hands_found=None if found_hands is None else sum(bool(h) for h in found_hands),
     )
+
+
+def _hand_pixels(seg: Segmenter, t: int, found_hands: list[list[Hand]]) -> np.ndarray:
+    shape = seg.frame(t)[1].shape
+    return hand_mask(found_hands[t], shape) if found_hands[t] else np.zeros(shape, bool)
 
 
 def _found_hands(ctx: StageContext) -> list[list[Hand]] | None:

@@ -275,9 +275,12 @@ class Segmenter:
             name, _subsample(obj_pts), histogram(cidx[mask]), max(_diameter(obj_pts), 0.02), float(mask.sum())
         )
 
-    def discover(self, names: list[str], interactor_of, n_frames: int, where) -> list[ObjectTrack]:
-        """Objects with no prompt: regions standing on the support at frame 0, ranked by how near
-        the interactor comes to them over the video."""
+    def discover(
+        self, names: list[str], interactor_of, n_frames: int, where, *, touch_m: float = 0.02
+    ) -> list[ObjectTrack]:
+        """Objects with no prompt: regions standing on the support at frame 0, ranked by the
+        number of frames in which the interactor comes within ``touch_m`` of them, then by how
+        near it comes."""
         self.measure_lift(0)
         rgb, depth, pts, edges, cidx = self.frame(0)
         height = pts[..., 2]
@@ -299,15 +302,21 @@ class Segmenter:
                 hint="give a prompt box in rose.toml ([[objects]] prompt = { frame = F, box = [x0, y0, x1, y1] })",
             )
         nearest = np.full(len(regions), np.inf)
+        touching = np.zeros(len(regions))  # sampled frames in which the interactor touches it
         for t in range(0, n_frames, max(1, n_frames // 40)):
             hand = interactor_of(t)
             if hand.sum() < MIN_REGION_PX * self.scale_px:
                 continue
-            hp = _subsample(self.frame(t)[2][hand & (self.frame(t)[1] > 0)], 3000)
+            hand &= self.frame(t)[1] > 0
+            if not hand.any():
+                continue
+            hp = _subsample(self.frame(t)[2][hand], 3000)
             for i, (_, tree) in enumerate(regions):
                 d, _ = tree.query(hp, k=1)
                 nearest[i] = min(nearest[i], float(d.min()))
-        order = list(np.argsort(nearest))
+                touching[i] += float(d.min()) < touch_m
+        # the region touched in the most frames first, then the one approached nearest
+        order = list(np.lexsort((nearest, -touching)))
         if len(names) > 1:
             # objects standing on each other (a stack) form one region: split the most
             # approached region into what later leaves its place and what stays
