@@ -29,10 +29,13 @@ def first_contact(
     touch seen too early ends the rest and loses views (at 5 px a hand reaching for the upper
     object of a stack can seem to touch the lower one long before it does), where for the
     tracker it only means registering instead of holding.
-    ``hand_of(t)``: the interactor's mask in frame t, None where it has none."""
+    ``hand_of(t)``: the interactor's mask in frame t, None where it has none. An interactor
+    mask smaller than a fifth of the object's is no hand: it is a sliver of the object's own rim
+    left out of its mask (a depth camera a few pixels off the colour one), seen on a static
+    camera before any hand is in view."""
     for t in range(n):
         hand = hand_of(t) if masks[t] is not None else None
-        if hand is None:
+        if hand is None or hand.sum() < 0.2 * masks[t].sum():
             continue
         if touches(
             hand,
