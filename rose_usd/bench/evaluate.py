@@ -65,7 +65,8 @@ class CaseScore:
     camera_rpe_rotation_deg: float
     gravity_error_deg: float
     scale_error: float
-    """|s - 1| of the Sim(3) scale registering the reconstructed camera centers to the true ones."""
+    """|s - 1| of the Sim(3) scale registering the reconstructed camera centers to the true ones
+    (NaN when the true centers spread less than 1 cm: a static camera has no path to scale)."""
     scene_chamfer_m: float
     scene_chamfer_visible_m: float
     """Mean over sampled frames of the Chamfer between what the true and reconstructed scenes show."""
@@ -287,6 +288,9 @@ def evaluate(
     true_up = -gt.gravity / np.linalg.norm(gt.gravity)
     gravity_err = float(np.degrees(np.arccos(np.clip(up @ true_up, -1.0, 1.0))))
     _, scale = metrics.umeyama_sim3(track.world_from_cv[:, :3, 3], true_cams[:, :3, 3])
+    centers = true_cams[:, :3, 3]
+    if np.sqrt(np.mean(np.sum((centers - centers.mean(axis=0)) ** 2, axis=1))) < 0.01:
+        scale = float("nan")  # a camera that hardly moves has no path to scale (a tripod)
 
     # ---------------------------------------------------------------- scene
     rv, rf = _meshes(stage, paths.SCENE_VISUAL)  # empty when the scene stage has not run
