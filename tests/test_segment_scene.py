@@ -281,3 +281,26 @@ def test_a_still_box_whose_top_a_hand_covers_has_not_moved():
     assert abs(seen.mean(axis=0)[2] - box.mean(axis=0)[2]) > 0.015  # what the mean said
     moved = box + np.array([0.01, -0.006, 0.004])
     assert np.allclose(_shift(box, moved), [0.01, -0.006, 0.004], atol=0.001)
+
+
+def test_separate_by_height_where_a_printed_can_looks_like_its_printed_base():
+    """The can's label has the base's colors (only its lid differs): color alone gives the
+    label to the base; heights give it back to the can, which stands above the base's top."""
+    from rose_usd.segment.segmenter import color_index, separate
+
+    cidx, base_region, top_region, base, top = _stack_image()
+    rgb = np.full((120, 160, 3), (200, 200, 200), np.uint8)
+    rgb[base] = (30, 140, 150)
+    rgb[top] = (30, 140, 150)  # the label: the base's colors
+    rgb[20:36, 60:100] = (220, 60, 110)  # the lid
+    cidx = color_index(rgb)
+    height = np.full(cidx.shape, np.nan, np.float32)
+    rows = np.arange(120, dtype=np.float32)[:, None] * np.ones((1, 160), np.float32)
+    height[base] = np.clip(0.05 - 0.002 * (rows[base] - 75), 0.0, 0.05)  # top face, then its side
+    height[top] = 0.15 - (rows[top] - 20) * (0.15 - 0.062) / 42  # the can, 6.2-15 cm
+    by_color = separate([base_region, top_region], cidx)
+    by_height = separate([base_region, top_region], cidx, height=height)
+    iou = lambda got, truth: np.count_nonzero(got & truth) / np.count_nonzero(got | truth)  # noqa: E731
+    assert iou(by_color[1], top) < 0.8  # what this is about: color alone loses the label
+    assert not np.any(by_height[0] & by_height[1])
+    assert iou(by_height[1], top) > 0.97 and iou(by_height[0], base) > 0.97
