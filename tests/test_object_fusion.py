@@ -362,3 +362,22 @@ def test_support_height_ignores_a_few_points_below_the_table():
     lower = np.c_[rng.uniform(-0.03, 0.03, (500, 2)), rng.uniform(0.0, 0.03, 500)]
     assert support_height(wall + [0, 0, 0.03], [lower], ground=0.0) == pytest.approx(0.03, abs=0.002)
     assert support_height(wall - [0, 0, 0.02], [], ground=0.0) < -0.019
+
+
+def test_a_mesh_pinched_at_a_vertex_is_a_problem_not_a_crash():
+    """Two closed boxes that share one corner vertex: every edge has two faces, but CGAL cannot
+    read it (the realistic unstack case's can at 2 mm); the fusion retries coarser instead of
+    stopping with CGAL's error."""
+    import trimesh
+
+    from rose_usd.object.fusion import _mesh_problems
+
+    a = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    a.apply_translation([0.5, 0.5, 0.5])
+    b = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    b.apply_translation([-0.5, -0.5, -0.5])
+    both = trimesh.util.concatenate([a, b])
+    both.merge_vertices()
+    assert len(both.vertices) == 15  # the corner at the origin is shared
+    problems = _mesh_problems(np.asarray(both.vertices), np.asarray(both.faces))
+    assert problems

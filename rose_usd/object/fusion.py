@@ -499,9 +499,7 @@ def _closed_surface(ctx: StageContext, name: str, pts: np.ndarray, cloud, suppor
     for factor in (1.0, 1.5, 2.0):
         step = replace(cfg, voxel_m=cfg.voxel_m * factor)
         vertices, faces, how, above = complete(pts, cloud.toward, cloud.often, support, step)
-        problems = collider_problems(vertices, faces) or (
-            ["self-intersecting"] if self_intersects(vertices, faces) else []
-        )
+        problems = _mesh_problems(vertices, faces)
         if not problems:
             if factor > 1.0:
                 ctx.warn(
@@ -514,6 +512,18 @@ def _closed_surface(ctx: StageContext, name: str, pts: np.ndarray, cloud, suppor
         f"object {name!r}: the mesh is {', '.join(problems)} at {1000 * cfg.voxel_m:g}-{2000 * cfg.voxel_m:g} mm",
         hint="try a larger object.voxel_m",
     )
+
+
+def _mesh_problems(vertices: np.ndarray, faces: np.ndarray) -> list[str]:
+    """What keeps a closed mesh from being a collider; CGAL's self-intersection test last (it
+    cannot read a mesh whose surfaces touch at a single vertex, which no edge test sees)."""
+    problems = collider_problems(vertices, faces)
+    if problems:
+        return problems
+    try:
+        return ["self-intersecting"] if self_intersects(vertices, faces) else []
+    except MeshError:
+        return ["pinched at a vertex"]
 
 
 def complete(
