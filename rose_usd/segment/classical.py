@@ -10,6 +10,7 @@ import numpy as np
 from rose_usd.errors import EnvironmentProblem, InputError
 from rose_usd.geometry.background import StaticBackground
 from rose_usd.geometry.hands import Hand, HandDetector, hand_mask
+from rose_usd.geometry.support import SupportSurface
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
 from rose_usd.segment.prompts import check_prompts, parse_prompts
@@ -26,7 +27,8 @@ def run(ctx: StageContext) -> None:
     depth_of = metric_depth_reader(ctx.stage, case, cache=24)
     where = case.folder / "rose.toml"
     background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
-    seg = Segmenter(case.rgb, depth_of, cameras, cfg, background)
+    support = SupportSurface(depth_of, cameras.world_from_cv, cameras.K, background.refs)
+    seg = Segmenter(case.rgb, depth_of, cameras, cfg, background, support)
     specs = parse_prompts(cfg.prompts, list(case.config.objects))
     prompted = check_prompts(specs, case.width, case.height, n, where)
     if not specs:  # a static scene (rose.toml: objects = []): only the interactor
@@ -71,7 +73,7 @@ def run(ctx: StageContext) -> None:
         )
         far_hand = hand & ~near_obj
         if far_hand.sum() > MIN_REGION_PX * seg.scale_px:
-            hh = histogram(seg.frame(t)[4][far_hand])
+            hh = histogram(seg.frame(t).cidx[far_hand])
             hand_hist = hh if hand_hist is None else 0.9 * hand_hist + 0.1 * hh
         for spec, m in zip(specs, objs):
             masks[spec.name][t] = m
@@ -88,11 +90,13 @@ def run(ctx: StageContext) -> None:
         lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"),
         start=how,
         frames_with_hands_found=None if found_hands is None else sum(bool(h) for h in found_hands),
+        lift_m=round(seg.lift, 4),
+        support_relief_mm=support.relief_mm(),
     )
 
 
 def _hand_pixels(seg: Segmenter, t: int, found_hands: list[list[Hand]]) -> np.ndarray:
-    shape = seg.frame(t)[1].shape
+    shape = seg.frame(t).depth.shape
     return hand_mask(found_hands[t], shape) if found_hands[t] else np.zeros(shape, bool)
 
 

@@ -3,13 +3,16 @@ object masks from a prompt (or from what the hand touches) propagated through th
 and the interactor as the other moving region. No learned model.
 
 The capture stage gives metric depth, cameras and a gravity-aligned world whose z = 0 is the
-support plane, so every pixel has a world point and a height above the support.
+support plane, so every pixel has a world point; its height is taken over the support surface
+under it (``geometry.support``: the table as the video sees it, which may bend away from z = 0).
 
 1. **Start.** On the prompt frame, the object is the depth-connected region of pixels standing on
    the support (height > ``lift``: ``min_height_m``, raised to the support's measured depth noise
    around the prompt) inside the prompt box (or containing the prompt point). Without a prompt
    it is the region standing on the support at the first frame that the interactor comes nearest
-   to over the video ("what the hand moves"); with several objects named, that region is first
+   to over the video ("what the hand moves"). A depth edge may cut one object into pieces (a
+   cup's rim); pieces that touch in 3D, or that leave their place in the same frames, are
+   joined. With several objects named, that region is first
    split into the part that later leaves its place (seen past in a later frame) and the part that
    stays, for objects stacked on each other. Names of rose.toml go to regions in that order
    (unprompted, nothing else tells which object is which). Prompt regions of one frame that
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -42,6 +46,7 @@ from scipy.spatial import cKDTree
 from rose_usd.core.pinhole import backproject, pixels_of, sample_at
 from rose_usd.errors import InputError
 from rose_usd.geometry.background import StaticBackground
+from rose_usd.geometry.support import SupportSurface
 from rose_usd.segment.config import SegmentConfig
 
 BINS = 16
@@ -194,26 +199,90 @@ def separate(
     return out
 
 
+def grow_across_edges(
+    labels: np.ndarray,
+    start: np.ndarray,
+    pts: np.ndarray,
+    *,
+    gap_m: float = 0.01,
+    reach_px: int = 3,
+    max_diameter_m: float = 0.3,
+) -> np.ndarray:
+    """``start`` (a region of ``labels``, the depth-connected components of what stands on the
+    support) joined with the components that touch it in 3D: within ``reach_px`` in the image
+    and ``gap_m`` in space across the depth edge between them. A depth edge cuts one object into
+    pieces as well as it cuts objects apart: a cup lying on its side is its outer wall and, seen
+    through its rim, its inner wall. A piece is not joined when the union would be wider than
+    ``max_diameter_m``."""
+    region = start.copy()
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    tried: set[int] = set(np.unique(labels[start]).tolist()) | {0}
+    while True:
+        ring = cv2.dilate(region.astype(np.uint8), kernel).astype(bool) & ~region
+        candidates = [int(v) for v in np.unique(labels[ring]) if int(v) not in tried]
+        if not candidates:
+            return region
+        tree = cKDTree(_subsample(pts[region & np.isfinite(pts[..., 2])], 3000))
+        grown = False
+        for label in candidates:
+            tried.add(label)
+            near = ring & (labels == label) & np.isfinite(pts[..., 2])
+            if not near.any():
+                continue
+            d, _ = tree.query(pts[near], k=1)
+            if float(np.median(d)) > gap_m:
+                continue
+            union = region | (labels == label)
+            if _diameter(pts[union & np.isfinite(pts[..., 2])]) > max_diameter_m:
+                continue
+            region, grown = union, True
+        if not grown:
+            return region
+
+
 # ----------------------------------------------------------------------------- the segmenter
 MIN_REGION_PX = 150
 """The smallest region taken for an object or the interactor, at 640x480 (scaled with the image area)."""
 
 
+class Frame(NamedTuple):
+    rgb: np.ndarray
+    depth: np.ndarray
+    pts: np.ndarray
+    """World point of every pixel (H, W, 3), NaN without depth."""
+    edges: np.ndarray
+    cidx: np.ndarray
+    """Color bin of every pixel."""
+    height: np.ndarray
+    """Height of every pixel's point over the support surface under it [m] (NaN without depth)."""
+
+
 class Segmenter:
-    def __init__(self, rgb_of, depth_of, cameras, config: SegmentConfig, background: StaticBackground):
+    def __init__(
+        self,
+        rgb_of,
+        depth_of,
+        cameras,
+        config: SegmentConfig,
+        background: StaticBackground,
+        support: SupportSurface | None = None,
+    ):
         self.rgb_of, self.depth_of, self.cam, self.config, self.bg = rgb_of, depth_of, cameras, config, background
+        self.support = support
+        """The support's height per place (None: the world's z = 0 plane is the support)."""
         self.width, self.height = cameras.width, cameras.height
         self.scale_px = self.width * self.height / (640 * 480)
         self.frame = functools.lru_cache(maxsize=5)(self._frame)
-        """(rgb, depth, world points, edges, color index) of frame t (the last few are cached)."""
+        """The ``Frame`` t (the last few are cached)."""
         self.lift = config.min_height_m
-        """A pixel stands on the support when its point is this high above the support plane [m]
+        """A pixel stands on the support when its point is this high above the support under it [m]
         (``measure_lift``: at least ``min_height_m``, more where the depth is noisy)."""
 
-    def _frame(self, t: int):
+    def _frame(self, t: int) -> Frame:
         rgb, depth = self.rgb_of(t), self.depth_of(t)
         pts = world_points(depth, self.cam.K[t], self.cam.world_from_cv[t])
-        return rgb, depth, pts, depth_edges(depth), color_index(rgb)
+        height = pts[..., 2] if self.support is None else self.support.height_above(pts).astype(np.float32)
+        return Frame(rgb, depth, pts, depth_edges(depth), color_index(rgb), height)
 
     def measure_lift(self, t: int, box: tuple[int, int, int, int] | None = None) -> float:
         """Set and return ``lift`` from frame t: the support pixels' (within 3 cm of the plane,
@@ -221,8 +290,8 @@ class Segmenter:
         robust sigmas, at least ``min_height_m`` and at most 2 cm. A real depth sensor's support
         is rippled and offset by millimetres (a RealSense at 0.8 m: median 2.8 mm, sigma 2 mm),
         and pixels of the support taken for the object carry the track onto the table."""
-        depth, pts = self.frame(t)[1], self.frame(t)[2]
-        near = (depth > 0) & (np.abs(np.nan_to_num(pts[..., 2], nan=1.0)) < 0.03)
+        depth, height = self.frame(t).depth, self.frame(t).height
+        near = (depth > 0) & (np.abs(np.nan_to_num(height, nan=1.0)) < 0.03)
         if box is not None:
             x0, y0, x1, y1 = (int(round(c)) for c in box)
             pad = max(x1 - x0, y1 - y0, 20)
@@ -230,7 +299,7 @@ class Segmenter:
             ring[max(y0 - pad, 0) : y1 + pad + 1, max(x0 - pad, 0) : x1 + pad + 1] = True
             ring[max(y0, 0) : y1 + 1, max(x0, 0) : x1 + 1] = False
             near &= ring
-        h = pts[..., 2][near]
+        h = height[near]
         if h.size >= 200:
             med = float(np.median(h))
             sigma = 1.4826 * float(np.median(np.abs(h - med)))
@@ -246,8 +315,8 @@ class Segmenter:
         regions = {s.name: self.prompt_region(s.name, s.prompt, where) for s in specs}
         for frame in sorted({s.prompt.frame for s in specs}):
             names = [s.name for s in specs if s.prompt.frame == frame]
-            height = self.frame(frame)[2][..., 2]
-            split = separate([regions[m] for m in names], self.frame(frame)[4], height=height)
+            f = self.frame(frame)
+            split = separate([regions[m] for m in names], f.cidx, height=f.height)
             for name, region in zip(names, split):
                 regions[name] = region
         return [(s.prompt.frame, self._new_track(s.name, s.prompt.frame, regions[s.name])) for s in specs]
@@ -256,8 +325,7 @@ class Segmenter:
         """The object's pixels on its prompt frame: the depth-connected region standing on the
         support inside the prompt box (or the one nearest the prompt point)."""
         t = prompt.frame
-        rgb, depth, pts, edges, cidx = self.frame(t)
-        height = pts[..., 2]
+        rgb, depth, pts, edges, cidx, height = self.frame(t)
         standing = (depth > 0) & (height > self.lift) & ~edges
         inside = np.zeros_like(standing)
         if prompt.box is not None:
@@ -282,10 +350,13 @@ class Segmenter:
             ys, xs = np.nonzero(labels > 0)
             nearest = int(np.argmin((xs - x) ** 2 + (ys - y) ** 2))
             label = int(labels[ys[nearest], xs[nearest]])
-        return labels == label
+        # pieces of the same object that a depth edge (a rim) cut off it, inside the prompt
+        region = grow_across_edges(labels, labels == label, pts)
+        others = [int(v) for v in np.unique(labels[inside]) if v > 0 and areas[v] >= MIN_REGION_PX * self.scale_px / 4]
+        return self.join_moving_with(labels, region, others, t)
 
     def _new_track(self, name: str, t: int, mask: np.ndarray) -> ObjectTrack:
-        rgb, depth, pts, edges, cidx = self.frame(t)
+        rgb, depth, pts, edges, cidx, _ = self.frame(t)
         obj_pts = pts[mask & (depth > 0)]
         return ObjectTrack(
             name, _subsample(obj_pts), histogram(cidx[mask]), max(_diameter(obj_pts), 0.02), float(mask.sum())
@@ -298,8 +369,7 @@ class Segmenter:
         number of frames in which the interactor comes within ``touch_m`` of them, then by how
         near it comes."""
         self.measure_lift(0)
-        rgb, depth, pts, edges, cidx = self.frame(0)
-        height = pts[..., 2]
+        rgb, depth, pts, edges, cidx, height = self.frame(0)
         standing = (depth > 0) & (height > self.lift) & (height < 0.6) & ~edges
         n, labels, areas = components(standing)
         border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
@@ -323,10 +393,10 @@ class Segmenter:
             hand = interactor_of(t)
             if hand.sum() < MIN_REGION_PX * self.scale_px:
                 continue
-            hand &= self.frame(t)[1] > 0
+            hand &= self.frame(t).depth > 0
             if not hand.any():
                 continue
-            hp = _subsample(self.frame(t)[2][hand], 3000)
+            hp = _subsample(self.frame(t).pts[hand], 3000)
             for i, (_, tree) in enumerate(regions):
                 d, _ = tree.query(hp, k=1)
                 nearest[i] = min(nearest[i], float(d.min()))
@@ -353,7 +423,71 @@ class Segmenter:
                 path=where,
                 hint="give each object a prompt box in rose.toml",
             )
-        return [self._new_track(name, 0, labels == regions[order[i]][0]) for i, name in enumerate(names)]
+        # the touched region may be one piece of its object (a cup's inner wall, cut off by its rim)
+        chosen = [regions[order[i]][0] for i in range(len(names))]
+        grown = []
+        for c in chosen:
+            own = np.where(np.isin(labels, chosen) & (labels != c), 0, labels)
+            region = grow_across_edges(own, labels == c, pts)
+            grown.append(self.join_moving_with(own, region, self._neighbours(own, region, pts), 0))
+        return [self._new_track(name, 0, grown[i]) for i, name in enumerate(names)]
+
+    def _neighbours(
+        self, labels: np.ndarray, region: np.ndarray, pts: np.ndarray, *, within_m: float = 0.03
+    ) -> list[int]:
+        """Labels of the components with a point within ``within_m`` of ``region``'s points."""
+        tree = cKDTree(_subsample(pts[region & np.isfinite(pts[..., 2])], 2000))
+        out = []
+        for label in np.unique(labels[(labels > 0) & ~region]):
+            part = _subsample(pts[(labels == label) & np.isfinite(pts[..., 2])], 500)
+            if len(part) and float(tree.query(part, k=1)[0].min()) < within_m:
+                out.append(int(label))
+        return out
+
+    def moved_when(self, region: np.ndarray, t0: int, *, leave_m: float = 0.02, samples: int = 40) -> np.ndarray:
+        """For frames sampled through the video (``samples`` of them), whether most of ``region``'s
+        points (pixels of frame ``t0``) have left their place: the frame sees past them by more
+        than ``leave_m`` (a hand in front of them hides them, it does not move them)."""
+        n_frames = len(self.cam.world_from_cv)
+        pts = self.frame(t0).pts
+        v, u = np.nonzero(region & np.isfinite(pts[..., 2]))
+        world = _subsample(pts[v, u], 1500)
+        out = []
+        for t in range(0, n_frames, max(1, n_frames // samples)):
+            uu, vv, z = pixels_of(world, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
+            d = sample_at(self.depth_of(t), uu, vv)
+            seen = (uu >= 0) & (d > 0)
+            out.append(seen.sum() >= 0.3 * len(world) and np.count_nonzero(seen & (d > z + leave_m)) > 0.5 * seen.sum())
+        return np.array(out, bool)
+
+    def join_moving_with(
+        self, labels: np.ndarray, region: np.ndarray, candidates: list[int], t0: int, *, max_diameter_m: float = 0.3
+    ) -> np.ndarray:
+        """``region`` joined with the components among ``candidates`` (labels of frame ``t0``'s
+        components) that leave their place in the same frames as it: one object moves as one.
+        A depth edge cuts a cup lying on its side into its outer wall and, seen through its rim,
+        its inner wall 2-4 cm deeper; the hand touches one, and both go when it lifts the cup.
+        They must have moved together in at least two sampled frames and in 60 % of the frames
+        the one that moved less often moved in (a cup's inner wall lies a few mm over the table,
+        and seen past by less than ``leave_m`` it seems to move only while the cup is high); a
+        component that moved in over half the frames (a person) is not joined, nor one that makes
+        the union wider than ``max_diameter_m``."""
+        mine = self.moved_when(region, t0)
+        if mine.sum() < 2:
+            return region
+        pts = self.frame(t0).pts
+        for label in candidates:
+            part = labels == label
+            if (part & region).any():
+                continue
+            theirs = self.moved_when(part, t0)
+            both = np.count_nonzero(mine & theirs)
+            if both < 2 or both < 0.6 * min(mine.sum(), theirs.sum()) or theirs.sum() > 0.5 * len(theirs):
+                continue
+            union = region | part
+            if _diameter(pts[union & np.isfinite(pts[..., 2])]) <= max_diameter_m:
+                region = union
+        return region
 
     def _split_by_motion(
         self, region: np.ndarray, n_frames: int, *, leave_m: float = 0.02
@@ -361,13 +495,13 @@ class Segmenter:
         """Split a frame-0 region into the pixels whose point later leaves its place (a later
         frame sees past it, by more than ``leave_m``) and the rest; None unless both parts are
         sizable regions."""
-        _, _, pts, _, _ = self.frame(0)
+        pts = self.frame(0).pts
         v, u = np.nonzero(region)
         world = pts[v, u]
         left = np.zeros(len(v), bool)
         for t in range(n_frames // 2, n_frames, max(1, n_frames // 20)):
             uu, vv, z = pixels_of(world, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
-            left |= (uu >= 0) & (sample_at(self.frame(t)[1], uu, vv) > z + leave_m)
+            left |= (uu >= 0) & (sample_at(self.frame(t).depth, uu, vv) > z + leave_m)
         moved = np.zeros_like(region)
         moved[v[left], u[left]] = True
         moved = cv2.morphologyEx(moved.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)).astype(bool)
@@ -394,9 +528,9 @@ class Segmenter:
         found by its landmarks) belong to no object, pixels of ``arm`` (what stands in front of
         the static world connected to that hand: the arm, and the object the hand holds) only
         when they are within ``core_m`` of the object's predicted points."""
-        rgb, depth, pts, edges, cidx = self.frame(t)
+        rgb, depth, pts, edges, cidx, height = self.frame(t)
         p = self.config
-        valid = (depth > 0) & (pts[..., 2] > self.lift)
+        valid = (depth > 0) & (height > self.lift)
         if exclude is not None:
             valid &= ~exclude
         best = np.full(depth.shape, np.inf, np.float32)
@@ -429,7 +563,7 @@ class Segmenter:
             better = ok & (d < best[ys, xs])
             best[ys[better], xs[better]] = d[better]
             owner[ys[better], xs[better]] = k
-            sel = ok & (d < p.core_m + 0.5 * np.linalg.norm(track.velocity)) & (pts[ys, xs, 2] > self.lift)
+            sel = ok & (d < p.core_m + 0.5 * np.linalg.norm(track.velocity)) & (height[ys, xs] > self.lift)
             core[ys[sel], xs[sel]] = True
         masks = []
         max_hole = int(200 * self.scale_px)
@@ -462,7 +596,7 @@ class Segmenter:
         Not half the diameter: the predicted centre (the median of the tracked points, moved by the
         last velocity) lags a placed or turned mug, and the small suite's mask IoU fell by up to
         0.29 at half. Pixels without depth stay."""
-        pts = self.frame(t)[2]
+        pts = self.frame(t).pts
         centre = np.median(track.points, axis=0) + track.velocity
         far = np.linalg.norm(np.nan_to_num(pts - centre, nan=0.0), axis=-1) > track.diameter + slack_m
         return ~(far & mask)
@@ -503,7 +637,7 @@ class Segmenter:
         return None if x0 >= x1 or y0 >= y1 else (y0, y1, x0, x1)
 
     def _update(self, track: ObjectTrack, t: int, mask: np.ndarray) -> None:
-        rgb, depth, pts, edges, cidx = self.frame(t)
+        rgb, depth, pts, edges, cidx, _ = self.frame(t)
         area = float(mask.sum())
         if area < 0.25 * track.area:
             track.hidden += 1
@@ -550,7 +684,7 @@ def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
 def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
     """What stands in front of the static world (geometry.background) in frame t and connects to
     ``hand`` (pixels of a hand found by its landmarks): the arm, and whatever the hand holds."""
-    depth = seg.frame(t)[1]
+    depth = seg.frame(t).depth
     fg, _ = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
     n, labels, _ = components(fg | hand)
     touched = np.unique(labels[cv2.dilate(hand.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)])
@@ -566,7 +700,7 @@ def interactor_mask(
     """The other moving region: nearer than the static world, not an object. With a color model
     of the hand, it grows through hand-colored pixels connected to it whose depth is missing or
     disagrees with the static world (too near for the sensor, or misregistered at the rim)."""
-    rgb, depth, pts, edges, cidx = seg.frame(t)
+    rgb, depth, pts, edges, cidx, _ = seg.frame(t)
     fg, static = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
     taken = np.zeros_like(fg)
     for m in objects:

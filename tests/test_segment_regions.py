@@ -1,0 +1,57 @@
+"""The depth segmenter's start regions: pieces of one object that a depth edge cut apart are
+joined when they leave their place together; a neighbour that stays is not."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rose_usd.core import se3
+from rose_usd.segment.config import SegmentConfig
+from rose_usd.segment.segmenter import Segmenter, components
+from rose_usd.usd.camera import CameraTrack
+
+W, H, N = 160, 120, 40
+K = np.array([[150.0, 0.0, 80.0], [0.0, 150.0, 60.0], [0.0, 0.0, 1.0]])
+
+
+def _clip():
+    """A static camera 0.6 m above a table (depth 0.6) looking straight down. A cup lying on its
+    side shows as two pieces, its outer wall (depth 0.53) and, past a depth edge, its inner wall
+    (0.59, 1 cm over the table); a spoon beside it (0.58) never moves. The cup is lifted away in
+    frames 20-27."""
+    pieces = {"outer": (slice(40, 55), slice(60, 90), 0.53), "inner": (slice(55, 65), slice(62, 88), 0.575)}
+    spoon = (slice(40, 60), slice(100, 106), 0.58)
+
+    def depth_of(t):
+        d = np.full((H, W), 0.6, np.float32)
+        if not 20 <= t < 28:
+            for rows, cols, z in pieces.values():
+                d[rows, cols] = z
+        d[spoon[0], spoon[1]] = spoon[2]
+        return d
+
+    cams = CameraTrack(
+        np.repeat(se3.look_at((0.0, 0.0, 0.6), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))[None], N, 0),
+        np.repeat(K[None], N, 0),
+        W,
+        H,
+    )
+    return depth_of, cams, pieces, spoon
+
+
+def test_pieces_of_one_object_that_leave_together_are_joined():
+    depth_of, cams, pieces, spoon = _clip()
+    seg = Segmenter(lambda t: np.zeros((H, W, 3), np.uint8), depth_of, cams, SegmentConfig(), background=None)
+    d = depth_of(0)
+    standing = (d < 0.595) & ~seg.frame(0).edges
+    _, labels, _ = components(standing)
+    label = {name: int(labels[rows, cols][2, 2]) for name, (rows, cols, _) in pieces.items()}
+    spoon_label = int(labels[spoon[0], spoon[1]][5, 2])
+    inner = labels == label["inner"]
+    moved = seg.moved_when(inner, 0)
+    assert moved.sum() >= 2 and not moved[0]
+    joined = seg.join_moving_with(labels, inner, [label["outer"], spoon_label], 0)
+    assert np.array_equal(joined, inner | (labels == label["outer"]))
+    assert (
+        seg.join_moving_with(labels, labels == spoon_label, [label["outer"]], 0).sum() == (labels == spoon_label).sum()
+    )
