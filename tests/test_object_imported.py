@@ -336,3 +336,39 @@ def test_a_mesh_whose_bottom_is_off_level_is_set_on_it_and_an_upright_one_is_lef
         assert np.degrees(np.arccos((np.trace(level) - 1) / 2)) == pytest.approx(deg, abs=1e-6)
     far = trimesh.transformations.rotation_matrix(np.radians(20.0), [1, 0, 0])[:3, :3]
     assert np.allclose(level_rotation(can.vertices @ far.T, can.faces), np.eye(3))  # not a small tilt: left to the fit
+
+
+def test_world_from_up_turns_every_signed_axis_to_up_exactly():
+    for k in range(3):
+        for sign in (1.0, -1.0):
+            up = np.zeros(3)
+            up[k] = sign
+            rot = world_from_up(up)
+            assert np.array_equal(rot @ up, [0.0, 0.0, 1.0])
+            assert np.linalg.det(rot) == pytest.approx(1.0) and set(np.abs(rot).ravel()) <= {0.0, 1.0}
+
+
+def test_without_mesh_up_the_axis_that_fits_is_chosen():
+    """An OBJ (conventionally +Z up) whose object stands on its +X: 10 cm tall, 3 cm wide, 6 cm
+    deep. Stood on +Z it would be 6 cm tall; the fit takes +X (or -X, the same box), and a given
+    mesh_up is kept."""
+    from rose_usd.object.imported import ImportedMesh, _choose_up, axis_vector
+
+    box = trimesh.creation.box(extents=(0.10, 0.03, 0.06))
+    truth_up = world_from_up(np.array([1.0, 0.0, 0.0]))
+    world = se3.transform_points(se3.make_pose(np.eye(3), np.array([0.01, 0.02, 0.05])), box.vertices @ truth_up.T)
+    cams = [se3.look_at(e, (0.0, 0.0, 0.05)) for e in ((0.35, -0.25, 0.3), (-0.15, -0.4, 0.25))]
+    views = [View(silhouette(world, box.faces, c, K, 640, 480), np.zeros((480, 640), bool), K, c) for c in cams]
+    pts, face = trimesh.sample.sample_surface(trimesh.Trimesh(world, box.faces), 4000, seed=2)
+    normals = trimesh.Trimesh(world, box.faces).face_normals[face]
+    seen = np.zeros(len(pts), bool)
+    for c in cams:
+        seen |= np.einsum("ij,ij->i", normals, c[:3, 3] - pts) > 0
+    observed = pts[seen & (pts[:, 2] > 0.003)]
+    imp = ImportedMesh(box.vertices, box.faces, None, False, axis_vector("z"), [])
+    rot, _, costs = _choose_up(imp, observed, 0.0, views, 1.0, 0.1, lambda rot: None)
+    assert abs((rot @ np.array([1.0, 0.0, 0.0]))[2]) == pytest.approx(1.0)
+    assert set(costs) == {"+x", "-x", "+y", "-y", "+z", "-z"} and costs["+x"][1] > 0.9 and costs["+z"][1] < 0.8
+    given = ImportedMesh(box.vertices, box.faces, None, False, axis_vector("-y"), [], up_given=True)
+    rot, _, costs = _choose_up(given, observed, 0.0, views, 1.0, 0.1, lambda rot: None)
+    assert np.array_equal(rot @ np.array([0.0, -1.0, 0.0]), [0.0, 0.0, 1.0]) and costs == {}

@@ -98,7 +98,8 @@ class ObjectSpec:
     overrides: dict = field(default_factory=dict)
     """Values the user fixed: physics (mass_kg, density_kg_m3, friction, restitution, hollow) and
     size_m, the object's largest dimension [m] (a metric scale prior); mesh, the object's mesh file
-    (relative to the case) and mesh_up, its up axis ("y" or "z"), for the imported object backend."""
+    (relative to the case) and mesh_up, its up axis ("x", "y", "z", "-x", ... or "auto": each is tried),
+    for the imported object backend."""
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ same mesh) compose with the cameras unchanged. Priors, mass and collider as obje
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -82,8 +83,10 @@ class ImportedMesh:
     normalized: bool
     """Inside TRELLIS's unit cube with its longest side 1: no metric scale at all."""
     up: np.ndarray
-    """The mesh's up axis in its own frame (unit 3-vector)."""
+    """The mesh's up axis in its own frame (unit 3-vector): ``mesh_up``, else its format's convention."""
     repairs: list[str]
+    up_given: bool = False
+    """Whether rose.toml gave ``mesh_up``; without it every axis is tried (``up_candidates``)."""
 
 
 def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
@@ -146,14 +149,41 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
         colors = transfer_colors(mesh.vertices, raw.vertices, srgb8_to_linear(colors8))
     extent = mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)
     normalized = bool(np.abs(raw.vertices).max() <= 0.5 + 1e-3 and extent.max() > 0.9)
-    if up is None:
-        up = "y" if path.suffix.lower() in (".glb", ".gltf") else "z"  # glTF is Y-up by its spec
-    if up not in ("y", "z"):
-        raise MeshError(f"mesh_up = {up!r}", path=path, hint='write mesh_up = "y" or "z" in its [[objects]] entry')
-    axis = np.array([0.0, 1.0, 0.0]) if up == "y" else np.array([0.0, 0.0, 1.0])
+    conventional = "y" if path.suffix.lower() in (".glb", ".gltf") else "z"  # glTF is Y-up by its spec
+    up = (up or "auto").strip().lower()
+    if up != "auto" and up.lstrip("+-") not in AXES:
+        raise MeshError(
+            f"mesh_up = {up!r}",
+            path=path,
+            hint='write mesh_up = "x", "y", "z" (or "-x", "-y", "-z", or "auto") in its [[objects]] entry',
+        )
     return ImportedMesh(
-        np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64), colors, normalized, axis, repairs
+        np.asarray(mesh.vertices, float),
+        np.asarray(mesh.faces, np.int64),
+        colors,
+        normalized,
+        axis_vector(conventional if up == "auto" else up),
+        repairs,
+        up_given=up != "auto",
     )
+
+
+AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def axis_vector(name: str) -> np.ndarray:
+    """The unit vector of an axis name: "x", "+y", "-z", ..."""
+    axis = np.zeros(3)
+    axis[AXES[name.lstrip("+-")]] = -1.0 if name.startswith("-") else 1.0
+    return axis
+
+
+def up_candidates(mesh: ImportedMesh) -> list[np.ndarray]:
+    """The up axes to try: the given one, else the file format's convention first, then the other five."""
+    if mesh.up_given:
+        return [mesh.up]
+    others = [axis_vector(s + a) for a in AXES for s in "+-"]
+    return [mesh.up] + [a for a in others if not np.allclose(a, mesh.up)]
 
 
 def _fill_holes(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -218,12 +248,19 @@ def _remesh(mesh: trimesh.Trimesh, resolution: int = 96) -> trimesh.Trimesh:
 
 
 def world_from_up(up: np.ndarray) -> np.ndarray:
-    """The rotation (3, 3) that turns the mesh's up axis into +Z (Y-up: -90 degrees about X)."""
+    """The rotation (3, 3) that turns the mesh's up axis (a signed coordinate axis) into +Z (Y-up:
+    -90 degrees about X); its rows are signed coordinate axes, so it is exact."""
+    up = np.asarray(up, dtype=float)
     if np.allclose(up, [0, 0, 1]):
         return np.eye(3)
     if np.allclose(up, [0, 1, 0]):
         return trellis.Y_UP_FROM_Z_UP.T
-    raise ValueError(f"unsupported up axis {up}")
+    k = int(np.argmax(np.abs(up)))
+    if not np.isclose(abs(up[k]), 1.0) or not np.isclose(np.abs(up).sum(), 1.0):
+        raise ValueError(f"unsupported up axis {up}")
+    first = np.zeros(3)
+    first[(k + 1) % 3] = 1.0
+    return np.stack([first, np.cross(up, first), up])
 
 
 def diameter(points: np.ndarray) -> float:
@@ -599,6 +636,38 @@ def _initial_scale(ctx: StageContext, name: str, path: Path, normalized: bool, d
     return unit_scale, False, f"file units ({unit})"
 
 
+def _choose_up(imp: ImportedMesh, observed, support: float, views, rho0: float, depth_weight: float, fp_start):
+    """The rotation (3, 3) from the mesh's frame to its up-aligned frame, the levelling rotation in
+    it, and each tried axis's [cost, IoU, depth RMS mm]. Without ``mesh_up`` every signed axis is tried at rho_0
+    (ICP from 12 yaws, and FoundationPose's pose when given, on ``PoseCost``); the format's
+    convention keeps the choice unless another axis costs less by ``0.02`` (a cube fits alike on
+    all six; a Y-up OBJ stood on +Z put a dragon on its tail)."""
+    chosen, costs = None, {}
+    for axis in up_candidates(imp):
+        rot = world_from_up(axis)
+        level = level_rotation(imp.vertices @ rot.T, imp.faces)
+        rot = level @ rot
+        if len(up_candidates(imp)) == 1:
+            return rot, level, {}
+        cost = PoseCost(imp.vertices @ rot.T, imp.faces, observed, support, views, depth_weight)
+        center_xy = 0.5 * (cost.model[:, :2].min(axis=0) + cost.model[:, :2].max(axis=0))
+        obs_center = 0.5 * (cost.observed[:, :2].min(axis=0) + cost.observed[:, :2].max(axis=0))
+        starts = [
+            (yaw, obs_center - rho0 * (_rot_z(yaw)[:2, :2] @ center_xy)) for yaw in np.radians(np.arange(0, 360, 30))
+        ]
+        fp = fp_start(rot)
+        best = min((cost.icp(rho0, yaw, xy) for yaw, xy in ([fp] if fp else []) + starts), key=lambda f: f.cost)
+        costs[_axis_name(axis)] = [round(float(best.cost), 4), round(float(best.iou), 4), round(1e3 * best.rms_m, 2)]
+        if chosen is None or best.cost < chosen[0] - 0.02:
+            chosen = (best.cost, rot, level)
+    return chosen[1], chosen[2], costs
+
+
+def _axis_name(axis: np.ndarray) -> str:
+    k = int(np.argmax(np.abs(axis)))
+    return ("-" if axis[k] < 0 else "+") + "xyz"[k]
+
+
 def run(ctx: StageContext) -> None:
     case, cfg, n = ctx.case, ctx.config, ctx.time_info.n_frames
     cameras = read_cameras(ctx.stage, n)
@@ -620,13 +689,19 @@ def run(ctx: StageContext) -> None:
             cloud.points, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground
         )
         observed = cloud.points[cloud.points[:, 2] > support + cfg.support_gap_m]
-        up_rot = world_from_up(imp.up)
-        level = level_rotation(imp.vertices @ up_rot.T, imp.faces)
-        up_rot = level @ up_rot
-        vertices_up = imp.vertices @ up_rot.T
         d_image, d_mesh = diameter(observed), diameter(imp.vertices)
         rho0, search, how = _initial_scale(ctx, spec.name, path, imp.normalized, d_image, d_mesh)
         views = _views(layer, spec.name, cloud.frames, cloud.masks, cameras)
+        up_rot, level, up_costs = _choose_up(
+            imp,
+            observed,
+            support,
+            views,
+            rho0,
+            cfg.imported.scale_depth_weight,
+            partial(_foundationpose_start, ctx, spec.name, cloud.frames[0], cameras),
+        )
+        vertices_up = imp.vertices @ up_rot.T
         fp = _foundationpose_start(ctx, spec.name, cloud.frames[0], cameras, up_rot)
         say(f"object {spec.name}: fitting scale and pose to {len(observed)} points and {len(views)} silhouettes")
         best, tried = fit_scale_and_pose(
@@ -673,6 +748,8 @@ def run(ctx: StageContext) -> None:
             "support_height_m": round(float(support), 4),
             "foundationpose_start": fp is not None,
             "levelled_deg": round(float(se3.rotation_angle_deg(level)), 2),
+            "up_axis": _axis_name(np.linalg.inv(up_rot) @ np.array([0.0, 0.0, 1.0])),
+            "up_costs": up_costs,
             "repairs": imp.repairs,
             "triangles": int(len(faces)),
         }
