@@ -183,6 +183,24 @@ def test_plane_gravity_with_an_upside_down_camera(check):
         assert error_deg > 45.0  # the wall: what an upright camera's test picks
 
 
+def test_with_no_object_an_upside_down_camera_is_found_by_its_table():
+    """No prompted object (the view's center is the anchor): an upside-down camera over a table
+    with a small wall behind it takes the table, whose support along its image-down is over
+    twice the wall's along its image-up; an upright camera under a ceiling with 1.5 times the
+    table's points keeps the table."""
+    rng = np.random.default_rng(3)
+    table = np.c_[rng.uniform(-0.5, 0.5, 6000), rng.uniform(-0.4, 0.4, 6000), np.zeros(6000)]
+    wall = np.c_[rng.uniform(-0.5, 0.5, 1500), np.full(1500, 1.0), rng.uniform(0.0, 0.4, 1500)]
+    flip = np.diag([-1.0, -1.0, 1.0, 1.0])
+    cams = np.array([se3.look_at([x, -0.6, 0.6], [0, 0.1, 0]) @ flip for x in np.linspace(-0.1, 0.1, 5)])
+    est = gravity_from_planes(np.concatenate([table, wall]), cams, anchor=np.array([0.0, 0.0, 0.0]))
+    assert np.degrees(np.arccos(est.up @ [0, 0, 1.0])) < 0.5
+    ceiling = np.c_[rng.uniform(-1, 1, 9000), rng.uniform(-1, 1, 9000), np.full(9000, 1.6)]
+    upright = np.array([se3.look_at([x, -0.6, 0.6], [0, 0.1, 0]) for x in np.linspace(-0.1, 0.1, 5)])
+    est = gravity_from_planes(np.concatenate([table, ceiling]), upright, anchor=np.array([0.0, 0.0, 0.0]))
+    assert np.degrees(np.arccos(est.up @ [0, 0, 1.0])) < 0.5
+
+
 def test_imu_gravity_in_camera_axes(tmp_path):
     """imu/gravity.txt holds per-frame gravity in OpenCV camera axes; up is its world average, negated."""
     cams = np.array([se3.look_at([0.5, -0.5, 0.5 + 0.01 * i], [0, 0, 0]) for i in range(4)])

@@ -123,6 +123,7 @@ def gravity_from_planes(
     max_roll_deg: float = 25.0,
     max_pitch_deg: float = 80.0,
     upside_down_check: bool = False,
+    upside_down_margin: float = 2.0,
 ) -> GravityEstimate:
     """Up from the horizontal planes of ``points`` (tracking frame).
 
@@ -137,22 +138,29 @@ def gravity_from_planes(
     plane under the anchor (or its largest).
 
     A camera mounted upside down (rolled 180 deg, as on some rigs) sees the table's normal along
-    its image-down. With ``upside_down_check`` (the anchor is on a prompted object) the candidates
-    are also chosen with the prior reversed, and the camera is taken to be upside down when that
-    finds a plane under the anchor more than 1 cm nearer to it (or the upright choice finds none):
-    the object stands on the plane right under it, a far wall that passes the upright test lies
-    farther below. (Where a view merely centers, on a cupboard's front say, nothing stands on it.)
+    its image-down, so the candidates are also chosen with the prior reversed. With
+    ``upside_down_check`` (the anchor is on a prompted object) the camera is taken to be upside
+    down when that finds a plane under the anchor more than 1 cm nearer to it (or the upright
+    choice finds none): the object stands on the plane right under it, a far wall that passes the
+    upright test lies farther below. (Where a view merely centers, on a cupboard's front say,
+    nothing stands on it.) Without it, when the reversed choice's group has ``upside_down_margin``
+    times the weighted support of the upright one: on an upside-down clip with no prompt the
+    table held 2.8 times the support of a plane facing the image-up (and was not chosen).
     """
     prior = camera_up_prior(world_from_camera)
     right = world_from_camera[:, :3, 0].mean(axis=0)
     right /= np.linalg.norm(right)
     planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
     choice = _horizontal_group(planes, prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
+    flipped = _horizontal_group(planes, -prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
     if anchor is not None and upside_down_check:
-        flipped = _horizontal_group(planes, -prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
         if flipped is not None and flipped[1] is not None:
             if choice is None or choice[1] is None or _height(flipped[1], anchor) < _height(choice[1], anchor) - 0.01:
                 choice = flipped
+    elif flipped is not None and (choice is None or _score(flipped[0]) > upside_down_margin * _score(choice[0])):
+        # no object to stand on the support: a camera upside down sees its table's plane along
+        # its image-down, holding many times the points of what faces its image-up
+        choice = flipped
     if choice is None:
         raise InputError(
             f"no horizontal support plane among {len(planes)} planes found in the depth",
@@ -195,14 +203,15 @@ def _horizontal_group(planes, prior, right, anchor, anchor_min_height_m, max_rol
         else:
             groups.append([p])
     biggest = max(p.inliers for p in candidates)
-
-    def score(group: list[Plane]) -> float:
-        return sum(p.inliers for p in group) * max(float(np.cos(np.radians(group[0].angle_to_prior_deg))), 0.0)
-
     under = {id(g): plane_under(g, anchor, biggest, anchor_min_height_m) for g in groups}
     with_object = [g for g in groups if under[id(g)] is not None]
-    group = max(with_object or groups, key=score)
+    group = max(with_object or groups, key=_score)
     return group, under[id(group)], rated
+
+
+def _score(group: list[Plane]) -> float:
+    """A group of parallel planes' support, weighted toward the prior (its first plane's angle to it)."""
+    return sum(p.inliers for p in group) * max(float(np.cos(np.radians(group[0].angle_to_prior_deg))), 0.0)
 
 
 def refine_with_planes(
