@@ -55,3 +55,25 @@ def test_pieces_of_one_object_that_leave_together_are_joined():
     assert (
         seg.join_moving_with(labels, labels == spoon_label, [label["outer"]], 0).sum() == (labels == spoon_label).sum()
     )
+
+
+def test_an_object_carried_with_another_later_is_not_joined():
+    """A ball beside the cup is taken away at frame 8 and put back at 28; the cup leaves at 20:
+    they were away together in frames 20-27 but did not start to move together."""
+    depth_of, cams, pieces, _ = _clip()
+    ball = (slice(70, 85), slice(20, 35), 0.55)
+
+    def with_ball(t):
+        d = depth_of(t)
+        if not 8 <= t < 28:
+            d[ball[0], ball[1]] = ball[2]
+        return d
+
+    seg = Segmenter(lambda t: np.zeros((H, W, 3), np.uint8), with_ball, cams, SegmentConfig(), background=None)
+    standing = (with_ball(0) < 0.595) & ~seg.frame(0).edges
+    _, labels, _ = components(standing)
+    ball_label = int(labels[ball[0], ball[1]][5, 5])
+    outer = int(labels[pieces["outer"][0], pieces["outer"][1]][2, 2])
+    moved = seg.moved_when(labels == ball_label, 0)
+    assert moved[[8, 20, 27]].all() and not moved[[0, 7, 28]].any()
+    assert np.array_equal(seg.join_moving_with(labels, labels == ball_label, [outer], 0), labels == ball_label)

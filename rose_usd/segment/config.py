@@ -71,6 +71,9 @@ class SegmentConfig:
     above it [m] (default 0.004)."""
     core_m: float = 0.015
     """classical: pixels this close to the object's previous points seed its next mask [m] (default 0.015)."""
+    shell_m: float = 0.025
+    """classical: an object seen in the last frame takes only pixels this close to its points moved
+    by its last motion, plus half that motion [m] (default 0.025)."""
     foreground_m: float = 0.015
     """classical: the interactor is nearer than the static world by more than this (+1 % of depth) [m]
     (default 0.015)."""

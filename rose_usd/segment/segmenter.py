@@ -20,14 +20,17 @@ under it (``geometry.support``: the table as the video sees it, which may bend a
    it likelier, else to the nearest pixel only one region claims.
 2. **Propagate** (forward from the prompt frame, then backward). In each frame, a pixel belongs to
    the object when it stands on the support (above ``lift``), its world point lies within
-   ``max(diameter, 3 cm)`` of the object's previous points (shifted by its last velocity), its
-   color is more likely under the object's color model than under the model of its surroundings
-   and the hand, and it is depth-connected to a core of pixels within ``core_m`` of the previous
-   points. A pixel belongs to one object at most.
-   Color models are updated as the object turns. The motion between frames is translation-only
-   ICP of the seen points (not the shift of their mean, which occlusion moves), and points that
-   something now stands in front of are kept, moved along. When the object is hidden (the hand
-   covers it), its last points are kept and the search widens until it reappears.
+   ``shell_m`` (plus half the last motion) of the object's previous points moved by its last
+   rigid motion (within ``max(diameter, 3 cm)``, growing, while it is hidden), its color is more
+   likely under the object's color model than under the model of its surroundings and the hand,
+   and it is depth-connected to a core of pixels within ``core_m`` of the moved points. A pixel
+   belongs to one object at most. Color models are updated as the object turns. The motion
+   between frames is rigid: translation-only ICP of the seen points first (not the shift of
+   their mean, which occlusion moves), then a turn where it fits clearly better (a cup turned in
+   the hand). Points that something now stands in front of are kept, moved along, while they lie
+   within the object's size of where it was carried (a finger taken once is not kept behind the
+   hand). When the object is hidden (the hand covers it), its last points are kept and the
+   search widens until it reappears.
 3. **Interactor.** Pixels nearer than the static world (geometry.background) by more than
    ``foreground_m``, minus the objects, in regions of at least ``min_region_px`` pixels.
 """
@@ -42,6 +45,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from rose_usd.core.pinhole import backproject, pixels_of, sample_at
 from rose_usd.errors import InputError
@@ -116,6 +120,9 @@ class ObjectTrack:
     area: float
     """Visible pixels at the start."""
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """The last motion's translation of the points' centre [m per frame] (damped)."""
+    spin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """The last motion's turn about the points' centre, a rotation vector [rad per frame] (damped)."""
     hidden: int = 0
     first_color: np.ndarray | None = None
     """The color model of the start: half of the model always, so a face lost once is not forgotten."""
@@ -124,6 +131,16 @@ class ObjectTrack:
         if self.first_color is None:
             self.first_color = self.color.copy()
 
+    def predicted(self) -> np.ndarray:
+        """The points moved by the last motion (turned about their centre, then shifted)."""
+        centre = np.median(self.points, axis=0)
+        return (self.points - centre) @ _rotation(self.spin).T + centre + self.velocity
+
+    def motion_m(self) -> float:
+        """How far the last motion moved the farthest point [m]."""
+        radius = 0.5 * self.diameter
+        return float(np.linalg.norm(self.velocity) + np.linalg.norm(self.spin) * radius)
+
     def copy(self) -> "ObjectTrack":
         """An independent copy (propagation updates tracks in place)."""
         return replace(
@@ -131,6 +148,7 @@ class ObjectTrack:
             points=self.points.copy(),
             color=self.color.copy(),
             velocity=self.velocity.copy(),
+            spin=self.spin.copy(),
             first_color=self.first_color.copy(),
         )
 
@@ -467,11 +485,12 @@ class Segmenter:
         components) that leave their place in the same frames as it: one object moves as one.
         A depth edge cuts a cup lying on its side into its outer wall and, seen through its rim,
         its inner wall 2-4 cm deeper; the hand touches one, and both go when it lifts the cup.
-        They must have moved together in at least two sampled frames and in 60 % of the frames
-        the one that moved less often moved in (a cup's inner wall lies a few mm over the table,
-        and seen past by less than ``leave_m`` it seems to move only while the cup is high); a
-        component that moved in over half the frames (a person) is not joined, nor one that makes
-        the union wider than ``max_diameter_m``."""
+        They must have started to move within two sampled frames of each other (a ball put into
+        a cup and carried with it later is another object), moved together in at least two
+        sampled frames and in 60 % of the frames the one that moved less often moved in (a cup's
+        inner wall lies a few mm over the table, and seen past by less than ``leave_m`` it seems
+        to move only while the cup is high); a component that moved in over half the frames (a
+        person) is not joined, nor one that makes the union wider than ``max_diameter_m``."""
         mine = self.moved_when(region, t0)
         if mine.sum() < 2:
             return region
@@ -484,6 +503,8 @@ class Segmenter:
             both = np.count_nonzero(mine & theirs)
             if both < 2 or both < 0.6 * min(mine.sum(), theirs.sum()) or theirs.sum() > 0.5 * len(theirs):
                 continue
+            if abs(int(np.argmax(mine)) - int(np.argmax(theirs))) > 2:
+                continue  # they did not start to move together: two objects, carried together later
             union = region | part
             if _diameter(pts[union & np.isfinite(pts[..., 2])]) <= max_diameter_m:
                 region = union
@@ -538,7 +559,9 @@ class Segmenter:
         cores = []
         for k, track in enumerate(tracks):
             reach = max(track.diameter, 0.03) * (1.0 + 0.5 * min(track.hidden, 10))
-            pred = track.points + track.velocity
+            pred = track.predicted()
+            # a track seen in the last frame moves rigidly: its pixels lie near its moved points
+            shell = reach if track.hidden else p.shell_m + 0.5 * track.motion_m()
             core = np.zeros(depth.shape, bool)
             cores.append(core)
             box = self._image_box(t, pred, reach)
@@ -557,13 +580,14 @@ class Segmenter:
             colored = np.flatnonzero(track.color[c] > denominator[c])  # object colors, before the costlier 3D test
             ys, xs = ys[colored] + y0, xs[colored] + x0
             d, _ = cKDTree(pred).query(pts[ys, xs], k=1, distance_upper_bound=reach)
-            ok = np.isfinite(d)
+            ok = d < shell
+            core_m = p.core_m + 0.5 * track.motion_m()
             if arm is not None:
-                ok &= ~arm[ys, xs] | (d < p.core_m + 0.5 * np.linalg.norm(track.velocity))
+                ok &= ~arm[ys, xs] | (d < core_m)
             better = ok & (d < best[ys, xs])
             best[ys[better], xs[better]] = d[better]
             owner[ys[better], xs[better]] = k
-            sel = ok & (d < p.core_m + 0.5 * np.linalg.norm(track.velocity)) & (height[ys, xs] > self.lift)
+            sel = ok & (d < core_m) & (height[ys, xs] > self.lift)
             core[ys[sel], xs[sel]] = True
         masks = []
         max_hole = int(200 * self.scale_px)
@@ -597,7 +621,7 @@ class Segmenter:
         last velocity) lags a placed or turned mug, and the small suite's mask IoU fell by up to
         0.29 at half. Pixels without depth stay."""
         pts = self.frame(t).pts
-        centre = np.median(track.points, axis=0) + track.velocity
+        centre = np.median(track.predicted(), axis=0)
         far = np.linalg.norm(np.nan_to_num(pts - centre, nan=0.0), axis=-1) > track.diameter + slack_m
         return ~(far & mask)
 
@@ -642,20 +666,32 @@ class Segmenter:
         if area < 0.25 * track.area:
             track.hidden += 1
             track.velocity *= 0.5
+            track.spin *= 0.5
             return
         new = _subsample(pts[mask & (depth > 0)], 4000, seed=t)
         if len(new) < 20:
             track.hidden += 1
             return
-        shift = _shift(track.points, new)
-        track.velocity = 0.5 * track.velocity + 0.5 * shift if track.hidden == 0 else np.zeros(3)
+        turn, shift = _motion(track.points, new, track.spin if track.hidden == 0 else np.zeros(3))
+        if track.hidden == 0:
+            track.velocity = 0.5 * track.velocity + 0.5 * shift
+            track.spin = 0.5 * track.spin + 0.5 * Rotation.from_matrix(turn).as_rotvec()
+        else:
+            track.velocity, track.spin = np.zeros(3), np.zeros(3)
         # the part hidden now (something in front of it: a hand) is still there, moved with the
         # part seen; keeping only the seen part loses a box whose seen face the hand then covers
-        moved = track.points + shift
+        centre = np.median(track.points, axis=0)
+        moved = (track.points - centre) @ turn.T + centre + shift
         u, v, z = pixels_of(moved, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
         d = sample_at(depth, u, v)
         behind = (u >= 0) & (d > 0) & (d < z - 0.01)
-        track.points = _subsample(np.concatenate([new, moved[behind]]), 4000, seed=t)
+        points = np.concatenate([new, moved[behind]])
+        # the object is rigid and no wider than it was: points farther from the centre of where
+        # it was carried (a finger, a ball held beside a cup, taken once) are not kept, or they
+        # would stay behind what hides them and draw the mask to them frame after frame
+        centre = np.median(moved, axis=0)
+        near = np.linalg.norm(points - centre, axis=1) <= 0.65 * track.diameter + 0.015
+        track.points = _subsample(points[near] if near.sum() >= 20 else points, 4000, seed=t)
         track.hidden = 0
         track.color = 0.5 * track.first_color + 0.5 * (
             0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask])
@@ -679,6 +715,42 @@ def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
         if gap < best_gap:
             best, best_gap = shift, gap
     return best
+
+
+def _rotation(rotvec: np.ndarray) -> np.ndarray:
+    return Rotation.from_rotvec(rotvec).as_matrix()
+
+
+def _motion(
+    old: np.ndarray, new: np.ndarray, spin: np.ndarray, *, iterations: int = 6, max_turn_deg: float = 30.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid motion (turn R about the old points' centre c, then shift t: x -> R (x - c) +
+    c + t) that carries ``old`` onto ``new``. The shift alone first (``_shift``: robust to what a
+    hand hides); then, started from it and from the last turn ``spin``, point-to-point ICP with
+    the turn (Kabsch on the pairs within their 80th-percentile gap). The turn is kept only where
+    it brings the points nearer than the shift alone by 15 % of the median gap: the seen part of
+    a still or sliding object must not turn with depth noise."""
+    shift = _shift(old, new)
+    centre = np.median(old, axis=0)
+    tree = cKDTree(new)
+    base = float(np.median(tree.query(old + shift)[0]))
+    best = (np.eye(3), shift, base)
+    for rot0 in (np.eye(3), _rotation(spin)):
+        rot, t = rot0, shift.copy()
+        for _ in range(iterations):
+            moved = (old - centre) @ rot.T + centre + t
+            d, idx = tree.query(moved)
+            keep = d <= np.percentile(d, 80)
+            a, b = old[keep] - centre, new[idx[keep]]
+            ca, cb = a.mean(axis=0), b.mean(axis=0)
+            u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+            rot = vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
+            t = cb - rot @ ca - centre
+        gap = float(np.median(tree.query((old - centre) @ rot.T + centre + t)[0]))
+        angle = np.degrees(np.linalg.norm(Rotation.from_matrix(rot).as_rotvec()))
+        if gap < best[2] - 0.15 * base and angle <= max_turn_deg:
+            best = (rot, t, gap)
+    return best[0], best[1]
 
 
 def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
