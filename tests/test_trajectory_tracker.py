@@ -179,3 +179,11 @@ def test_a_direction_depth_leaves_free_is_found_and_the_silhouette_fixes_it():
         margin=0.005,
     )
     assert abs(fit.motion[2, 3]) < 0.002, fit.motion[2, 3]
+
+
+def test_a_re_acquisition_of_one_or_two_frames_is_not_trusted():
+    from rose_usd.trajectory.tracker import confirmed
+
+    tracked = np.array([1, 1, 0, 1, 0, 0, 1, 1, 0, 1, 1, 1, 0, 1], bool)
+    assert confirmed(tracked).astype(int).tolist() == [1, 1, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 0, 0]
+    assert confirmed(np.array([0, 1, 0, 0], bool)).astype(int).tolist() == [0, 1, 0, 0]  # the first run stays

@@ -26,8 +26,10 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    with fewer than ``min_points`` observed points, or a fit under ``min_fitness``, is lost: the pose
    holds, confidence 0. When the object shows again it is re-acquired: ICP from the last pose
    moved onto the observed points and turned about the vertical in 45 deg steps, the best by
-   fitness and silhouette IoU against the mask. Frames lost between two tracked ones are then
-   interpolated on SE(3) (confidence 0.5); lost at the end they hold (confidence 0).
+   fitness and silhouette IoU against the mask. A re-acquisition that holds for fewer than 3
+   frames before the object is lost again is dropped (``confirmed``: a glimpse between fingers).
+   Frames lost between two tracked ones are then interpolated on SE(3) (confidence 0.5); lost at
+   the end they hold (confidence 0).
 5. **Rest.** Objects move only when touched: while the interactor's mask has not come near the
    object's (``geometry.contact.touches``, within ``TOUCH_REACH_PX``) for ``release_frames`` frames
    and the last pose still fits the depth, the pose holds. When it first holds after a touch, the
@@ -401,6 +403,26 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
     return _finish(name, np.stack(motions), tracked, fitness, cfg, counts, iou0, layer.where(name))
 
 
+def confirmed(tracked: np.ndarray, *, run: int = 3) -> np.ndarray:
+    """``tracked`` without the runs of fewer than ``run`` frames after a loss: a pose re-acquired
+    in a frame or two between lost ones is a guess from a glimpse (a ball in a hand, seen between
+    the fingers: such frames jumped 3-10 cm and back), and the frames around it are interpolated
+    instead. The first run of the video is kept whatever its length."""
+    out = tracked.copy()
+    n, t = len(tracked), 0
+    while t < n:
+        if not tracked[t]:
+            t += 1
+            continue
+        end = t
+        while end < n and tracked[end]:
+            end += 1
+        if t > 0 and end - t < run and out[:t].any():
+            out[t:end] = False
+        t = end
+    return out
+
+
 def _finish(name: str, motions, tracked, fitness, cfg, counts: dict, iou0: float, where):
     """Smoothed motions with the lost frames filled, confidence per frame, and the facts."""
     n = len(tracked)
@@ -410,11 +432,14 @@ def _finish(name: str, motions, tracked, fitness, cfg, counts: dict, iou0: float
             path=where,
             hint="check its masks (segment stage) and the object mesh",
         )
+    kept = confirmed(tracked)
+    unconfirmed, tracked = int(tracked.sum() - kept.sum()), kept
     motions = smooth(motions, tracked, cfg.smooth_window)
     filled, confidence = fill_gaps(motions, tracked)
     confidence[tracked] = np.clip(fitness[tracked], 0.0, 1.0)
     facts = {
         "frames_tracked": int(tracked.sum()),
+        "unconfirmed": int(unconfirmed),
         "frames_lost": int(n - tracked.sum()),
         **counts,
         "fitness_mean": round(float(fitness[tracked].mean()), 3),
