@@ -323,7 +323,7 @@ def test_a_category_typo_is_an_error_and_an_unknown_category_a_warning():
 def test_a_mesh_whose_bottom_is_off_level_is_set_on_it_and_an_upright_one_is_left():
     """A generated mug stood 2 deg off its bottom and Newton tipped it over (6.3 mm in 1 s): the
     mesh is turned onto its stable resting face when that face is within 6 deg of down."""
-    from rose_usd.object.imported import level_rotation
+    from rose_usd.object.rest import level_rotation
 
     can = trimesh.creation.cylinder(radius=0.04, height=0.12, sections=48)
     assert np.allclose(level_rotation(can.vertices, can.faces), np.eye(3))

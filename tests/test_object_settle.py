@@ -54,3 +54,19 @@ def test_a_stack_settles_from_the_lowest_up():
     settle([top, base], _table())
     assert _bottom(base) == pytest.approx(CLEARANCE_M, abs=2e-4)
     assert _bottom(top) == pytest.approx(_bottom(base) + 0.06 + CLEARANCE_M, abs=2e-4)  # on the settled base
+
+
+def test_an_object_pressed_into_a_neighbour_beside_it_is_pushed_out_sideways():
+    """A box resting on the table whose side sinks 3 mm into a block beside it (a cup the scene
+    holds, next to the ball that is the object): it is moved out sideways and stays on the table,
+    not lifted 3 mm over it (from there it fell against the block's slope and rolled away)."""
+    table_v, table_f = _table()
+    block = trimesh.creation.box(extents=(0.1, 0.3, 0.1))
+    block.apply_translation([0.08, 0.0, 0.05])  # its face at x = 0.03
+    scene = trimesh.util.concatenate([trimesh.Trimesh(table_v, table_f), block])
+    model = _box("Box", 0.0003)
+    model.world_from_object_0[0, 3] = 0.003  # the box's side at x = 0.033: 3 mm into the block
+    settle([model], (np.asarray(scene.vertices), np.asarray(scene.faces)))
+    world = se3.transform_points(model.world_from_object_0, model.mesh.vertices)
+    assert world[:, 0].max() <= 0.03 + 1e-4  # out of the block
+    assert _bottom(model) == pytest.approx(0.0003, abs=3e-4)  # still on the table

@@ -171,7 +171,8 @@ def author_objects(ctx: StageContext, models: list[ObjectModel], convex_toleranc
     from rose_usd.layers.scene import scene_collider
     from rose_usd.object.settle import settle
 
-    lifts = settle(models, scene_collider(ctx.stage))
+    pushes: dict = {}
+    lifts = settle(models, scene_collider(ctx.stage), pushes=pushes)
     facts = {}
     for model in models:
         lift = lifts.get(model.name, 0.0)
@@ -182,8 +183,10 @@ def author_objects(ctx: StageContext, models: list[ObjectModel], convex_toleranc
             )
         elif lift > 0.01:
             ctx.warn(f"object {model.name!r} was {1e3 * lift:.0f} mm inside the scene at frame 0: lifted onto it")
+        push = pushes.get(model.name, np.zeros(3))
         facts[model.name] = author_object(ctx, model, convex_tolerance) | {
-            "settle_lift_m": None if not np.isfinite(lift) else round(lift, 5)
+            "settle_lift_m": None if not np.isfinite(lift) else round(lift, 5),
+            "settle_push_m": [round(float(v), 5) for v in push[:2]],
         }
     return facts
 

@@ -53,6 +53,7 @@ from dataclasses import replace
 
 import cv2
 import numpy as np
+import trimesh
 from scipy.spatial import ConvexHull, cKDTree
 
 from rose_usd.core import se3
@@ -63,7 +64,7 @@ from rose_usd.geometry.mesh import decimate, self_intersects
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
-from rose_usd.object.rest import resting_clouds, support_height
+from rose_usd.object.rest import level_rotation, resting_clouds, support_height
 from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
 
@@ -471,8 +472,13 @@ def run(ctx: StageContext) -> None:
         # the object frame: world axes at frame 0, origin on its support under its footprint center
         foot = vertices[vertices[:, 2] < support + 0.5 * cfg.voxel_m]
         origin = np.array([*(foot[:, :2].mean(axis=0) if len(foot) else vertices[:, :2].mean(axis=0)), support])
-        local = vertices - origin
         colors = transfer_colors(vertices, pts, srgb8_to_linear(cols))
+        # a fused round object (a ball) has no flat bottom: turned by up to 6 deg onto the hull
+        # face nearest its center of mass it rests; as seen it rolled off its flat pad in Newton
+        level = level_rotation(vertices, faces)
+        com = trimesh.Trimesh(vertices, faces, process=False).center_mass
+        vertices = (vertices - com) @ level.T + com
+        local = vertices - origin
         mesh = MeshData(vertices=local, faces=faces, vertex_colors=colors)
         physics, mass = physics_for(spec, local, faces, ctx, wall_modeled=how.startswith("vessel"))
         models.append(ObjectModel(spec.name, mesh, se3.make_pose(np.eye(3), origin), mass, physics))
@@ -481,6 +487,7 @@ def run(ctx: StageContext) -> None:
             "fused_points": int(len(pts)),
             "support_height_m": round(float(support), 4),
             "completion": how,
+            "levelled_deg": round(float(se3.rotation_angle_deg(level)), 2),
             "triangles": int(len(faces)),
         }
     for name, authored in author_objects(

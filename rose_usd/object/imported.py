@@ -52,7 +52,7 @@ from rose_usd.io.meshfile import read_mesh_file
 from rose_usd.layers.masks import Masks, read_masks
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
-from rose_usd.object.rest import resting_clouds, support_height
+from rose_usd.object.rest import level_rotation, resting_clouds, support_height
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
@@ -288,43 +288,6 @@ class Fit:
 
     def world_from_up_frame(self) -> np.ndarray:
         return se3.make_pose(_rot_z(self.yaw), self.translation)
-
-
-def level_rotation(vertices: np.ndarray, faces: np.ndarray, *, max_tilt_deg: float = 6.0) -> np.ndarray:
-    """The small rotation (3, 3) that sets an up-aligned closed mesh on its stable resting face.
-
-    A generated mesh's up axis is the network's guess: a bottom a degree or two off level makes
-    Newton tip the object onto it, and the object moves while it should rest. The
-    mesh rests on the face of its convex hull nearest its center of mass (the solid's) among
-    those facing within ``max_tilt_deg`` of down, when the center of mass projects into that
-    face (its coplanar hull triangles): that face is turned to face straight down. The identity
-    when no such face exists (a round bottom rests where it stands)."""
-    hull = ConvexHull(vertices)
-    normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
-    com = trimesh.Trimesh(vertices, faces, process=False).center_mass
-    down = np.flatnonzero(normals[:, 2] < -np.cos(np.radians(max_tilt_deg)))
-    if not len(down):
-        return np.eye(3)
-    dist = -(normals[down] @ com + offsets[down])  # center of mass to each face's plane
-    i = down[int(np.argmin(dist))]
-    n = normals[i]
-    foot = com + dist.min() * n  # the center of mass projected onto that plane
-    same = np.flatnonzero(
-        (normals @ n > np.cos(np.radians(0.5))) & (np.abs(offsets - offsets[i]) < 1e-4 * np.ptp(vertices, axis=0).max())
-    )
-    tris = vertices[hull.simplices[same]]
-    inside = (trimesh.triangles.points_to_barycentric(tris, np.broadcast_to(foot, (len(same), 3))) >= -1e-9).all(axis=1)
-    if not inside.any():
-        return np.eye(3)
-    # Rodrigues written out rather than se3.rotation_between: the same rotation to 1e-16, but the
-    # pose search downstream is that sensitive (a difference in the last bits changes its fit)
-    axis = np.cross(n, [0.0, 0.0, -1.0])
-    s, c = np.linalg.norm(axis), float(-n[2])
-    if s < 1e-12:
-        return np.eye(3)
-    k = axis / s
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * kx + (1 - c) * kx @ kx
 
 
 def resting_bottom(points: np.ndarray, band: float = 0.02) -> float:

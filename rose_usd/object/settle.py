@@ -18,7 +18,13 @@ TOUCHING_M = 0.001
 
 
 def settle(
-    models: list, scene: tuple[np.ndarray, np.ndarray] | None, *, max_lift_m: float = 0.03, max_drop_m: float = 0.015
+    models: list,
+    scene: tuple[np.ndarray, np.ndarray] | None,
+    *,
+    max_lift_m: float = 0.03,
+    max_drop_m: float = 0.015,
+    max_push_m: float = 0.015,
+    pushes: dict[str, np.ndarray] | None = None,
 ) -> dict[str, float]:
     """Move each model's ``world_from_object_0`` along gravity into contact; returns the move per
     object [m] (positive up).
@@ -27,7 +33,12 @@ def settle(
     it. A penetration deeper than ``max_lift_m``, or a gap wider than ``max_drop_m`` (an object
     held, not resting), is left alone (it is not a contact error but a wrong pose or scene, or no
     contact at all; moving it would hide that): the caller warns about the first. A gap under
-    ``TOUCHING_M`` is contact."""
+    ``TOUCHING_M`` is contact.
+
+    First, where the object sinks into something beside it (the scene holds a cup the ball rests
+    against), it is moved out sideways, by up to ``max_push_m``: lifted over it instead, it fell
+    back against its slope and rolled away in Newton. ``pushes`` receives each sideways move."""
+    pushes = {} if pushes is None else pushes
     lifts: dict[str, float] = {}
     supports = [] if scene is None else [metrics.SignedDistance(*scene)]
     order = sorted(
@@ -35,6 +46,10 @@ def settle(
     )
     for model in order:
         world = se3.transform_points(model.world_from_object_0, model.mesh.vertices)
+        side = _sideways(world, supports, max_push_m)
+        model.world_from_object_0[:3, 3] += side
+        world = world + side
+        pushes[model.name] = side
         depth = 0.0
         for signed_distance in supports:
             inside = signed_distance(world)
@@ -54,3 +69,35 @@ def settle(
         lifts[model.name] = lift
         supports.append(metrics.SignedDistance(world + np.array([0.0, 0.0, lift]), model.mesh.faces))
     return lifts
+
+
+def _sideways(world: np.ndarray, supports: list, max_push_m: float) -> np.ndarray:
+    """The horizontal move (3,) that takes the points out of what they sink into from the side:
+    among the points deeper than ``TOUCHING_M`` inside a support, those whose way out (to the
+    nearest surface point) is within 60 deg of horizontal; moved along their mean horizontal way
+    out, by the deepest of them along it plus the clearance. Zero when there are none, or when
+    the move would exceed ``max_push_m`` (not a contact error: a wrong pose)."""
+    best = np.zeros(3)
+    for support in supports:
+        inside = support(world)
+        deep = inside < -TOUCHING_M
+        if not deep.any():
+            continue
+        pts = world[deep]
+        closest = support.scene.compute_closest_points(
+            support._o3d.core.Tensor(np.ascontiguousarray(pts, dtype=np.float32))
+        )["points"].numpy()
+        out = closest - pts
+        length = np.linalg.norm(out, axis=1)
+        side = (length > 0) & (np.abs(out[:, 2]) < 0.5 * np.maximum(length, 1e-12))
+        if not side.any():
+            continue
+        way = out[side, :2].sum(axis=0)
+        if np.linalg.norm(way) < 1e-9:
+            continue
+        way /= np.linalg.norm(way)
+        push = float(np.max(out[side, :2] @ way)) + CLEARANCE_M
+        if push > max_push_m or push <= np.linalg.norm(best):
+            continue
+        best = np.array([*(push * way), 0.0])
+    return best
