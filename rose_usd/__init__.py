@@ -27,6 +27,7 @@ __version__ = "0.1.0"
 
 _LAZY = {
     "reconstruct": "rose_usd.api:reconstruct",
+    "batch": "rose_usd.batch:batch",
     "Reconstruction": "rose_usd.api:Reconstruction",
     "StageOutcome": "rose_usd.pipeline:StageOutcome",
     "GateResult": "rose_usd.layers.gate:GateResult",

@@ -1,0 +1,312 @@
+"""Many cases at once: ``rose-usd batch CASES... -o OUT`` and :func:`batch`.
+
+Each case runs :func:`rose_usd.reconstruct` into ``OUT/<name>/`` in a process of its own (a
+crash, a leak or a native library's global state stays with its case), a worker count at a time,
+or as Ray tasks on a cluster (``ray=ADDRESS``, ``"auto"`` for a running one, ``"local"`` to start
+one here) with their CPU and GPU needs declared. A case that fails is recorded with its one-line
+error and does not stop the others.
+
+**Resume.** A case is done when its ``batch.json`` is written, last and atomically, after its
+reconstruction and validation; it records the hash of every layer file it saw. Run again, a case
+whose record matches its layers on disk is taken as it is, without opening a stage; any other is
+reconstructed again, and that is make-like (``reconstruct`` skips the layers that are current,
+and a stage commits its layer atomically), so a case killed halfway resumes at the stage it was
+in and a finished case is left untouched (no file of it is rewritten).
+
+The summary (``OUT/summary.csv``, ``summary.json``, ``index.html`` with each case's compare
+picture) is rewritten atomically after every case, so a killed batch leaves the summary of the
+cases finished so far.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import html
+import io
+import json
+import os
+import time
+import traceback
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rose_usd.errors import ConfigError, RoseError
+from rose_usd.progress import progress, quiet
+
+RECORD = "batch.json"
+"""The record of a finished case, in its output folder."""
+FIELDS = ("name", "case", "status", "gate_passed", "ssim_mean", "collect_success", "wall_time_s", "error")
+"""The summary's columns."""
+
+
+@dataclass
+class CaseResult:
+    """One case of a batch."""
+
+    name: str
+    case: str
+    out_dir: str
+    status: str
+    """``done`` (reconstructed and valid), ``failed`` (a stage failed, or the stage is invalid)."""
+    gate_passed: bool | None = None
+    ssim_mean: float | None = None
+    collect_success: float | None = None
+    """The collect stage's success rate over its rollouts, None when it did not run."""
+    wall_time_s: float = 0.0
+    """Seconds spent on this case in the run that finished it."""
+    error: str | None = None
+    stages_ran: list[str] = field(default_factory=list)
+    layers: dict[str, str] = field(default_factory=dict)
+    """Layer file -> hash when the case finished: what ``batch.json`` vouches for."""
+    reused: bool = False
+    """Taken from an earlier run's record (nothing ran)."""
+
+    def row(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in FIELDS}
+
+
+@dataclass
+class BatchResult:
+    out_dir: Path
+    cases: list[CaseResult]
+    wall_time_s: float
+
+    @property
+    def failed(self) -> list[CaseResult]:
+        return [c for c in self.cases if c.status != "done"]
+
+
+def case_names(cases: Sequence[str | os.PathLike]) -> list[str]:
+    """An output folder name per case: its folder's (or video file's stem) name, made unique."""
+    names: list[str] = []
+    for case in cases:
+        path = Path(case)
+        base = (path.stem if path.suffix and not path.is_dir() else path.name) or "case"
+        name, k = base, 2
+        while name in names:
+            name, k = f"{base}-{k}", k + 1
+        names.append(name)
+    return names
+
+
+def _layer_hashes(out_dir: Path) -> dict[str, str]:
+    from rose_usd.usd.stage import root_file
+
+    files = sorted((out_dir / "layers").glob("*.usd*")) + [root_file(out_dir)]
+    return {str(p.relative_to(out_dir)): hashlib.sha256(p.read_bytes()).hexdigest()[:16] for p in files if p.is_file()}
+
+
+def _record(out_dir: Path, options_key: str) -> CaseResult | None:
+    """The finished case recorded in ``out_dir``, when it was made with the same options and its
+    layers are the ones it vouches for."""
+    path = out_dir / RECORD
+    try:
+        data = json.loads(path.read_text())
+        if data.pop("options") != options_key:
+            return None
+        result = CaseResult(**data)
+    except (OSError, ValueError, TypeError, KeyError):
+        return None
+    if result.status != "done" or result.layers != _layer_hashes(out_dir):
+        return None
+    result.reused = True
+    return result
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def run_case(
+    name: str,
+    case: str,
+    out_dir: str,
+    options: Mapping[str, Any],
+    options_key: str,
+) -> dict[str, Any]:
+    """Reconstruct one case (in a worker process or a Ray task) and record it; never raises."""
+    os.environ.setdefault("ROSE_USD_QUIET", "1")
+    out = Path(out_dir)
+    earlier = _record(out, options_key)
+    if earlier is not None:
+        return asdict(earlier)
+    t0 = time.perf_counter()
+    result = CaseResult(name=name, case=str(case), out_dir=str(out), status="failed")
+    try:
+        from rose_usd.api import reconstruct
+
+        rec = reconstruct(case, out, validate=True, check=False, **options)
+        result.stages_ran = [o.name for o in rec.outcomes if o.status == "ran"]
+        result.error = rec.error
+        if rec.validation is not None and not rec.validation.ok:
+            result.error = result.error or f"{rec.path}: the stage is not valid ({rec.validation.errors[0]})"
+        if rec.gate is not None:
+            result.gate_passed, result.ssim_mean = bool(rec.gate.passed), round(float(rec.gate.ssim_mean), 4)
+        result.collect_success = _collect_success(rec)
+        result.status = "done" if result.error is None else "failed"
+    except RoseError as exc:
+        result.error = exc.one_line()
+    except Exception as exc:  # a bug in one case must not stop the batch: recorded with its place
+        last = traceback.extract_tb(exc.__traceback__)[-1]
+        result.error = f"bug: {type(exc).__name__}: {exc} ({Path(last.filename).name}:{last.lineno})"
+    result.wall_time_s = round(time.perf_counter() - t0, 2)
+    if result.status == "done":
+        result.layers = _layer_hashes(out)
+        _write_atomic(out / RECORD, json.dumps(asdict(result) | {"options": options_key}, indent=1))
+    return asdict(result)
+
+
+def _collect_success(rec) -> float | None:
+    """The collect stage's success rate, when the stage has a robot layer."""
+    try:
+        from rose_usd.layers import robot
+    except ImportError:
+        return None
+    read = getattr(robot, "success_rate", None)
+    return None if read is None else read(rec.stage)
+
+
+def batch(
+    cases: Iterable[str | os.PathLike],
+    out: str | os.PathLike,
+    *,
+    workers: int = 1,
+    ray: str | None = None,
+    cpus_per_case: float = 1.0,
+    gpus_per_case: float = 0.0,
+    backends: Mapping[str, Any] | None = None,
+    settings: Mapping[str, Mapping[str, Any]] | None = None,
+    until: str | None = None,
+    force: bool = False,
+) -> BatchResult:
+    """Reconstruct every case into ``out/<name>/`` (module docstring); returns each case's result.
+
+    Args:
+        workers: cases run at once, each in its own process (local runs).
+        ray: run each case as a Ray task instead: an address, ``"auto"`` (a running cluster) or
+            ``"local"`` (start one here); ``cpus_per_case``/``gpus_per_case`` are its resources.
+        backends, settings, until, force: as for :func:`rose_usd.reconstruct`, for every case.
+
+    Raises:
+        ConfigError: no case, a case that does not exist, or ``out`` that cannot be a folder.
+    """
+    cases = [str(c) for c in cases]
+    if not cases:
+        raise ConfigError("no case given", hint="rose-usd batch CASE [CASE ...] -o OUT")
+    missing = [c for c in cases if not Path(c).exists()]
+    if missing:
+        raise ConfigError(f"case {missing[0]!r} does not exist", path=missing[0], hint="check the path")
+    if workers < 1:
+        raise ConfigError(f"--workers {workers}", hint="run at least 1 case at a time")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError("the batch output is a file", path=out, hint="give a folder for -o")
+    out.mkdir(parents=True, exist_ok=True)
+    options = {
+        "backends": dict(backends or {}),
+        "settings": {k: dict(v) for k, v in (settings or {}).items()},
+        "until": until,
+        "force": force,
+    }
+    # a record is reused only under the same options (a forced run is never reused by itself)
+    options_key = hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    if force:
+        options_key += f"-{time.time_ns()}"
+    names = case_names(cases)
+    jobs = [(name, case, str(out / name), options, options_key) for name, case in zip(names, cases)]
+    t0 = time.perf_counter()
+    results: dict[str, CaseResult] = {}
+
+    def finished(data: dict) -> None:
+        results[data["name"]] = CaseResult(**data)
+        write_summary(out, [results[n] for n in names if n in results])
+
+    if ray:
+        _run_ray(jobs, ray, cpus_per_case, gpus_per_case, finished)
+    else:
+        _run_local(jobs, workers, finished)
+    return BatchResult(out, [results[n] for n in names], time.perf_counter() - t0)
+
+
+def _run_local(jobs: list[tuple], workers: int, finished) -> None:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    context = multiprocessing.get_context("spawn")  # no fork of a process that holds USD, Warp or Open3D
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
+        futures = {pool.submit(run_case, *job): job for job in jobs}
+        for future in progress(as_completed(futures), "batch", total=len(futures), unit="case"):
+            finished(future.result())
+
+
+def _run_ray(jobs: list[tuple], address: str, cpus: float, gpus: float, finished) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError(
+            "--ray needs the ray package", hint="pip install 'rose-usd[ray]' (or run without --ray)"
+        ) from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=not quiet())
+    try:
+        task = ray.remote(num_cpus=cpus, num_gpus=gpus, max_retries=0)(run_case)
+        pending = [task.remote(*job) for job in jobs]
+        bar = progress(range(len(pending)), "batch (ray)", total=len(pending), unit="case")
+        for _ in bar:
+            done, pending = ray.wait(pending, num_returns=1)
+            finished(ray.get(done[0]))
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def write_summary(out: Path, results: list[CaseResult]) -> None:
+    """``summary.csv``, ``summary.json`` and ``index.html`` in ``out``, each written atomically."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(FIELDS))
+    writer.writeheader()
+    for r in results:
+        writer.writerow(r.row())
+    _write_atomic(out / "summary.csv", buf.getvalue())
+    _write_atomic(out / "summary.json", json.dumps([asdict(r) for r in results], indent=1))
+    _write_atomic(out / "index.html", _html(out, results))
+
+
+def _html(out: Path, results: list[CaseResult]) -> str:
+    done = sum(r.status == "done" for r in results)
+    passed = sum(bool(r.gate_passed) for r in results)
+    rows = []
+    for r in results:
+        picture = Path(r.out_dir) / "report" / "compare.png"
+        img = (
+            f'<a href="{html.escape(os.path.relpath(picture, out))}"><img src="'
+            f'{html.escape(os.path.relpath(picture, out))}" width="480"></a>'
+            if picture.is_file()
+            else ""
+        )
+        gate = "" if r.gate_passed is None else ("PASS" if r.gate_passed else "FAIL")
+        cells = [
+            html.escape(r.name),
+            html.escape(r.status),
+            gate,
+            "" if r.ssim_mean is None else f"{r.ssim_mean:.4f}",
+            "" if r.collect_success is None else f"{100 * r.collect_success:.0f} %",
+            f"{r.wall_time_s:.1f} s",
+            html.escape(r.error or ""),
+            img,
+        ]
+        rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    head = "".join(f"<th>{h}</th>" for h in ("case", "status", "gate", "SSIM", "collect", "time", "error", "compare"))
+    return (
+        "<!doctype html><meta charset='utf-8'><title>rose-usd batch</title>"
+        "<style>body{font-family:sans-serif}td,th{border:1px solid #ccc;padding:4px;vertical-align:top}"
+        "table{border-collapse:collapse}</style>"
+        f"<h1>rose-usd batch</h1><p>{len(results)} case(s): {done} done, {passed} passed the gate.</p>"
+        f"<table><tr>{head}</tr>{''.join(rows)}</table>"
+    )

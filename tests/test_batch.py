@@ -1,0 +1,124 @@
+"""``rose-usd batch``: every case in its own process, failures recorded without stopping the others,
+a summary in three formats, and a re-run (after kill -9 too) that redoes only what was not
+finished, leaving finished cases untouched; Ray gives the same results."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from rose_usd.batch import RECORD, batch, case_names
+from rose_usd.errors import ConfigError
+
+FAST = {"backends": {"capture": "oracle"}, "until": "capture"}
+
+
+def _cases(tmp_path: Path, sample_case: Path, n: int) -> list[Path]:
+    """n copies of the sample, and a case whose frames are missing."""
+    out = []
+    for i in range(n):
+        dst = tmp_path / "cases" / f"push-{i}"
+        shutil.copytree(sample_case, dst)
+        out.append(dst)
+    broken = tmp_path / "cases" / "broken"
+    shutil.copytree(sample_case, broken)
+    shutil.rmtree(broken / "rgb")
+    return out + [broken]
+
+
+def _mtimes(folder: Path) -> dict[str, int]:
+    return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+def test_names_are_unique_and_come_from_the_case():
+    assert case_names(["a/x", "b/x", "c/y.mp4"]) == ["x", "x-2", "y"]
+
+
+def test_each_case_runs_and_a_broken_one_is_recorded_not_fatal(tmp_path, sample_case):
+    cases = _cases(tmp_path, sample_case, 2)
+    out = tmp_path / "batch"
+    result = batch(cases, out, workers=2, **FAST)
+    status = {c.name: c.status for c in result.cases}
+    assert status == {"push-0": "done", "push-1": "done", "broken": "failed"}
+    broken = next(c for c in result.cases if c.name == "broken")
+    assert "rgb" in broken.error and "\n" not in broken.error
+    assert (out / "push-0" / "layers" / "world.usda").is_file() and (out / "push-0" / RECORD).is_file()
+    assert not (out / "broken" / RECORD).exists()
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    assert [r["name"] for r in rows] == ["push-0", "push-1", "broken"]
+    assert len(json.loads((out / "summary.json").read_text())) == 3
+    assert "broken" in (out / "index.html").read_text()
+
+    # again: the finished cases are taken from their records, nothing of them is rewritten
+    before = _mtimes(out / "push-0")
+    again = batch(cases, out, workers=1, **FAST)
+    reused = {c.name: c.reused for c in again.cases}
+    assert reused == {"push-0": True, "push-1": True, "broken": False}
+    assert _mtimes(out / "push-0") == before
+
+    # a record that no longer matches its layers is not trusted: the case runs again
+    (out / "push-1" / "layers" / "world.usda").write_text("#usda 1.0\n")
+    third = batch(cases, out, workers=1, **FAST)
+    assert {c.name: c.reused for c in third.cases}["push-1"] is False
+    assert {c.name: c.status for c in third.cases}["push-1"] == "done"
+
+
+def test_bad_batch_arguments_are_one_line_errors(tmp_path, sample_case):
+    with pytest.raises(ConfigError, match="does not exist"):
+        batch([tmp_path / "nowhere"], tmp_path / "out")
+    with pytest.raises(ConfigError, match="no case"):
+        batch([], tmp_path / "out")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ConfigError, match="file"):
+        batch([sample_case], tmp_path / "file")
+
+
+def test_kill_9_halfway_then_the_same_command_finishes_what_was_not(tmp_path, sample_case):
+    """The whole batch (its process group) is killed with SIGKILL once the first case is
+    recorded; the same command then finishes every case, and the first one is not touched."""
+    cases = _cases(tmp_path, sample_case, 3)[:3]
+    out = tmp_path / "batch"
+    cmd = [sys.executable, "-m", "rose_usd.cli", "batch", *map(str, cases), "-o", str(out)]
+    cmd += ["--until", "segment", "--backend", "capture=oracle", "--backend", "segment=oracle"]
+    env = dict(os.environ, ROSE_USD_QUIET="1")
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 600
+    while not (out / "push-0" / RECORD).exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert (out / "push-0" / RECORD).exists(), "the first case never finished"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    finished = {c.name for c in cases if (out / c.name / RECORD).exists()}
+    assert len(finished) < 3, "killed too late: every case had finished"
+    before = {name: _mtimes(out / name) for name in finished}
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout + done.stderr
+    for c in cases:
+        assert (out / c.name / RECORD).exists()
+        assert (out / c.name / "layers" / "masks.usda").is_file()
+    for name in finished:
+        assert _mtimes(out / name) == before[name]
+    assert len(list(csv.DictReader((out / "summary.csv").open()))) == 3
+
+
+def test_ray_runs_the_same_cases_with_the_same_results(tmp_path, sample_case):
+    pytest.importorskip("ray")
+    cases = _cases(tmp_path, sample_case, 2)
+    local = batch(cases, tmp_path / "local", workers=2, **FAST)
+    on_ray = batch(cases, tmp_path / "ray", ray="local", **FAST)
+    assert [(c.name, c.status) for c in on_ray.cases] == [(c.name, c.status) for c in local.cases]
+    for c in local.cases:
+        if c.status == "done":
+            a = (tmp_path / "local" / c.name / "layers" / "world.usda").read_text()
+            b = (tmp_path / "ray" / c.name / "layers" / "world.usda").read_text()
+            strip = [line for line in a.splitlines() if "customLayerData" not in line and "rose =" not in line]
+            assert strip == [line for line in b.splitlines() if "customLayerData" not in line and "rose =" not in line]
