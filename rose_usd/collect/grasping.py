@@ -205,16 +205,46 @@ def place_base(path: np.ndarray, cands: Candidates, support_z: float, scene_poin
     return bases[order[0]]
 
 
-def rank(base_pose: np.ndarray, path: np.ndarray, cands: Candidates, count: int, pool: int = 48) -> Candidates:
-    """The ``count`` best grasps: reachable along the whole path first, then by :meth:`Candidates.prior_order`."""
+def chained_reach(base_pose: np.ndarray, path: np.ndarray, object_from_tcp: np.ndarray, lift_m: float, chunk: int = 8):
+    """IK along the whole path as the arm would follow it, each chunk of poses seeded with the
+    previous chunk's solution (one batch per chunk for all grasps): a wrist that runs into its
+    limit half way through a turn fails here though every pose alone is reachable. Returns (G,)
+    worst position error [m] and (G,) worst rotation error [deg]."""
+    g = len(object_from_tcp)
+    base_inv = se3.invert(base_pose)
+    pre = np.einsum("ij,gjk->gik", path[0], object_from_tcp)
+    pre[:, :3, 3] -= motion.PREGRASP_M * pre[:, :3, 2]
+    q, pos_err, rot_err = ik.solve(np.einsum("ij,gjk->gik", base_inv, pre), panda.HOME_Q, n_seeds=8, iterations=80)
+    poses = np.einsum("nij,gjk->gnik", motion.lifted(path, lift_m), object_from_tcp)  # (G, N, 4, 4)
+    poses = np.concatenate([np.einsum("ij,gjk->gik", path[0], object_from_tcp)[:, None], poses], axis=1)
+    worst_pos, worst_rot = pos_err.copy(), rot_err.copy()
+    for start in range(0, poses.shape[1], chunk):
+        part = poses[:, start : start + chunk]
+        n = part.shape[1]
+        targets = np.einsum("ij,gnjk->gnik", base_inv, part).reshape(-1, 4, 4)
+        q_all, p, r = ik.solve(targets, np.repeat(q, n, axis=0), iterations=40)
+        worst_pos = np.maximum(worst_pos, p.reshape(g, n).max(axis=1))
+        worst_rot = np.maximum(worst_rot, r.reshape(g, n).max(axis=1))
+        q = q_all.reshape(g, n, -1)[:, -1]
+    return worst_pos, worst_rot
+
+
+def rank(
+    base_pose: np.ndarray, path: np.ndarray, cands: Candidates, count: int, lift_m: float, pool: int = 48
+) -> Candidates:
+    """The ``count`` best grasps: those that reach every sampled pose of the path (independent IK
+    with several seeds), then of those the ones that reach the whole path as the arm follows it
+    (chained IK), each group in :meth:`Candidates.prior_order`."""
     top = cands.take(cands.prior_order()[:pool])
     reached, worst = reach_cost(base_pose, path, top.object_from_tcp, samples=10, seeds=4)
     reached, worst = reached[0], worst[0]
     order = np.lexsort((np.arange(len(top)), -reached))  # stable: prior order within equal reach
-    best = top.take(order[:count])
     if reached[order[0]] < 1.0:
         raise NoGrasp(
             f"the path is out of the robot's reach: the best grasp reaches {100 * reached[order[0]]:.0f} % "
             f"of it (worst IK error {100 * worst[order[0]]:.1f} cm)"
         )
-    return best.take(np.flatnonzero(reached[order[:count]] >= 1.0))
+    full = top.take(order[reached[order] >= 1.0][: 3 * count])
+    pos_err, rot_err = chained_reach(base_pose, path, full.object_from_tcp, lift_m)
+    followed = (pos_err < REACH_POS_M) & (rot_err < REACH_ROT_DEG)
+    return full.take(np.lexsort((np.arange(len(full)), ~followed))[:count])

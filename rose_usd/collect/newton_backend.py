@@ -48,19 +48,23 @@ def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray
     return None if best is None else best[:2]
 
 
+def _surface_points(vertices: np.ndarray, faces: np.ndarray, spacing_m: float, rng) -> np.ndarray:
+    """Points on a mesh about ``spacing_m`` apart (between 500 and 40000 of them)."""
+    tri = vertices[faces]
+    area = float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() / 2)
+    points, _ = sample_surface(vertices, faces, int(np.clip(area / spacing_m**2, 500, 40000)), rng)
+    return points
+
+
 def _scene_points(stage, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Points on the scene collider inside the box [lo, hi], about 4 mm apart."""
+    """Points on the scene collider inside the box [lo, hi], about 5 mm apart."""
     collider = scene_collider(stage)
     if collider is None:
         return np.zeros((0, 3))
     cut = crop_to_box(collider[0], collider[1], lo, hi)
     if cut is None:
         return np.zeros((0, 3))
-    tri = cut[0][cut[1]]
-    area = float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() / 2)
-    count = int(np.clip(area / 0.005**2, 2000, 40000))
-    points, _ = sample_surface(cut[0], cut[1], count, rng)
-    return points
+    return _surface_points(cut[0], cut[1], 0.005, rng)
 
 
 def _perturbations(cfg: CollectConfig, prior: object_layer.PhysicsPrior, mass_kg: float, rng) -> list[Perturbation]:
@@ -100,12 +104,16 @@ def run(ctx: StageContext) -> None:
     visual = object_layer.visual_mesh(ctx.stage, name)
     object_vertices = se3.transform_points(se3.invert(default), visual.vertices)
     prior = object_layer.physics_prior(ctx.stage, name)
-    support_z = float(visual.vertices[:, 2].min())
+    others = [object_layer.visual_mesh(ctx.stage, o) for o in object_layer.object_paths(ctx.stage) if o != name]
+    # the robot stands on the support under the lowest object (a stacked object's bottom is on another)
+    support_z = float(min(m.vertices[:, 2].min() for m in [visual, *others]))
     radius = float(np.linalg.norm(object_vertices - object_vertices.mean(axis=0), axis=1).max())
     positions = path[:, :3, 3]
     near_lo = positions.min(axis=0) - radius - 0.15
     near_hi = positions.max(axis=0) + radius + 0.15
     scene_points = _scene_points(ctx.stage, near_lo, near_hi, rng)
+    for other in others:  # the other objects, where they stand at frame 0, are obstacles too
+        scene_points = np.concatenate([scene_points, _surface_points(other.vertices, other.faces, 0.004, rng)])
 
     outcome = Outcome("ok", object_name=name)
     try:
@@ -132,7 +140,7 @@ def run(ctx: StageContext) -> None:
         else:
             base = grasping.place_base(path, cands, support_z, scene_points)
         outcome.base_pose = base
-        ranked = grasping.rank(base, path, cands, cfg.grasps)
+        ranked = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
     except grasping.NoGrasp as why:
         status = "unreachable" if "reach" in str(why) else "no-grasp"
         outcome.status, outcome.message = status, str(why)

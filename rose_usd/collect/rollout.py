@@ -63,6 +63,12 @@ class Rollout:
     drift_m: float = float("nan")
     drift_deg: float = float("nan")
     penetration_m: float = 0.0
+    ik_error_m: float = 0.0
+    """Largest IK position error of the plan's Cartesian segments [m]."""
+    ik_error_deg: float = 0.0
+    hand_lag_m: float = float("nan")
+    """Largest distance of the tool from its commanded pose over the follow [m]."""
+    hand_lag_deg: float = float("nan")
     wall_s: float = 0.0
     sim_s: float = 0.0
 
@@ -226,6 +232,7 @@ def run_rollout(
     result.action_tcp = np.array(plan.tcp[: len(log_q)])
     result.phase = list(plan.phase[: len(log_q)])
     result.penetration_m = deepest
+    result.ik_error_m, result.ik_error_deg = plan.ik_error_m, plan.ik_error_deg
     result.sim_s = len(log_q) * substeps * dt
     if not finite:
         result.reason = f"the simulation diverged (NaN) in phase {plan.phase[min(tick, len(plan) - 1)]!r}"
@@ -256,6 +263,24 @@ def judge(r: Rollout, path: np.ndarray, carry_from: int, cfg: CollectConfig) -> 
         (r.final_error_deg < cfg.max_final_error_deg, f"final rotation error {r.final_error_deg:.0f} deg"),
         (r.penetration_m < cfg.max_penetration_m, f"{100 * r.penetration_m:.1f} cm deep into the scene"),
     ]
+    commanded = r.action_tcp[follow]
+    r.hand_lag_m = float(np.linalg.norm(commanded[:, :3, 3] - tcp[:, :3, 3], axis=1).max())
+    r.hand_lag_deg = float(
+        se3.rotation_angle_deg(np.einsum("nji,njk->nik", commanded[:, :3, :3], tcp[:, :3, :3])).max()
+    )
     failed = [why for ok, why in checks if not ok]
+    if failed and (r.hand_lag_m > 0.01 or r.hand_lag_deg > 5.0):
+        lag = f"the hand lagged its commanded path by {100 * r.hand_lag_m:.1f} cm, {r.hand_lag_deg:.0f} deg"
+        speed = np.abs(np.diff(r.action_q[follow[0] - 1 : follow[-1] + 1, :7], axis=0)).max(axis=0) * r.rate_hz
+        over = speed / np.asarray(panda.ARM_MAX_VELOCITY_RAD_S)
+        if over.max() > 1.0:
+            j = int(over.argmax())
+            limit = panda.ARM_MAX_VELOCITY_RAD_S[j]
+            lag += f" (the path needs joint {j + 1} at {speed[j]:.1f} rad/s, the Panda's limit is {limit})"
+        failed.insert(0, lag)
+    if failed and (r.ik_error_m > 0.01 or r.ik_error_deg > 5.0):
+        failed.insert(
+            0, f"the arm could not follow the path (IK {100 * r.ik_error_m:.1f} cm, {r.ik_error_deg:.0f} deg off)"
+        )
     r.success = not failed
     r.reason = "; ".join(failed)

@@ -50,6 +50,8 @@ ARM_KE = (4500.0, 4500.0, 3500.0, 3500.0, 2000.0, 2000.0, 2000.0)
 ARM_KD = (450.0, 450.0, 350.0, 350.0, 200.0, 200.0, 200.0)
 ARM_EFFORT_N_M = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 ARM_ARMATURE = (0.3, 0.3, 0.3, 0.3, 0.11, 0.11, 0.11)
+ARM_MAX_VELOCITY_RAD_S = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)
+"""The URDF's joint velocity limits (not enforced by the simulation; a path that needs more is reported)."""
 FINGER_KE = 2000.0
 FINGER_KD = 50.0
 FINGER_ARMATURE = 0.15
