@@ -121,3 +121,20 @@ def test_a_missing_robot_description_is_one_line(monkeypatch):
             panda.panda_urdf()
     finally:
         panda._urdf_path.cache_clear()
+
+
+def test_flat_pads_open_as_wide_as_the_object_across_them():
+    """On an 8 cm cylinder an off-centre chord inside the friction cone is shorter than 8 cm, but
+    the pads must open to about the full diameter: closing_extent puts every such frame over a
+    7.6 cm limit (within a point sample's resolution of 8 cm)."""
+    mesh = trimesh.creation.cylinder(radius=0.04, height=0.1, sections=96)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    points, normals = grasps.sample_surface(vertices, faces, 800, np.random.default_rng(2))
+    pairs = grasps.antipodal_pairs(points, normals, friction=0.5, max_width_m=0.076)
+    assert len(pairs) > 0 and pairs.width.max() <= 0.076  # chords that pass a width test on their own
+    frames, _ = grasps.grasp_frames(pairs, 2)
+    cloud, _ = grasps.sample_surface(vertices, faces, 4000, np.random.default_rng(3))
+    extent = grasps.closing_extent(frames, cloud, 0.00875, (-0.00925, 0.00925))
+    horizontal = np.abs(frames[:, 2, 1]) < 0.1  # closing across the axis, not along it
+    assert np.all(extent[horizontal] > 0.076)
+    assert np.median(extent[horizontal]) == pytest.approx(0.08, abs=0.001)

@@ -38,7 +38,7 @@ class Candidates:
     object_from_tcp: np.ndarray
     """(G, 4, 4)."""
     width_m: np.ndarray
-    """(G,) distance between the contacts [m]."""
+    """(G,) how far the pads must open: the object's extent across them [m]."""
     com_distance_m: np.ndarray
     """(G,) from the grasp centre to the centre of mass [m]."""
     approach_up: np.ndarray
@@ -122,6 +122,15 @@ def candidates(
 
     centres, halves = panda.gripper_boxes(panda.MAX_OPENING_M)
     object_cloud, _ = antipodal.sample_surface(object_vertices, object_faces, 1500, rng)
+    # flat pads open as wide as the object is across them, which may exceed the pair's chord
+    extent = antipodal.closing_extent(frames, object_cloud, panda.PAD_HALF_X, panda.PAD_Z)
+    fits = extent <= max_width_m
+    if not fits.any():
+        raise NoGrasp(
+            f"the object is too large for the gripper: across the finger pads it is at least "
+            f"{100 * extent.min():.1f} cm wide, the Panda takes at most {100 * max_width_m:.1f} cm"
+        )
+    frames, which, approach_up, extent = frames[fits], which[fits], approach_up[fits], extent[fits]
     hit = antipodal.boxes_hit(frames, centres, halves, object_cloud)
     # on the way in: the hand and fingers backed off along the approach
     for back in (0.03, 0.06, motion.PREGRASP_M):
@@ -145,11 +154,11 @@ def candidates(
             free[idx[antipodal.boxes_hit(moved, centres, halves, scene_points)]] = False
     if not free.any():
         raise NoGrasp(f"all {found} antipodal grasps of the object would put the gripper into the scene or the object")
-    frames, which, approach_up = frames[free], which[free], approach_up[free]
+    frames, which, approach_up, extent = frames[free], which[free], approach_up[free], extent[free]
     centre = pairs.center[which]
     return Candidates(
         object_from_tcp=frames,
-        width_m=pairs.width[which],
+        width_m=extent,
         com_distance_m=np.linalg.norm(centre - np.asarray(center_of_mass, dtype=float), axis=1),
         approach_up=approach_up,
         alignment=pairs.alignment[which],

@@ -165,3 +165,25 @@ def boxes_hit(
             hit |= np.all(np.abs(local - c) <= h, axis=2).any(axis=1)
         out[start : start + chunk] = hit
     return out
+
+
+def closing_extent(
+    frames: np.ndarray, points: np.ndarray, half_x: float, z_range: tuple[float, float], *, chunk: int = 128
+) -> np.ndarray:
+    """How far apart flat pads must open to take the object at each frame: the extent along the
+    closing axis (y) of the points between the pads (|x| <= ``half_x``, z in ``z_range`` in the
+    tool frame). A chord inside the friction cone can be shorter than that: flat pads touch the
+    object where it is widest across them, not at the chord's ends. (G,) [m], 0 where no point
+    lies between the pads."""
+    frames = np.asarray(frames, dtype=np.float32)
+    points = np.asarray(points, dtype=np.float32)
+    out = np.zeros(len(frames))
+    for start in range(0, len(frames), chunk):
+        f = frames[start : start + chunk]
+        local = (points[None, :, :] - f[:, None, :3, 3]) @ f[:, :3, :3]
+        between = (np.abs(local[..., 0]) <= half_x) & (local[..., 2] >= z_range[0]) & (local[..., 2] <= z_range[1])
+        y = local[..., 1]
+        hi = np.where(between, y, -np.inf).max(axis=1)
+        lo = np.where(between, y, np.inf).min(axis=1)
+        out[start : start + chunk] = np.where(np.isfinite(hi), hi - lo, 0.0)
+    return out

@@ -65,6 +65,10 @@ FINGER_BOX_Y = (0.0, 0.026)
 FINGER_BOX_Z = (-0.045, 0.0095)
 """A finger's extent along the approach axis, from its base to the pad's tip, in the tcp frame [m]."""
 FINGER_HALF_X = 0.011
+PAD_HALF_X = 0.00875
+"""Half the rubber pad's width across the closing axis [m] (its URDF box is 17.5 mm)."""
+PAD_Z = (-0.00925, 0.00925)
+"""The pad's extent along the approach axis in the tcp frame [m] (18.5 mm, centred on the tcp)."""
 
 
 def gripper_boxes(opening_m: float) -> tuple[np.ndarray, np.ndarray]:
