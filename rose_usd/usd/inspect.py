@@ -352,11 +352,13 @@ def _gate_lines(g: dict[str, Any]) -> list[str]:
 def _collect_lines(robot: str, c: dict[str, Any]) -> list[str]:
     """The collect stage's results of a dump, for one robot."""
     rollouts, successes = c.get(tokens.COLLECT_ROLLOUTS, 0), c.get(tokens.COLLECT_SUCCESSES, 0)
-    base = np.asarray(c.get(tokens.COLLECT_BASE_POSE, np.eye(4)), dtype=float)[3, :3]  # row-vector matrix
-    lines = [
-        f"collect: {robot} moves {c.get(tokens.COLLECT_OBJECT, '?')}, base at {np.round(base, 3).tolist()} m "
-        f"({c.get(tokens.COLLECT_BASE_SOURCE, '?')}): status {c.get(tokens.COLLECT_STATUS, '?')}"
-    ]
+    if tokens.COLLECT_BASE_POSE in c:
+        base = np.asarray(c[tokens.COLLECT_BASE_POSE], dtype=float)[3, :3]  # row-vector matrix
+        where = f"base at {np.round(base, 3).tolist()} m ({c.get(tokens.COLLECT_BASE_SOURCE, 'reachability')})"
+    else:
+        where = "no base placed"
+    status = c.get(tokens.COLLECT_STATUS, "?")
+    lines = [f"collect: {robot} moves {c.get(tokens.COLLECT_OBJECT, '?')}, {where}: status {status}"]
     if c.get(tokens.COLLECT_MESSAGE):
         lines.append(f"  {c[tokens.COLLECT_MESSAGE]}")
     rate = c.get(tokens.COLLECT_SUCCESS_RATE, 0.0)
