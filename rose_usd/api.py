@@ -13,6 +13,7 @@ from typing import Any
 from pxr import Usd
 
 from rose_usd.layers.gate import GateResult, read_gate
+from rose_usd.layers.robot import CollectResult, read_collect
 from rose_usd.pipeline import BackendChoice, Options, Pipeline, StageOutcome
 from rose_usd.usd import stage as usd_stage
 from rose_usd.usd.validate import ValidationReport
@@ -31,6 +32,8 @@ class Reconstruction:
     wall_time_s: float
     gate: GateResult | None = None
     """The quality gate's results, None when the gate has not run."""
+    collect: CollectResult | None = None
+    """The robot demonstrations' results, None when the collect stage has not run."""
     validation: ValidationReport | None = None
     """UsdValidation and Newton's ``add_usd`` on the composed stage, None when not asked for."""
     error: str | None = field(default=None)
@@ -63,6 +66,8 @@ class Reconstruction:
         ]
         if self.gate is not None:
             lines.append(self.gate.summary())
+        if self.collect is not None:
+            lines.append(self.collect.summary())
         if self.validation is not None:
             newton = self.validation.newton or {}
             lines.append(
@@ -123,6 +128,7 @@ def reconstruct(
     )
     if result.path.is_file():
         result.gate = read_gate(result.stage)
+        result.collect = read_collect(result.stage)
         if validate and result.error is None:
             from rose_usd.usd.validate import validate as validate_stage
 

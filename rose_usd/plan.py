@@ -11,6 +11,7 @@ object      ``imported`` when every object has a mesh (rose.toml ``mesh``, ``per
             FoundationPose's ``mesh/``), else ``fusion``
 trajectory  ``foundationpose`` when every object has ``ob_in_cam`` poses, else ``tracker``
 gate        ``mitsuba-newton``
+collect     ``newton``
 =========== ===================================================================================
 
 ``oracle`` is never chosen by ``auto``: it reads ground truth and runs only when named.
@@ -67,6 +68,7 @@ AUTO_RULES: dict[str, Callable[[Case], str]] = {
     "object": _object,
     "trajectory": _trajectory,
     "gate": lambda case: "mitsuba-newton",
+    "collect": lambda case: "newton",
 }
 """stage -> the backend ``auto`` stands for on a case."""
 

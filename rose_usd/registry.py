@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from rose_usd import capture, gate, scene, segment, trajectory
+from rose_usd import capture, collect, gate, scene, segment, trajectory
 from rose_usd import object as object_stage
 from rose_usd.stage_api import StageDef
 
@@ -15,6 +15,7 @@ STAGES: tuple[StageDef, ...] = (
     object_stage.STAGE,
     trajectory.STAGE,
     gate.STAGE,
+    collect.STAGE,
 )
 STAGE_NAMES: tuple[str, ...] = tuple(s.name for s in STAGES)
 BY_NAME: dict[str, StageDef] = {s.name: s for s in STAGES}

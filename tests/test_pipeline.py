@@ -16,7 +16,7 @@ def test_second_run_skips_everything(out_copy, sample_case):
     """Re-running an unchanged reconstruction rewrites no layer."""
     before = _mtimes(out_copy)
     outcomes = Pipeline(sample_case, out_copy, oracle_options()).run()
-    assert [o.ran for o in outcomes] == [False] * 6
+    assert [o.ran for o in outcomes] == [False] * 7
     assert _mtimes(out_copy) == before
 
 

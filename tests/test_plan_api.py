@@ -40,6 +40,7 @@ def test_auto_resolves_each_stage_from_what_the_case_holds(case_copy):
         "object": "fusion",
         "trajectory": "tracker",
         "gate": "mitsuba-newton",
+        "collect": "newton",
     }
     perception = case_copy / "perception"
     (perception / "ob_in_cam").mkdir(parents=True)

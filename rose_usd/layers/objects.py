@@ -3,11 +3,13 @@ default (frame-0) poses, for the stages after it."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from pxr import Usd, UsdGeom, UsdPhysics
 
 from rose_usd.errors import StageError
-from rose_usd.usd import paths
+from rose_usd.usd import paths, tokens
 from rose_usd.usd.geom import MeshData, read_mesh
 
 
@@ -43,3 +45,48 @@ def default_pose(stage: Usd.Stage, name: str) -> np.ndarray:
     """Object ``name``'s default world pose (4, 4): where the object stage put it at frame 0."""
     xform = UsdGeom.Xformable(_prim(stage, paths.object_path(name), name))
     return np.asarray(xform.ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T
+
+
+def collision_approximation(stage: Usd.Stage, name: str) -> str | None:
+    """How object ``name`` collides (its ``Collision`` child's MeshCollisionAPI approximation,
+    e.g. ``convexHull``), None when it has no collision mesh."""
+    prim = stage.GetPrimAtPath(paths.object_collision(name))
+    if not prim or not prim.HasAPI(UsdPhysics.CollisionAPI):
+        return None
+    if prim.HasAPI(UsdPhysics.MeshCollisionAPI):
+        return str(UsdPhysics.MeshCollisionAPI(prim).GetApproximationAttr().Get())
+    return "none"
+
+
+@dataclass(frozen=True)
+class PhysicsPrior:
+    """An object's mass and friction with their one-sigma uncertainty (``RosePhysicsPriorAPI``)."""
+
+    mass_kg: float
+    mass_sigma_kg: float
+    friction: float
+    friction_sigma: float
+    center_of_mass_m: np.ndarray
+    """(3,) in the object's frame."""
+
+
+def physics_prior(stage: Usd.Stage, name: str) -> PhysicsPrior:
+    """Object ``name``'s mass (MassAPI), centre of mass and friction prior with uncertainties;
+    uncertainties are 0 where the object stage recorded none."""
+    prim = _prim(stage, paths.object_path(name), name)
+    mass = UsdPhysics.MassAPI(prim)
+
+    def value(attr, default):
+        got = attr.Get() if attr and attr.HasAuthoredValue() else None
+        return default if got is None else got
+
+    def prior(token, default):
+        return float(value(prim.GetAttribute(token), default))
+
+    return PhysicsPrior(
+        mass_kg=float(value(mass.GetMassAttr(), 0.0)),
+        mass_sigma_kg=prior(tokens.PRIOR_MASS_UNCERTAINTY, 0.0),
+        friction=prior(tokens.PRIOR_FRICTION, 0.5),
+        friction_sigma=prior(tokens.PRIOR_FRICTION_UNCERTAINTY, 0.0),
+        center_of_mass_m=np.asarray(value(mass.GetCenterOfMassAttr(), (0.0, 0.0, 0.0)), dtype=float),
+    )

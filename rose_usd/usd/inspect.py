@@ -217,6 +217,10 @@ def dump(path: str | os.PathLike) -> dict[str, Any]:
     gate = stage.GetPrimAtPath(paths.GATE)
     if gate:
         out["gate"] = _attributes(gate, "rose:gate:")
+    robots = stage.GetPrimAtPath(paths.ROBOTS)
+    if robots:
+        collect = {str(r.GetName()): _attributes(r, "rose:collect:") for r in robots.GetChildren()}
+        out["collect"] = {name: attrs for name, attrs in collect.items() if attrs}
     return out
 
 
@@ -258,6 +262,8 @@ def to_text(data: dict[str, Any]) -> str:
         lines += _prim_lines(path, p)
     if "gate" in data:
         lines += _gate_lines(data["gate"])
+    for robot, attrs in data.get("collect", {}).items():
+        lines += _collect_lines(robot, attrs)
     return "\n".join(lines)
 
 
@@ -340,4 +346,34 @@ def _gate_lines(g: dict[str, Any]) -> list[str]:
         f"{'pass' if g.get(tokens.GATE_GEOMETRY_PASSED) else 'FAIL: ' + g.get(tokens.GATE_GEOMETRY_REPORT, '')}"
     )
     lines.append(f"  overall: {'PASS' if g.get(tokens.GATE_PASSED) else 'FAIL'}")
+    return lines
+
+
+def _collect_lines(robot: str, c: dict[str, Any]) -> list[str]:
+    """The collect stage's results of a dump, for one robot."""
+    rollouts, successes = c.get(tokens.COLLECT_ROLLOUTS, 0), c.get(tokens.COLLECT_SUCCESSES, 0)
+    if tokens.COLLECT_BASE_POSE in c:
+        base = np.asarray(c[tokens.COLLECT_BASE_POSE], dtype=float)[3, :3]  # row-vector matrix
+        where = f"base at {np.round(base, 3).tolist()} m ({c.get(tokens.COLLECT_BASE_SOURCE, 'reachability')})"
+    else:
+        where = "no base placed"
+    status = c.get(tokens.COLLECT_STATUS, "?")
+    lines = [f"collect: {robot} moves {c.get(tokens.COLLECT_OBJECT, '?')}, {where}: status {status}"]
+    if c.get(tokens.COLLECT_MESSAGE):
+        lines.append(f"  {c[tokens.COLLECT_MESSAGE]}")
+    rate = c.get(tokens.COLLECT_SUCCESS_RATE, 0.0)
+    lines.append(f"  rollouts: {successes}/{rollouts} succeeded, success rate {100 * rate:.0f} %")
+    best = c.get(tokens.COLLECT_BEST_ROLLOUT, -1)
+    if rollouts and best >= 0:
+        mean, final = c[tokens.COLLECT_MEAN_ERROR][best], c[tokens.COLLECT_FINAL_ERROR][best]
+        drift, deg = c[tokens.COLLECT_DRIFT][best], c[tokens.COLLECT_FINAL_ROTATION_ERROR][best]
+        lines.append(
+            f"  best rollout {best} (time-sampled on the robot): path error {100 * float(mean):.1f} cm mean, "
+            f"{100 * float(final):.1f} cm / {float(deg):.1f} deg final, {100 * float(drift):.1f} cm slip in the hand"
+        )
+    reasons = [r for r in c.get(tokens.COLLECT_ROLLOUT_REASON, []) if r]
+    for reason in sorted(set(reasons)):
+        lines.append(f"  failed x{reasons.count(reason)}: {reason}")
+    if c.get(tokens.COLLECT_DATASET):
+        lines.append(f"  dataset: {c[tokens.COLLECT_DATASET]}")
     return lines

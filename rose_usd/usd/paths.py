@@ -77,6 +77,16 @@ def object_mask(name: str) -> Sdf.Path:
     return OBJECT_MASKS.AppendChild(check_name(name))
 
 
+def robot_path(name: str) -> Sdf.Path:
+    """A robot of the collect stage, e.g. ``/World/Robots/Panda``."""
+    return ROBOTS.AppendChild(check_name(name, what="robot name"))
+
+
+def robot_link(robot: str, link: str) -> Sdf.Path:
+    """One link of a robot; its geometry sits under it."""
+    return robot_path(robot).AppendChild(check_name(link, what="robot link name"))
+
+
 def scene_part(name: str) -> Sdf.Path:
     """A visual part of the scene (when the scene keeps parts with their own materials)."""
     return SCENE_VISUAL.AppendChild(check_name(name, what="scene part name"))

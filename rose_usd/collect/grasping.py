@@ -1,0 +1,259 @@
+"""Grasps and the robot base, without learned weights.
+
+1. Antipodal pairs on the object's visual mesh (``rose_usd.geometry.grasps``), each turned into
+   tool frames at several approach directions.
+2. Rejected where the gripper (hand and open fingers as boxes) holds a point of the scene
+   collider or of the object: at the grasp, on the way in from the pre-grasp, and, carried with
+   the object, along its path.
+3. The base: candidates on the support's height on rings around the path, facing it; each
+   scored by how much of the path the best few grasps reach (batched IK), unless rose.toml fixes it.
+4. Ranking: reachable along the whole path (batched IK) first, then the grasp centre's distance
+   to the centre of mass and how far the approach is from straight down.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rose_usd.collect import ik, motion
+from rose_usd.core import se3
+from rose_usd.geometry import grasps as antipodal
+from rose_usd.sim import panda
+
+REACH_POS_M = 0.005
+"""IK position error under which a pose counts as reached [m]."""
+REACH_ROT_DEG = 3.0
+
+
+class NoGrasp(Exception):
+    """No grasp survived; the message says why (one line)."""
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Grasp candidates in the object frame."""
+
+    object_from_tcp: np.ndarray
+    """(G, 4, 4)."""
+    width_m: np.ndarray
+    """(G,) how far the pads must open: the object's extent across them [m]."""
+    com_distance_m: np.ndarray
+    """(G,) from the grasp centre to the centre of mass [m]."""
+    approach_up: np.ndarray
+    """(G,) world z of the approach direction at frame 0 (-1 straight down)."""
+    alignment: np.ndarray
+    """(G,) the antipodal pair's alignment (see ``Antipodal.alignment``)."""
+    sampled_pairs: int
+    """Antipodal pairs found before any was rejected."""
+
+    def __len__(self) -> int:
+        return len(self.object_from_tcp)
+
+    def take(self, index: np.ndarray) -> "Candidates":
+        return Candidates(
+            self.object_from_tcp[index],
+            self.width_m[index],
+            self.com_distance_m[index],
+            self.approach_up[index],
+            self.alignment[index],
+            self.sampled_pairs,
+        )
+
+    def prior_order(self) -> np.ndarray:
+        """Candidates by centre-of-mass distance, plus 5 cm per unit of approach away from straight
+        down and 1 cm per degree of the closing line away from the surface normals."""
+        misalign_deg = np.degrees(np.arccos(np.clip(self.alignment, -1.0, 1.0)))
+        return np.argsort(self.com_distance_m + 0.05 * (1.0 + self.approach_up) + 0.01 * misalign_deg, kind="stable")
+
+
+def _along_path(path: np.ndarray, count: int) -> np.ndarray:
+    return path[np.unique(np.linspace(0, len(path) - 1, count).round().astype(int))]
+
+
+def candidates(
+    object_vertices: np.ndarray,
+    object_faces: np.ndarray,
+    center_of_mass: np.ndarray,
+    path: np.ndarray,
+    scene_points: np.ndarray,
+    *,
+    friction: float,
+    max_width_m: float,
+    surface_points: int,
+    approach_turns: int,
+    lift_m: float,
+    rng: np.random.Generator,
+    max_pairs: int = 150,
+) -> Candidates:
+    """Collision-free antipodal grasps of the object.
+
+    Args:
+        object_vertices, object_faces: the visual mesh in the object frame [m].
+        center_of_mass: (3,) in the object frame [m].
+        path: (N, 4, 4) the object's world poses; path[0] is where it is grasped.
+        scene_points: (P, 3) points on the scene collider near the path [m].
+
+    Raises:
+        NoGrasp: none fits the gripper or none is free of the scene and the object.
+    """
+    points, normals = antipodal.sample_surface(object_vertices, object_faces, surface_points, rng)
+    pairs = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=max_width_m)
+    if len(pairs) == 0:
+        wide = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=10.0)
+        narrowest = f"{100 * wide.width.min():.1f} cm" if len(wide) else "none found"
+        raise NoGrasp(
+            f"the object is too large for the gripper: its narrowest antipodal grasp is {narrowest}, "
+            f"the Panda takes at most {100 * max_width_m:.1f} cm"
+        )
+    found = len(pairs)
+    if len(pairs) > max_pairs:  # the best aligned, and a random share of the rest
+        best = np.argsort(-pairs.alignment, kind="stable")[: max_pairs // 2]
+        rest = np.setdiff1d(np.arange(len(pairs)), best)
+        keep = np.concatenate([best, rng.choice(rest, max_pairs - len(best), replace=False)])
+        pairs = antipodal.Antipodal(pairs.p1[keep], pairs.p2[keep], pairs.alignment[keep])
+    frames, which = antipodal.grasp_frames(pairs, approach_turns)
+    world0 = np.einsum("ij,gjk->gik", path[0], frames)
+    approach_up = world0[:, 2, 2]
+    frames, which, approach_up = frames[approach_up < 0.3], which[approach_up < 0.3], approach_up[approach_up < 0.3]
+    if len(frames) == 0:
+        raise NoGrasp("every antipodal grasp of the object must come from below the support")
+
+    centres, halves = panda.gripper_boxes(panda.MAX_OPENING_M)
+    object_cloud, _ = antipodal.sample_surface(object_vertices, object_faces, 1500, rng)
+    # flat pads open as wide as the object is across them, which may exceed the pair's chord
+    extent = antipodal.closing_extent(frames, object_cloud, panda.PAD_HALF_X, panda.PAD_Z)
+    fits = extent <= max_width_m
+    if not fits.any():
+        raise NoGrasp(
+            f"the object is too large for the gripper: across the finger pads it is at least "
+            f"{100 * extent.min():.1f} cm wide, the Panda takes at most {100 * max_width_m:.1f} cm"
+        )
+    frames, which, approach_up, extent = frames[fits], which[fits], approach_up[fits], extent[fits]
+    hit = antipodal.boxes_hit(frames, centres, halves, object_cloud)
+    # on the way in: the hand and fingers backed off along the approach
+    for back in (0.03, 0.06, motion.PREGRASP_M):
+        shifted = frames.copy()
+        shifted[:, :3, 3] -= back * frames[:, :3, 2]
+        hit |= antipodal.boxes_hit(shifted, centres, halves, object_cloud)
+    free = ~hit
+    if len(scene_points):
+        # the scene at the grasp and on the way in (world frame at frame 0), and along the path
+        local_scene = se3.transform_points(se3.invert(path[0]), scene_points)
+        for back in (0.0, 0.05, motion.PREGRASP_M):
+            shifted = frames[free].copy()
+            shifted[:, :3, 3] -= back * shifted[:, :3, 2]
+            idx = np.flatnonzero(free)
+            free[idx[antipodal.boxes_hit(shifted, centres, halves, local_scene)]] = False
+        for pose in _along_path(motion.lifted(path, lift_m), 8)[1:]:
+            idx = np.flatnonzero(free)
+            if len(idx) == 0:
+                break
+            moved = np.einsum("ij,gjk->gik", pose, frames[idx])
+            free[idx[antipodal.boxes_hit(moved, centres, halves, scene_points)]] = False
+    if not free.any():
+        raise NoGrasp(f"all {found} antipodal grasps of the object would put the gripper into the scene or the object")
+    frames, which, approach_up, extent = frames[free], which[free], approach_up[free], extent[free]
+    centre = pairs.center[which]
+    return Candidates(
+        object_from_tcp=frames,
+        width_m=extent,
+        com_distance_m=np.linalg.norm(centre - np.asarray(center_of_mass, dtype=float), axis=1),
+        approach_up=approach_up,
+        alignment=pairs.alignment[which],
+        sampled_pairs=found,
+    )
+
+
+def reach_cost(base_poses: np.ndarray, path: np.ndarray, object_from_tcp: np.ndarray, samples: int, seeds: int):
+    """IK along the path for each grasp from each base, in one batch: (B, G) fraction of the
+    sampled path poses reached and (B, G) worst position error [m]. The pre-grasp pose is one of
+    the samples."""
+    base_poses = np.asarray(base_poses, dtype=float).reshape(-1, 4, 4)
+    poses = _along_path(path, samples)
+    world = np.einsum("sij,gjk->gsik", poses, object_from_tcp)  # (G, S, 4, 4)
+    pre = np.einsum("ij,gjk->gik", path[0], object_from_tcp)
+    pre[:, :3, 3] -= motion.PREGRASP_M * pre[:, :3, 2]
+    world = np.concatenate([world, pre[:, None]], axis=1)
+    base_tcp = np.einsum("bij,gsjk->bgsik", se3.invert(base_poses), world)
+    shape = base_tcp.shape[:3]
+    _, pos_err, rot_err = ik.solve(base_tcp.reshape(-1, 4, 4), panda.HOME_Q, n_seeds=seeds, iterations=60)
+    ok = ((pos_err < REACH_POS_M) & (rot_err < REACH_ROT_DEG)).reshape(shape)
+    return ok.mean(axis=2), pos_err.reshape(shape).max(axis=2)
+
+
+def base_candidates(path: np.ndarray, support_z: float, scene_points: np.ndarray) -> np.ndarray:
+    """Base poses (B, 4, 4) on rings around the path's centre, facing it, on the support's
+    height; candidates with scene above the support within 12 cm of the base are dropped."""
+    centre = path[:, :2, 3].mean(axis=0)
+    out = []
+    for radius in (0.45, 0.55, 0.65):
+        for angle in np.radians(np.arange(0, 360, 30)):
+            xy = centre + radius * np.array([np.cos(angle), np.sin(angle)])
+            if len(scene_points):
+                near = np.linalg.norm(scene_points[:, :2] - xy, axis=1) < 0.12
+                if np.any(scene_points[near, 2] > support_z + 0.01):
+                    continue
+            yaw = np.arctan2(*(centre - xy)[::-1])
+            out.append(se3.make_pose(se3.rotation_about([0.0, 0.0, 1.0], yaw), [xy[0], xy[1], support_z]))
+    return np.array(out)
+
+
+def place_base(path: np.ndarray, cands: Candidates, support_z: float, scene_points: np.ndarray) -> np.ndarray:
+    """The base pose from which the best few grasps reach most of the path."""
+    bases = base_candidates(path, support_z, scene_points)
+    if len(bases) == 0:
+        raise NoGrasp("no place for the robot base: the scene stands above the support all around the path")
+    top = cands.take(cands.prior_order()[:8])
+    reached, worst = reach_cost(bases, path, top.object_from_tcp, samples=6, seeds=1)
+    score = reached - 0.01 * worst  # (B, G)
+    best = np.argmax(score, axis=1)
+    rows = np.arange(len(bases))
+    order = np.lexsort((worst[rows, best], -reached[rows, best]))
+    return bases[order[0]]
+
+
+def chained_reach(base_pose: np.ndarray, path: np.ndarray, object_from_tcp: np.ndarray, lift_m: float, chunk: int = 8):
+    """IK along the whole path as the arm would follow it, each chunk of poses seeded with the
+    previous chunk's solution (one batch per chunk for all grasps): a wrist that runs into its
+    limit half way through a turn fails here though every pose alone is reachable. Returns (G,)
+    worst position error [m] and (G,) worst rotation error [deg]."""
+    g = len(object_from_tcp)
+    base_inv = se3.invert(base_pose)
+    pre = np.einsum("ij,gjk->gik", path[0], object_from_tcp)
+    pre[:, :3, 3] -= motion.PREGRASP_M * pre[:, :3, 2]
+    q, pos_err, rot_err = ik.solve(np.einsum("ij,gjk->gik", base_inv, pre), panda.HOME_Q, n_seeds=8, iterations=80)
+    poses = np.einsum("nij,gjk->gnik", motion.lifted(path, lift_m), object_from_tcp)  # (G, N, 4, 4)
+    poses = np.concatenate([np.einsum("ij,gjk->gik", path[0], object_from_tcp)[:, None], poses], axis=1)
+    worst_pos, worst_rot = pos_err.copy(), rot_err.copy()
+    for start in range(0, poses.shape[1], chunk):
+        part = poses[:, start : start + chunk]
+        n = part.shape[1]
+        targets = np.einsum("ij,gnjk->gnik", base_inv, part).reshape(-1, 4, 4)
+        q_all, p, r = ik.solve(targets, np.repeat(q, n, axis=0), iterations=40)
+        worst_pos = np.maximum(worst_pos, p.reshape(g, n).max(axis=1))
+        worst_rot = np.maximum(worst_rot, r.reshape(g, n).max(axis=1))
+        q = q_all.reshape(g, n, -1)[:, -1]
+    return worst_pos, worst_rot
+
+
+def rank(
+    base_pose: np.ndarray, path: np.ndarray, cands: Candidates, count: int, lift_m: float, pool: int = 48
+) -> Candidates:
+    """The ``count`` best grasps: those that reach every sampled pose of the path (independent IK
+    with several seeds), then of those the ones that reach the whole path as the arm follows it
+    (chained IK), each group in :meth:`Candidates.prior_order`."""
+    top = cands.take(cands.prior_order()[:pool])
+    reached, worst = reach_cost(base_pose, path, top.object_from_tcp, samples=10, seeds=4)
+    reached, worst = reached[0], worst[0]
+    order = np.lexsort((np.arange(len(top)), -reached))  # stable: prior order within equal reach
+    if reached[order[0]] < 1.0:
+        raise NoGrasp(
+            f"the path is out of the robot's reach: the best grasp reaches {100 * reached[order[0]]:.0f} % "
+            f"of it (worst IK error {100 * worst[order[0]]:.1f} cm)"
+        )
+    full = top.take(order[reached[order] >= 1.0][: 3 * count])
+    pos_err, rot_err = chained_reach(base_pose, path, full.object_from_tcp, lift_m)
+    followed = (pos_err < REACH_POS_M) & (rot_err < REACH_ROT_DEG)
+    return full.take(np.lexsort((np.arange(len(full)), ~followed))[:count])

@@ -1,0 +1,167 @@
+"""What the robot is told to do: joint targets per control tick, in phases.
+
+home -> pre-grasp (joint-space interpolation to an IK solution 10 cm back along the approach)
+-> grasp (a straight descent) -> close (the fingers' target goes to 0; their drives' force limit
+squeezes) -> lift (to the path's first pose, ``lift_m`` higher) -> follow (the path at the
+video's times) -> place (down by ``lift_m``) -> release (fingers open, hand backs off).
+
+The follow is ``T_ee(t) = T_obj(t) · T_obj(t_grasp)^-1 · T_ee(t_grasp)`` (:func:`follow_poses`),
+with the object's and the hand's poses at the grasp as simulated, so a grasp that landed a few
+millimetres off still carries the object along its path. The control rate is the video's frame
+rate: follow tick t is video frame t.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from rose_usd.collect import ik
+from rose_usd.core import se3
+from rose_usd.sim import panda
+
+PREGRASP_M = 0.10
+"""Distance of the pre-grasp pose behind the grasp along the approach [m]."""
+DESCEND_S = 0.8
+SETTLE_S = 0.1
+CLOSE_S = 0.5
+SQUEEZE_S = 0.3
+LIFT_S = 0.5
+PLACE_S = 0.4
+RELEASE_S = 0.3
+RETREAT_S = 0.4
+RETREAT_M = 0.05
+
+
+def follow_poses(world_from_object: np.ndarray, object_at_grasp: np.ndarray, ee_at_grasp: np.ndarray) -> np.ndarray:
+    """``T_ee(t) = T_obj(t) · T_obj(t_grasp)^-1 · T_ee(t_grasp)`` for every t.
+
+    Args:
+        world_from_object: (N, 4, 4) the object's path.
+        object_at_grasp: (4, 4) the object's world pose when it was grasped.
+        ee_at_grasp: (4, 4) the tool's world pose when it grasped.
+
+    Returns:
+        (N, 4, 4) tool poses that carry the object along its path, held as it was grasped.
+    """
+    object_from_ee = se3.invert(object_at_grasp) @ ee_at_grasp
+    return np.einsum("nij,jk->nik", np.asarray(world_from_object, dtype=float), object_from_ee)
+
+
+def lifted(poses: np.ndarray, height_m: float) -> np.ndarray:
+    """Poses moved up (world +z) by ``height_m``."""
+    out = np.array(poses, dtype=float, copy=True)
+    out[..., 2, 3] += height_m
+    return out
+
+
+def cartesian(start: np.ndarray, end: np.ndarray, n: int) -> np.ndarray:
+    """``n`` poses from ``start`` (excluded) to ``end`` (included): smoothstep in time, linear
+    in position, slerp in rotation. (n, 4, 4)."""
+    s = np.linspace(0.0, 1.0, n + 1)[1:]
+    s = s * s * (3 - 2 * s)
+    rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([start[:3, :3], end[:3, :3]])))(s).as_matrix()
+    return se3.make_pose(rot, start[:3, 3] + s[:, None] * (end[:3, 3] - start[:3, 3]))
+
+
+def ticks(seconds: float, rate_hz: float) -> int:
+    return max(1, int(round(seconds * rate_hz)))
+
+
+@dataclass
+class Plan:
+    """Joint targets per control tick, the tool pose they were solved for and the phase."""
+
+    rate_hz: float
+    q: list[np.ndarray] = field(default_factory=list)
+    """(9,) targets: 7 arm joints [rad], 2 finger joints [m]."""
+    tcp: list[np.ndarray] = field(default_factory=list)
+    """(4, 4) commanded tool pose in the world (NaN during joint-space moves)."""
+    phase: list[str] = field(default_factory=list)
+    ik_error_m: float = 0.0
+    """Largest IK position error on the Cartesian segments [m]."""
+    ik_error_deg: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def joint_move(self, q_from: np.ndarray, q_to: np.ndarray, seconds: float, phase: str, fingers: float) -> None:
+        n = ticks(seconds, self.rate_hz)
+        s = np.linspace(0.0, 1.0, n + 1)[1:]
+        s = s * s * (3 - 2 * s)
+        for si in s:
+            q = q_from + si * (q_to - q_from)
+            q[7:] = fingers
+            self.q.append(q)
+            self.tcp.append(np.full((4, 4), np.nan))
+            self.phase.append(phase)
+
+    def hold(self, q: np.ndarray, seconds: float, phase: str, fingers: float, tcp: np.ndarray) -> None:
+        for _ in range(ticks(seconds, self.rate_hz)):
+            qq = q.copy()
+            qq[7:] = fingers
+            self.q.append(qq)
+            self.tcp.append(tcp)
+            self.phase.append(phase)
+
+    def fingers_to(self, q: np.ndarray, start: float, end: float, seconds: float, phase: str, tcp) -> None:
+        n = ticks(seconds, self.rate_hz)
+        for s in np.linspace(0.0, 1.0, n + 1)[1:]:
+            qq = q.copy()
+            qq[7:] = start + s * (end - start)
+            self.q.append(qq)
+            self.tcp.append(tcp)
+            self.phase.append(phase)
+
+    def path(self, base_pose: np.ndarray, world_tcp: np.ndarray, seed: np.ndarray, phase: str, fingers: float):
+        """Append the IK solutions of a path of world tool poses; returns the last joint coordinates."""
+        q, pos_err, rot_err = ik.solve_path(se3.invert(base_pose) @ world_tcp, seed)
+        q[:, 7:] = fingers
+        self.q.extend(q)
+        self.tcp.extend(world_tcp)
+        self.phase.extend([phase] * len(q))
+        self.ik_error_m = max(self.ik_error_m, float(pos_err.max()))
+        self.ik_error_deg = max(self.ik_error_deg, float(rot_err.max()))
+        return q[-1]
+
+    def phase_ticks(self, phase: str) -> np.ndarray:
+        return np.flatnonzero(np.asarray(self.phase) == phase)
+
+
+def approach_plan(base_pose: np.ndarray, grasp_tcp: np.ndarray, rate_hz: float, approach_s: float) -> Plan:
+    """Home -> pre-grasp -> grasp -> close, for a grasp's world tool pose (4, 4)."""
+    plan = Plan(rate_hz)
+    open_, closed = panda.FINGER_OPEN_M, 0.0
+    pre = grasp_tcp.copy()
+    pre[:3, 3] -= PREGRASP_M * grasp_tcp[:3, 2]
+    q_pre, pos_err, rot_err = ik.solve((se3.invert(base_pose) @ pre)[None], panda.HOME_Q, n_seeds=16, iterations=80)
+    plan.ik_error_m, plan.ik_error_deg = float(pos_err[0]), float(rot_err[0])
+    plan.hold(panda.HOME_Q, 0.2, "home", open_, np.full((4, 4), np.nan))
+    plan.joint_move(panda.HOME_Q.copy(), q_pre[0], approach_s, "approach", open_)
+    q = plan.path(base_pose, cartesian(pre, grasp_tcp, ticks(DESCEND_S, rate_hz)), q_pre[0], "descend", open_)
+    plan.hold(q, SETTLE_S, "settle", open_, grasp_tcp)
+    plan.fingers_to(q, open_, closed, CLOSE_S, "close", grasp_tcp)
+    plan.hold(q, SQUEEZE_S, "squeeze", closed, grasp_tcp)
+    return plan
+
+
+def carry_plan(plan: Plan, base_pose: np.ndarray, follow_tcp: np.ndarray, lift_m: float) -> None:
+    """Append lift -> follow -> place -> release to a plan that ends closed on the object.
+
+    Args:
+        follow_tcp: (N, 4, 4) world tool poses at the video's frames, already ``lift_m`` up.
+    """
+    rate = plan.rate_hz
+    closed, open_ = 0.0, panda.FINGER_OPEN_M
+    q = plan.q[-1].copy()
+    grasp_tcp = plan.tcp[-1]
+    q = plan.path(base_pose, cartesian(grasp_tcp, follow_tcp[0], ticks(LIFT_S, rate)), q, "lift", closed)
+    q = plan.path(base_pose, follow_tcp, q, "follow", closed)
+    placed = lifted(follow_tcp[-1], -lift_m)
+    q = plan.path(base_pose, cartesian(follow_tcp[-1], placed, ticks(PLACE_S, rate)), q, "place", closed)
+    plan.fingers_to(q, closed, open_, RELEASE_S, "release", placed)
+    back = placed.copy()
+    back[:3, 3] -= RETREAT_M * placed[:3, 2]
+    plan.path(base_pose, cartesian(placed, back, ticks(RETREAT_S, rate)), q, "retreat", open_)

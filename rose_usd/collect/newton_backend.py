@@ -1,0 +1,214 @@
+"""The newton backend: grasp-and-follow rollouts of a Franka Panda in Newton (SolverMuJoCo on
+MuJoCo's C backend, one world, reused across rollouts), then the robot layer and the dataset.
+
+Inputs that cannot give a demonstration (no object with a path, an object without a collision
+mesh, one too large for the gripper, a path out of reach) write a layer whose status and
+message say so, and a warning; they are not errors of the pipeline.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from rose_usd.collect import grasping, motion
+from rose_usd.collect.author import Outcome, author_robot
+from rose_usd.collect.config import CollectConfig
+from rose_usd.collect.dataset import write_dataset
+from rose_usd.collect.rollout import Perturbation, Rollout, Simulator, run_rollout
+from rose_usd.collect.world import build_world, crop_to_box
+from rose_usd.core import se3
+from rose_usd.errors import ConfigError
+from rose_usd.geometry.grasps import sample_surface
+from rose_usd.layers import objects as object_layer
+from rose_usd.layers.scene import scene_collider
+from rose_usd.layers.trajectory import object_poses
+from rose_usd.progress import progress, say
+from rose_usd.stage_api import StageContext
+
+
+def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray] | None:
+    """The object to move and its path (N, 4, 4): the configured one, else the one whose path is longest."""
+    names = object_layer.object_paths(ctx.stage)
+    n = ctx.time_info.n_frames
+    if cfg.object_name:
+        if cfg.object_name not in names:
+            raise ConfigError(
+                f"collect.object_name = {cfg.object_name!r} is not an object of the stage",
+                hint=f"objects: {', '.join(names) or 'none'}",
+            )
+        return cfg.object_name, object_poses(ctx.stage, cfg.object_name, n)
+    best = None
+    for name in names:
+        path = object_poses(ctx.stage, name, n)
+        length = float(np.linalg.norm(np.diff(path[:, :3, 3], axis=0), axis=1).sum())
+        if best is None or length > best[2]:
+            best = (name, path, length)
+    return None if best is None else best[:2]
+
+
+def _surface_points(vertices: np.ndarray, faces: np.ndarray, spacing_m: float, rng) -> np.ndarray:
+    """Points on a mesh about ``spacing_m`` apart (between 500 and 40000 of them)."""
+    tri = vertices[faces]
+    area = float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() / 2)
+    points, _ = sample_surface(vertices, faces, int(np.clip(area / spacing_m**2, 500, 40000)), rng)
+    return points
+
+
+def _scene_points(stage, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Points on the scene collider inside the box [lo, hi], about 5 mm apart."""
+    collider = scene_collider(stage)
+    if collider is None:
+        return np.zeros((0, 3))
+    cut = crop_to_box(collider[0], collider[1], lo, hi)
+    if cut is None:
+        return np.zeros((0, 3))
+    return _surface_points(cut[0], cut[1], 0.005, rng)
+
+
+def _perturbations(cfg: CollectConfig, prior: object_layer.PhysicsPrior, mass_kg: float, rng) -> list[Perturbation]:
+    """The first as reconstructed, the others uniformly within the noise limits and one sigma of the prior."""
+    out = [Perturbation(np.zeros(3), 0.0, mass_kg, prior.friction)]
+    for _ in range(max(0, cfg.perturbations - 1)):
+        angle, radius = rng.uniform(0, 2 * np.pi), cfg.pose_noise_m * np.sqrt(rng.uniform())
+        out.append(
+            Perturbation(
+                offset_m=np.array([radius * np.cos(angle), radius * np.sin(angle), 0.0]),
+                yaw_deg=float(rng.uniform(-cfg.pose_noise_deg, cfg.pose_noise_deg)),
+                mass_kg=float(max(0.3 * mass_kg, mass_kg + rng.uniform(-1, 1) * prior.mass_sigma_kg)),
+                friction=float(np.clip(prior.friction + rng.uniform(-1, 1) * prior.friction_sigma, 0.05, 1.5)),
+            )
+        )
+    return out
+
+
+def run(ctx: StageContext) -> None:
+    cfg: CollectConfig = ctx.config
+    if cfg.render:
+        raise ConfigError(
+            "collect.render = true is not built yet: the dataset has no camera video",
+            hint="drop --set collect.render=true (or render = true under [collect] in rose.toml)",
+        )
+    t_start = time.perf_counter()
+    rng = np.random.default_rng(cfg.seed)
+    picked = _pick_object(ctx, cfg)
+    if picked is None:
+        _finish(ctx, Outcome("no-object", "the stage has no object to move"))
+        return
+    name, path = picked
+    if object_layer.collision_approximation(ctx.stage, name) is None:
+        _finish(ctx, Outcome("no-collider", f"object {name!r} has no collision mesh", object_name=name))
+        return
+    default = object_layer.default_pose(ctx.stage, name)
+    visual = object_layer.visual_mesh(ctx.stage, name)
+    object_vertices = se3.transform_points(se3.invert(default), visual.vertices)
+    prior = object_layer.physics_prior(ctx.stage, name)
+    others = [object_layer.visual_mesh(ctx.stage, o) for o in object_layer.object_paths(ctx.stage) if o != name]
+    # the robot stands on the support under the lowest object (a stacked object's bottom is on another)
+    support_z = float(min(m.vertices[:, 2].min() for m in [visual, *others]))
+    radius = float(np.linalg.norm(object_vertices - object_vertices.mean(axis=0), axis=1).max())
+    positions = path[:, :3, 3]
+    near_lo = positions.min(axis=0) - radius - 0.15
+    near_hi = positions.max(axis=0) + radius + 0.15
+    scene_points = _scene_points(ctx.stage, near_lo, near_hi, rng)
+    for other in others:  # the other objects, where they stand at frame 0, are obstacles too
+        scene_points = np.concatenate([scene_points, _surface_points(other.vertices, other.faces, 0.004, rng)])
+
+    outcome = Outcome("ok", object_name=name)
+    try:
+        cands = grasping.candidates(
+            object_vertices,
+            visual.faces,
+            prior.center_of_mass_m,
+            path,
+            scene_points,
+            friction=cfg.grasp_friction,
+            max_width_m=cfg.max_width_m,
+            surface_points=cfg.surface_points,
+            approach_turns=cfg.approach_turns,
+            lift_m=cfg.lift_m,
+            rng=rng,
+        )
+        say(f"collect: {cands.sampled_pairs} antipodal pairs, {len(cands)} collision-free grasp frames")
+        if cfg.base:
+            x, y, *yaw = cfg.base
+            base = se3.make_pose(
+                se3.rotation_about([0.0, 0.0, 1.0], np.radians(yaw[0] if yaw else 0.0)), [x, y, support_z]
+            )
+            outcome.base_source = "user"
+        else:
+            base = grasping.place_base(path, cands, support_z, scene_points)
+        outcome.base_pose = base
+        ranked = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
+    except grasping.NoGrasp as why:
+        status = "unreachable" if "reach" in str(why) else "no-grasp"
+        outcome.status, outcome.message = status, str(why)
+        _finish(ctx, outcome)
+        return
+    t_plan = time.perf_counter() - t_start
+
+    # the world: the stage, the scene cut around the path and the base, and the robot
+    t0 = time.perf_counter()
+    base_xyz, margin = outcome.base_pose[:3, 3], cfg.newton.crop_margin_m
+    lo = np.minimum(positions.min(axis=0) - radius, base_xyz) - margin
+    hi = np.maximum(positions.max(axis=0) + radius, base_xyz) + margin
+    lo[2], hi[2] = support_z - 0.1, max(hi[2], support_z + 1.0)
+    object_path = object_layer.object_paths(ctx.stage)[name]
+    world = build_world(ctx.stage, object_path, outcome.base_pose, (lo, hi), cfg.newton)
+    sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
+    t_build = time.perf_counter() - t0
+
+    rate = float(ctx.time_info.fps)
+    perturbations = _perturbations(cfg, prior, world.object_mass_kg, rng)
+    jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
+    rollouts: list[Rollout] = []
+    plans: dict[int, motion.Plan] = {}
+    for g, pert in progress(jobs, "collect rollouts", total=len(jobs), unit="rollout"):
+        if g not in plans:
+            grasp_tcp = path[0] @ ranked.object_from_tcp[g]
+            plans[g] = motion.approach_plan(outcome.base_pose, grasp_tcp, rate, cfg.approach_s)
+        rollouts.append(run_rollout(sim, plans[g], path, pert, g, cfg))
+    outcome.rollouts = rollouts
+    successes = [i for i, r in enumerate(rollouts) if r.success]
+    reached = [i for i, r in enumerate(rollouts) if r.follow_start >= 0]
+    pool = successes or reached
+    outcome.best = min(pool, key=lambda i: rollouts[i].mean_error_m) if pool else -1
+    if not successes:
+        outcome.status = "no-success"
+        reasons = sorted({r.reason for r in rollouts})
+        outcome.message = f"no rollout succeeded: {reasons[0]}" + (
+            f" (+{len(reasons) - 1} other reasons)" if len(reasons) > 1 else ""
+        )
+    else:
+        info = write_dataset(ctx, [rollouts[i] for i in successes], name, path, outcome.base_pose, cfg)
+        outcome.dataset_info = info
+    _finish(ctx, outcome)
+    wall = [r.wall_s for r in rollouts]
+    ctx.record(
+        object=name,
+        grasp_pairs=cands.sampled_pairs,
+        grasp_frames=len(cands),
+        grasps_rolled_out=len(ranked),
+        scene_parts=world.scene_parts,
+        plan_s=round(t_plan, 2),
+        build_s=round(t_build, 2),
+        build_timings={k: round(v, 2) for k, v in world.timings.items()},
+        rollout_wall_s=[round(v, 2) for v in wall],
+        rollout_sim_s=[round(r.sim_s, 2) for r in rollouts],
+        rollouts_per_minute=round(60.0 * len(rollouts) / max(sum(wall), 1e-9), 2),
+        successes=len(successes),
+    )
+
+
+def _finish(ctx: StageContext, outcome: Outcome) -> None:
+    author_robot(ctx, outcome)
+    rollouts = outcome.rollouts
+    ctx.record(status=outcome.status, rollouts=len(rollouts), successes=sum(r.success for r in rollouts))
+    if outcome.status == "ok":
+        say(
+            f"collect: {sum(r.success for r in rollouts)}/{len(rollouts)} rollouts succeeded "
+            f"(best mean path error {100 * rollouts[outcome.best].mean_error_m:.1f} cm)"
+        )
+    else:
+        ctx.warn(outcome.message)

@@ -1,0 +1,286 @@
+"""One rollout: the plan executed in the simulated world, logged per control tick, and judged.
+
+A rollout succeeds when the object stays in the hand (its pose in the tool frame drifts less
+than ``max_drift_m`` / ``max_drift_deg`` from the grasp to the end of the follow), tracks its
+reconstructed path (mean position error over the follow and the error at its end within the
+limits), nothing became NaN, and neither robot nor object went deeper than
+``max_penetration_m`` into the scene. ``reason`` names the first test that failed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rose_usd.collect import motion
+from rose_usd.collect.config import CollectConfig
+from rose_usd.collect.world import World
+from rose_usd.core import se3
+from rose_usd.sim import panda
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """How one rollout's object differs from the reconstruction."""
+
+    offset_m: np.ndarray
+    """(3,) shift of the object's start position [m] (horizontal)."""
+    yaw_deg: float
+    mass_kg: float
+    friction: float
+
+
+@dataclass
+class Rollout:
+    """A rollout's log (per control tick) and verdict."""
+
+    grasp: int
+    perturbation: Perturbation
+    rate_hz: float
+    q: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
+    """(T, 9) joint positions after each tick."""
+    qd: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
+    action_q: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
+    """(T, 9) joint targets of each tick."""
+    action_tcp: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    """(T, 4, 4) commanded tool pose in the world (NaN during joint-space moves)."""
+    tcp: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    """(T, 4, 4) the tool's world pose."""
+    object_pose: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    links: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 4, 4)))
+    """(T, L, 4, 4) world poses of the Panda's links (:func:`rose_usd.sim.panda.chain` order)."""
+    phase: list[str] = field(default_factory=list)
+    follow_start: int = -1
+    """Tick of video frame 0."""
+    success: bool = False
+    reason: str = ""
+    mean_error_m: float = float("nan")
+    final_error_m: float = float("nan")
+    final_error_deg: float = float("nan")
+    drift_m: float = float("nan")
+    drift_deg: float = float("nan")
+    penetration_m: float = 0.0
+    ik_error_m: float = 0.0
+    """Largest IK position error of the plan's Cartesian segments [m]."""
+    ik_error_deg: float = 0.0
+    hand_lag_m: float = float("nan")
+    """Largest distance of the tool from its commanded pose over the follow [m]."""
+    hand_lag_deg: float = float("nan")
+    wall_s: float = 0.0
+    sim_s: float = 0.0
+
+    @property
+    def frames(self) -> int:
+        return len(self.q)
+
+
+class Simulator:
+    """SolverMuJoCo on one world, reused for every rollout (state reset, mass and friction set)."""
+
+    def __init__(self, world: World, dt_s: float, iterations: int):
+        import warp as wp
+        from newton.solvers import SolverMuJoCo
+
+        self.world, self.dt_s = world, dt_s
+        model = world.model
+        self.solver = SolverMuJoCo(
+            model,
+            use_mujoco_cpu=True,
+            solver="newton",
+            integrator="implicitfast",
+            cone="pyramidal",
+            impratio=10.0,
+            iterations=iterations,
+            ls_iterations=50,
+            enable_multiccd=True,
+        )
+        geom_shape = self.solver.mjc_geom_to_newton_shape.numpy()[0]
+        self.scene_geoms = np.isin(geom_shape, world.scene_shapes)
+        self.mover_geoms = np.isin(geom_shape, world.robot_shapes + world.object_shapes)
+        self.base_mass = model.body_mass.numpy().copy()
+        self.base_inertia = model.body_inertia.numpy().copy()
+        self.base_mu = model.shape_material_mu.numpy().copy()
+        self._wp = wp
+
+    def set_object(self, mass_kg: float, friction: float) -> None:
+        from rose_usd.sim.engine import newton as load_newton
+
+        newton = load_newton()
+        w, model = self.world, self.world.model
+        scale = mass_kg / max(w.object_mass_kg, 1e-9)
+        mass, inertia = self.base_mass.copy(), self.base_inertia.copy()
+        mass[w.object_body] *= scale
+        inertia[w.object_body] *= scale
+        model.body_mass.assign(mass)
+        model.body_inv_mass.assign(np.where(mass > 0, 1.0 / np.maximum(mass, 1e-12), 0.0).astype(np.float32))
+        model.body_inertia.assign(inertia)
+        inv = np.zeros_like(inertia)
+        for i, m in enumerate(inertia):
+            if np.linalg.det(m) > 0:
+                inv[i] = np.linalg.inv(m)
+        model.body_inv_inertia.assign(inv)
+        mu = self.base_mu.copy()
+        mu[w.object_shapes + w.scene_shapes] = friction
+        model.shape_material_mu.assign(mu)
+        self.solver.notify_model_changed(
+            newton.ModelFlags.BODY_INERTIAL_PROPERTIES | newton.ModelFlags.SHAPE_PROPERTIES
+        )
+
+    def penetration(self) -> float:
+        """Deepest penetration [m] of a robot or object geom into a scene geom now (0 if none)."""
+        data = self.solver.mj_data
+        if data.ncon == 0:
+            return 0.0
+        geom = data.contact.geom[: data.ncon]
+        dist = data.contact.dist[: data.ncon]
+        pair = (self.scene_geoms[geom[:, 0]] & self.mover_geoms[geom[:, 1]]) | (
+            self.scene_geoms[geom[:, 1]] & self.mover_geoms[geom[:, 0]]
+        )
+        return float(max(0.0, -dist[pair].min())) if pair.any() else 0.0
+
+
+def _pose7_to_matrix(q7: np.ndarray) -> np.ndarray:
+    return se3.make_pose(se3.matrix_from_quat_xyzw(q7[..., 3:7]), q7[..., :3])
+
+
+def run_rollout(
+    sim: Simulator,
+    plan: motion.Plan,
+    path: np.ndarray,
+    perturbation: Perturbation,
+    grasp: int,
+    cfg: CollectConfig,
+) -> Rollout:
+    """Execute the approach ``plan`` (home to closed on the object), then plan and execute the
+    carry along ``path`` (N, 4, 4), the object's reconstructed world poses, and judge it."""
+    from rose_usd.sim.engine import newton as load_newton
+
+    newton = load_newton()
+    t_wall = time.perf_counter()
+    plan = dataclasses.replace(plan, q=list(plan.q), tcp=list(plan.tcp), phase=list(plan.phase))  # carried on below
+    w, model = sim.world, sim.world.model
+    sim.set_object(perturbation.mass_kg, perturbation.friction)
+    state, nxt, control = model.state(), model.state(), model.control()
+    sim.solver.reset(state)
+    joint_q = model.joint_q.numpy().copy()
+    start = _pose7_to_matrix(joint_q[w.object_q0 : w.object_q0 + 7])
+    turn = se3.make_pose(se3.rotation_about([0.0, 0.0, 1.0], np.radians(perturbation.yaw_deg)), np.zeros(3))
+    moved = start.copy()
+    moved[:3, :3] = turn[:3, :3] @ start[:3, :3]
+    moved[:3, 3] = start[:3, 3] + perturbation.offset_m
+    joint_q[w.object_q0 : w.object_q0 + 3] = moved[:3, 3]
+    joint_q[w.object_q0 + 3 : w.object_q0 + 7] = se3.quat_xyzw_from_matrix(moved[:3, :3])
+    state.joint_q.assign(joint_q.astype(np.float32))
+    state.joint_qd.zero_()
+    newton.eval_fk(model, state.joint_q, state.joint_qd, state)
+
+    rate = plan.rate_hz
+    substeps = max(1, int(round(1.0 / (rate * sim.dt_s))))
+    dt = 1.0 / (rate * substeps)
+    q0, d0, n = w.robot_q0, w.robot_d0, len(panda.JOINTS)
+    target_q = model.joint_q.numpy().copy()
+    target_qd = np.zeros(model.joint_dof_count, dtype=np.float32)
+    link_bodies = [w.robot_bodies[name] for name in panda.chain().links]
+    log_q, log_qd, log_tcp, log_obj, log_links, log_act = [], [], [], [], [], []
+    result = Rollout(grasp=grasp, perturbation=perturbation, rate_hz=rate)
+    deepest = 0.0
+    q_prev = plan.q[0]
+    tick = 0
+
+    def execute(upto: int) -> bool:
+        nonlocal state, nxt, q_prev, tick, deepest
+        while tick < upto:
+            q_next = plan.q[tick]
+            qd_ff = (q_next - q_prev) * rate
+            for i in range(substeps):
+                a = (i + 1) / substeps
+                target_q[q0 : q0 + n] = q_prev + a * (q_next - q_prev)
+                target_qd[d0 : d0 + 7] = qd_ff[:7]
+                control.joint_target_q.assign(target_q.astype(np.float32))
+                control.joint_target_qd.assign(target_qd)
+                sim.solver.step(state, nxt, control, None, dt)
+                state, nxt = nxt, state
+            q_prev = q_next
+            body_q = state.body_q.numpy().astype(float)
+            jq = state.joint_q.numpy().astype(float)
+            if not np.all(np.isfinite(body_q)):
+                return False
+            log_q.append(jq[q0 : q0 + n])
+            log_qd.append(state.joint_qd.numpy().astype(float)[d0 : d0 + n])
+            log_tcp.append(_pose7_to_matrix(body_q[w.robot_bodies[panda.TCP_LINK]]))
+            log_obj.append(_pose7_to_matrix(body_q[w.object_body]))
+            log_links.append(_pose7_to_matrix(body_q[link_bodies]))
+            log_act.append(q_next)
+            deepest = max(deepest, sim.penetration())
+            tick += 1
+        return True
+
+    finite = execute(len(plan))
+    carry_from = len(plan)
+    if finite:
+        # the follow, from where the object and the hand actually are once it is grasped
+        tcp_grasp, obj_grasp = log_tcp[-1], log_obj[-1]
+        follow = motion.lifted(motion.follow_poses(path, obj_grasp, tcp_grasp), cfg.lift_m)
+        motion.carry_plan(plan, w.base_pose, follow, cfg.lift_m)
+        finite = execute(len(plan))
+    result.q, result.qd = np.array(log_q), np.array(log_qd)
+    result.tcp, result.object_pose, result.links = np.array(log_tcp), np.array(log_obj), np.array(log_links)
+    result.action_q = np.array(log_act)
+    result.action_tcp = np.array(plan.tcp[: len(log_q)])
+    result.phase = list(plan.phase[: len(log_q)])
+    result.penetration_m = deepest
+    result.ik_error_m, result.ik_error_deg = plan.ik_error_m, plan.ik_error_deg
+    result.sim_s = len(log_q) * substeps * dt
+    if not finite:
+        result.reason = f"the simulation diverged (NaN) in phase {plan.phase[min(tick, len(plan) - 1)]!r}"
+    else:
+        judge(result, path, carry_from, cfg)
+    result.wall_s = time.perf_counter() - t_wall
+    return result
+
+
+def judge(r: Rollout, path: np.ndarray, carry_from: int, cfg: CollectConfig) -> None:
+    """Fill in the rollout's errors and verdict."""
+    follow = np.flatnonzero(np.asarray(r.phase) == "follow")
+    r.follow_start = int(follow[0])
+    obj, tcp = r.object_pose[follow], r.tcp[follow]
+    err = np.linalg.norm(obj[:, :3, 3] - path[:, :3, 3], axis=1)
+    r.mean_error_m = float(err.mean())
+    r.final_error_m = float(err[-1])
+    r.final_error_deg = float(se3.rotation_angle_deg(obj[-1, :3, :3].T @ path[-1, :3, :3]))
+    grasped = se3.invert(r.tcp[carry_from - 1]) @ r.object_pose[carry_from - 1]
+    in_hand = np.einsum("nij,njk->nik", se3.invert(tcp), obj)
+    r.drift_m = float(np.linalg.norm(in_hand[:, :3, 3] - grasped[:3, 3], axis=1).max())
+    r.drift_deg = float(se3.rotation_angle_deg(np.einsum("ji,njk->nik", grasped[:3, :3], in_hand[:, :3, :3])).max())
+    checks = [
+        (r.drift_m < cfg.max_drift_m, f"the object slipped {100 * r.drift_m:.1f} cm in the hand"),
+        (r.drift_deg < cfg.max_drift_deg, f"the object turned {r.drift_deg:.0f} deg in the hand"),
+        (r.mean_error_m < cfg.max_mean_error_m, f"mean path error {100 * r.mean_error_m:.1f} cm"),
+        (r.final_error_m < cfg.max_final_error_m, f"final path error {100 * r.final_error_m:.1f} cm"),
+        (r.final_error_deg < cfg.max_final_error_deg, f"final rotation error {r.final_error_deg:.0f} deg"),
+        (r.penetration_m < cfg.max_penetration_m, f"{100 * r.penetration_m:.1f} cm deep into the scene"),
+    ]
+    commanded = r.action_tcp[follow]
+    r.hand_lag_m = float(np.linalg.norm(commanded[:, :3, 3] - tcp[:, :3, 3], axis=1).max())
+    r.hand_lag_deg = float(
+        se3.rotation_angle_deg(np.einsum("nji,njk->nik", commanded[:, :3, :3], tcp[:, :3, :3])).max()
+    )
+    failed = [why for ok, why in checks if not ok]
+    if failed and (r.hand_lag_m > 0.01 or r.hand_lag_deg > 5.0):
+        lag = f"the hand lagged its commanded path by {100 * r.hand_lag_m:.1f} cm, {r.hand_lag_deg:.0f} deg"
+        speed = np.abs(np.diff(r.action_q[follow[0] - 1 : follow[-1] + 1, :7], axis=0)).max(axis=0) * r.rate_hz
+        over = speed / np.asarray(panda.ARM_MAX_VELOCITY_RAD_S)
+        if over.max() > 1.0:
+            j = int(over.argmax())
+            limit = panda.ARM_MAX_VELOCITY_RAD_S[j]
+            lag += f" (the path needs joint {j + 1} at {speed[j]:.1f} rad/s, the Panda's limit is {limit})"
+        failed.insert(0, lag)
+    if failed and (r.ik_error_m > 0.01 or r.ik_error_deg > 5.0):
+        failed.insert(
+            0, f"the arm could not follow the path (IK {100 * r.ik_error_m:.1f} cm, {r.ik_error_deg:.0f} deg off)"
+        )
+    r.success = not failed
+    r.reason = "; ".join(failed)

@@ -1,0 +1,237 @@
+"""The simulated world of a rollout: the composed stage loaded with Newton's ``add_usd`` (the
+scene's static collider, the object as a free body with its mass prior and convex parts), the
+Panda added beside it with ``add_urdf``, and the MuJoCo contact settings that hold an object.
+
+Contact settings, and why (measured on this CPU, ``docs/architecture.md`` amendment 28):
+
+- MuJoCo's own collision detection (the only kind its C backend has) treats a mesh geom as its
+  convex hull, so the room-sized scene collider would be one convex blob around everything. It
+  is cut to a box around the object's path and the robot base (a boolean intersection, so it
+  stays closed) and split into convex parts by CoACD, cached under ``~/.cache/rose_usd/coacd``.
+- Finger pads and object: ``condim`` 6 (torsional and rolling friction), a stiff raw ``solref``
+  (time constant 4 ms instead of MuJoCo's 20 ms) and a hard ``solimp``: the soft default let a
+  held object slip 3-5x more. Pads have friction 1 (rubber); MuJoCo takes the larger of two
+  geoms' friction, so the scene gets the object's prior friction, and object-scene contacts
+  keep the prior while pad-object contacts use the pads'.
+- A pyramidal cone (the elliptic one with impratio 10 kicked the object at lift-off),
+  ``impratio`` 10, multi-point CCD (one contact point per face pair let a box sink 4.7 mm).
+- ``rigid_gap`` 1 cm instead of 10 cm: MuJoCo would otherwise list every pair within 10 cm.
+- Arm drives: PD gains per joint, MuJoCo gravity compensation on every link, and velocity
+  feed-forward (PD lag fell from 5.5 mm to 0.24 mm).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pxr import Usd
+
+from rose_usd.collect.config import NewtonConfig
+from rose_usd.core import se3
+from rose_usd.errors import StageError
+from rose_usd.sim import panda
+
+SOLIMP_HARD = (0.95, 0.99, 0.001, 0.5, 2.0)
+MU_TORSIONAL_M = 0.01
+MU_ROLLING_M = 0.0001
+RIGID_GAP_M = 0.01
+
+
+def mesh_cache_dir() -> Path:
+    """Where convex decompositions of scene colliders are kept between runs."""
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "rose_usd" / "coacd"
+
+
+@dataclass
+class World:
+    """A finalized Newton model with the indices a rollout needs."""
+
+    model: object
+    object_body: int
+    object_shapes: list[int]
+    scene_shapes: list[int]
+    robot_q0: int
+    """First joint coordinate of the robot (the object's free joint comes first)."""
+    robot_d0: int
+    """First joint DOF of the robot."""
+    robot_bodies: dict[str, int]
+    """Panda link name -> body index."""
+    pad_shapes: list[int]
+    robot_shapes: list[int]
+    object_q0: int
+    """First coordinate of the object's free joint (position, then quaternion xyzw)."""
+    base_pose: np.ndarray
+    object_mass_kg: float
+    object_friction: float
+    scene_parts: int
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _set_attr(builder, key: str, index: int, value) -> None:
+    attr = builder.custom_attributes[key]
+    if attr.values is None:
+        attr.values = {}
+    attr.values[index] = value
+
+
+def _grip_contacts(builder, shapes: list[int], cfg: NewtonConfig, mu: float) -> None:
+    import warp as wp
+
+    for s in shapes:
+        builder.shape_material_mu[s] = mu
+        builder.shape_material_mu_torsional[s] = MU_TORSIONAL_M
+        builder.shape_material_mu_rolling[s] = MU_ROLLING_M
+        _set_attr(builder, "mujoco:condim", s, int(cfg.condim))
+        _set_attr(builder, "mujoco:solref", s, wp.vec2(float(cfg.contact_timeconst_s), 1.0))
+        _set_attr(builder, "mujoco:solref_mode", s, 1)  # raw: not recomputed from ke/kd
+        _set_attr(builder, "mujoco:geom_solimp", s, SOLIMP_HARD)
+
+
+def crop_to_box(vertices: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """The closed mesh cut to the axis-aligned box [lo, hi] (a boolean intersection, so a closed
+    collider stays closed); None when nothing is left."""
+    import manifold3d
+
+    mesh = manifold3d.Mesh(
+        vert_properties=np.asarray(vertices, np.float32), tri_verts=np.asarray(faces, np.uint32).reshape(-1, 3)
+    )
+    solid = manifold3d.Manifold(mesh)
+    if solid.status() != manifold3d.Error.NoError or solid.is_empty():
+        return None
+    box = manifold3d.Manifold.cube(tuple(float(v) for v in hi - lo)).translate(tuple(float(v) for v in lo))
+    cut = (solid ^ box).to_mesh()
+    v, f = np.asarray(cut.vert_properties)[:, :3], np.asarray(cut.tri_verts)
+    return (v, f) if len(f) else None
+
+
+def build_world(
+    stage: Usd.Stage,
+    object_path: str,
+    base_pose: np.ndarray,
+    workspace: tuple[np.ndarray, np.ndarray],
+    cfg: NewtonConfig,
+) -> World:
+    """Load the stage and the Panda into one Newton model.
+
+    Args:
+        stage: the composed stage (scene collider, objects, at their default poses).
+        object_path: prim path of the object the robot moves.
+        base_pose: world pose of the robot base (4, 4).
+        workspace: (lo, hi) corners [m] of the box the scene collider is cut to.
+    """
+    import time
+
+    import warp as wp
+    from newton.solvers import SolverMuJoCo
+
+    from rose_usd.sim.engine import newton as load_newton
+
+    newton = load_newton()
+    newton.config.cache_dir_meshes = str(mesh_cache_dir())
+    timings = {}
+    t0 = time.perf_counter()
+    b = newton.ModelBuilder()
+    SolverMuJoCo.register_custom_attributes(b)
+    b.rigid_gap = RIGID_GAP_M
+    result = b.add_usd(stage, load_visual_shapes=False, load_static_visual_shapes=False, verbose=False)
+    body_of = {str(k): int(v) for k, v in dict(result.get("path_body_map", {})).items()}
+    if object_path not in body_of:
+        raise StageError(
+            f"Newton built no body for {object_path}",
+            path=stage.GetRootLayer().identifier,
+            hint="check RigidBodyAPI on the object prim (re-run the object stage)",
+        )
+    obj = body_of[object_path]
+    object_shapes = [s for s in range(b.shape_count) if b.shape_body[s] == obj]
+    timings["load_s"] = time.perf_counter() - t0
+
+    # the scene collider: cut to the workspace, then convex parts (MuJoCo sees a mesh as its hull)
+    t0 = time.perf_counter()
+    statics = [s for s in range(b.shape_count) if b.shape_body[s] == -1 and b.shape_type[s] == newton.GeoType.MESH]
+    lo, hi = workspace
+    for s in statics:
+        mesh = b.shape_source[s]
+        xf = np.asarray(b.shape_transform[s], dtype=float)
+        v = np.asarray(mesh.vertices, dtype=float) * np.asarray(b.shape_scale[s], dtype=float)
+        v = v @ se3.matrix_from_quat_xyzw(xf[3:]).T + xf[:3]
+        cut = crop_to_box(v, np.asarray(mesh.indices).reshape(-1, 3), lo, hi)
+        if cut is None:  # nothing of it near the robot: leave a tiny far-away sliver out of the way
+            b.shape_flags[s] = 0
+            continue
+        b.shape_source[s] = newton.Mesh(cut[0], cut[1].reshape(-1), compute_inertia=False)
+        b.shape_transform[s] = wp.transform_identity()
+        b.shape_scale[s] = (1.0, 1.0, 1.0)
+    statics = [s for s in statics if b.shape_flags[s]]
+    n_before = b.shape_count
+    if statics:
+        b.approximate_meshes(
+            "coacd",
+            shape_indices=statics,
+            raise_on_failure=False,
+            threshold=cfg.coacd_threshold,
+            cache_dir=mesh_cache_dir(),
+        )
+    scene_shapes = statics + list(range(n_before, b.shape_count))
+    timings["scene_decomposition_s"] = time.perf_counter() - t0
+
+    friction = float(b.shape_material_mu[object_shapes[0]]) if object_shapes else 0.5
+    _grip_contacts(b, object_shapes, cfg, friction)
+    for s in scene_shapes:
+        b.shape_material_mu[s] = friction
+
+    # the robot
+    b0, s0, q0, d0 = b.body_count, b.shape_count, b.joint_coord_count, b.joint_dof_count
+    base = wp.transform(base_pose[:3, 3].tolist(), se3.quat_xyzw_from_matrix(base_pose[:3, :3]).tolist())
+    b.add_urdf(str(panda.panda_urdf()), xform=base, floating=False, enable_self_collisions=False, hide_visuals=True)
+    n = len(panda.JOINTS)
+    if b.joint_coord_count - q0 != n:
+        raise StageError(f"the Panda's URDF gave {b.joint_coord_count - q0} joint coordinates, not {n}")
+    b.joint_q[q0 : q0 + n] = panda.HOME_Q.tolist()
+    b.joint_target_q[q0 : q0 + n] = panda.HOME_Q.tolist()
+    b.joint_target_ke[d0 : d0 + n] = list(panda.ARM_KE) + [panda.FINGER_KE] * 2
+    b.joint_target_kd[d0 : d0 + n] = list(panda.ARM_KD) + [panda.FINGER_KD] * 2
+    b.joint_effort_limit[d0 : d0 + n] = list(panda.ARM_EFFORT_N_M) + [float(cfg.grip_force_n)] * 2
+    b.joint_armature[d0 : d0 + n] = list(panda.ARM_ARMATURE) + [panda.FINGER_ARMATURE] * 2
+    b.joint_target_mode[d0 : d0 + 7] = [int(newton.JointTargetMode.POSITION_VELOCITY)] * 7
+    for d in range(d0, d0 + 7):
+        _set_attr(b, "mujoco:jnt_actgravcomp", d, True)
+    for body in range(b0 + 1, b.body_count):
+        _set_attr(b, "mujoco:gravcomp", body, 1.0)
+    bodies = {b.body_label[i].rsplit("/", 1)[-1]: i for i in range(b0, b.body_count)}
+    fingers = {bodies[name] for name in panda.FINGER_LINKS}
+    robot_shapes = list(range(s0, b.shape_count))
+    pads = [
+        s
+        for s in robot_shapes
+        if b.shape_body[s] in fingers
+        and b.shape_type[s] == newton.GeoType.BOX
+        and abs(float(b.shape_transform[s][2]) - 0.04525) < 1e-4  # the rubber tip box, 45.25 mm along the finger
+    ]
+    if len(pads) != 2:
+        raise StageError(f"found {len(pads)} finger pads in the Panda's URDF, not 2")
+    _grip_contacts(b, pads, cfg, float(cfg.pad_friction))
+    j = b.joint_child.index(obj)
+    object_q0 = int(b.joint_q_start[j])
+    mass = float(b.body_mass[obj])
+    model = b.finalize(device="cpu")
+    return World(
+        model=model,
+        object_body=obj,
+        object_shapes=object_shapes,
+        scene_shapes=scene_shapes,
+        robot_q0=q0,
+        robot_d0=d0,
+        robot_bodies=bodies,
+        pad_shapes=pads,
+        robot_shapes=robot_shapes,
+        object_q0=object_q0,
+        base_pose=np.asarray(base_pose, dtype=float),
+        object_mass_kg=mass,
+        object_friction=friction,
+        scene_parts=len(scene_shapes),
+        timings=timings,
+    )

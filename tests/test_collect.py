@@ -1,0 +1,142 @@
+"""The collect stage on the sample's oracle reconstruction: a box too wide for the gripper says
+so; the same box at 3/4 size is grasped and carried along its path by simulated rollouts whose
+layer validates and whose datasets read back as the rollouts were logged; bad inputs give a
+layer that says what is wrong."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from conftest import oracle_options
+from pxr import Gf, Sdf, Usd, UsdPhysics, Vt
+
+from rose_usd.io import lerobot, robomimic
+from rose_usd.layers.robot import read_collect
+from rose_usd.pipeline import Options, Pipeline
+from rose_usd.usd import paths
+from rose_usd.usd.stage import layer_file, open_stage
+from rose_usd.usd.validate import validate
+
+FAST = {"grasps": 1, "perturbations": 2}
+
+
+def _collect(case, out, **settings):
+    options = oracle_options()
+    Pipeline(case, out, Options(backends=options.backends, settings={"collect": {**FAST, **settings}})).run("collect")
+    return read_collect(open_stage(out / "rose.usda"))
+
+
+def _shrink_object(out, factor: float) -> None:
+    """Scale the oracle box's meshes, centre of mass, mass and inertia in its layer (it stands on z = 0)."""
+    layer = Sdf.Layer.FindOrOpen(str(layer_file(out, "object")))
+    stage = Usd.Stage.Open(layer)
+    for path in (paths.object_visual("Box"), paths.object_collision("Box")):
+        attr = stage.GetPrimAtPath(path).GetAttribute("points")
+        attr.Set(Vt.Vec3fArray.FromNumpy(np.asarray(attr.Get(), dtype=np.float32) * factor))
+        extent = stage.GetPrimAtPath(path).GetAttribute("extent")
+        extent.Set(Vt.Vec3fArray.FromNumpy(np.asarray(extent.Get(), dtype=np.float32) * factor))
+    mass = UsdPhysics.MassAPI(stage.GetPrimAtPath(paths.object_path("Box")))
+    mass.GetMassAttr().Set(mass.GetMassAttr().Get() * factor**3)
+    mass.GetCenterOfMassAttr().Set(Gf.Vec3f(*(np.asarray(mass.GetCenterOfMassAttr().Get()) * factor).tolist()))
+    mass.GetDiagonalInertiaAttr().Set(Gf.Vec3f(*(np.asarray(mass.GetDiagonalInertiaAttr().Get()) * factor**5).tolist()))
+    layer.Save()
+
+
+@pytest.fixture(scope="module")
+def small_box_out(tmp_path_factory, oracle_out, sample_case):
+    """The oracle reconstruction with the box at 3/4 size (6.6 x 6.1 x 5.9 cm), collected."""
+    out = tmp_path_factory.mktemp("collect") / "out"
+    shutil.copytree(oracle_out, out)
+    _shrink_object(out, 0.75)
+    _collect(sample_case, out)
+    return out
+
+
+def test_a_box_wider_than_the_gripper_gets_a_layer_that_says_so(oracle_out):
+    """The sample's box is 7.9 cm across its narrowest faces: no rollout, status no-grasp, a
+    message with the widths, and a valid stage."""
+    result = read_collect(open_stage(oracle_out / "rose.usda"))
+    assert result.status == "no-grasp" and result.rollouts == 0
+    assert "too large for the gripper" in result.message and "7.9 cm" in result.message
+    assert not (oracle_out / "dataset" / "lerobot").exists()
+
+
+def test_rollouts_succeed_on_a_box_that_fits(small_box_out):
+    """Both rollouts (as reconstructed, perturbed) carry the box along its path within the limits."""
+    result = read_collect(open_stage(small_box_out / "rose.usda"))
+    assert result.status == "ok", result.message
+    assert result.rollouts == 2 and result.successes == 2 and result.success_rate == 1.0
+    assert np.all(result.mean_error_m < 0.03) and np.all(result.final_error_m < 0.03)
+    assert np.all(result.drift_m < 0.02) and np.all(result.penetration_m < 0.01)
+    assert result.joint_names[0] == "panda_joint1" and len(result.joint_names) == 9
+
+
+def test_robot_layer_is_valid_owned_and_animated(small_box_out):
+    """robot.usda holds only /World/Robots specs, the stage validates with 0 errors, and the links
+    move over the video's time codes."""
+    layer = Sdf.Layer.FindOrOpen(str(layer_file(small_box_out, "robot")))
+    assert paths.ownership_violations(layer, "robot") == []
+    report = validate(small_box_out / "rose.usda", with_newton=False)
+    assert report.errors == []
+    stage = open_stage(small_box_out / "rose.usda")
+    hand = stage.GetPrimAtPath(paths.robot_link("Panda", "panda_hand"))
+    xf = hand.GetAttribute("xformOp:transform")
+    assert xf.GetNumTimeSamples() == 48
+    assert np.linalg.norm(np.array(xf.Get(47))[3, :3] - np.array(xf.Get(0))[3, :3]) > 0.1  # the box moves 20 cm
+    names = [p.rsplit("/", 1)[-1].split(".")[0] for p in stage.GetRootLayer().subLayerPaths]
+    assert names == [n for n in paths.LAYER_ORDER if n in names] and "robot" in names
+
+
+def test_datasets_read_back_as_the_rollouts(small_box_out):
+    """LeRobot frames, robomimic demos and the layer's joint samples agree on every successful rollout."""
+    stage = open_stage(small_box_out / "rose.usda")
+    result = read_collect(stage)
+    assert result.dataset is not None and result.dataset.endswith("lerobot/meta/info.json")
+    info, frames, episodes, tasks = lerobot.read_dataset(small_box_out / "dataset" / "lerobot")
+    demos, env_args = robomimic.read_hdf5(small_box_out / "dataset" / "robomimic.hdf5")
+    assert info["total_episodes"] == len(demos) == result.successes == len(episodes)
+    assert tasks == ["move the box along its demonstrated path"]
+    assert info["fps"] == 30 and info["features"]["observation.state"]["names"][7] == "panda_finger_joint1"
+    for e, demo in enumerate(demos):
+        rows = frames["episode_index"] == e
+        np.testing.assert_allclose(frames["observation.state"][rows], demo.obs["robot0_joint_pos"], rtol=1e-6)
+        np.testing.assert_allclose(frames["action"][rows], demo.actions, rtol=1e-6)
+        assert episodes[e]["length"] == demo.attrs["num_samples"] == rows.sum()
+    best = result.best_rollout
+    # the layer's joint states are the best rollout's follow ticks: video frame t = tick follow_start + t
+    demo = demos[[i for i, ok in enumerate(result.rollout_success) if ok].index(best)]
+    start = demo.attrs["follow_start"]
+    layer_q = result.joint_positions(stage, 48)
+    np.testing.assert_allclose(layer_q, demo.obs["robot0_joint_pos"][start : start + 48], atol=1e-5)
+    # the object's pose in the dataset follows the reconstructed path (base frame, lifted 1 cm)
+    base = result.base_pose
+    obj = frames["observation.environment_state"][frames["episode_index"] == 0][start : start + 48, :3]
+    world = obj @ base[:3, :3].T + base[:3, 3]
+    from rose_usd.layers.trajectory import object_poses
+
+    path = object_poses(stage, "Box", 48)[:, :3, 3]
+    assert np.linalg.norm(world - path, axis=1).mean() < 0.03
+    assert env_args["env_kwargs"]["object"] == "Box"
+
+
+def test_an_object_without_a_collider_gets_a_layer_that_says_so(tmp_path, small_box_out, sample_case):
+    """With the Collision prim's CollisionAPI removed, collect writes status no-collider, no rollout."""
+    out = tmp_path / "out"
+    shutil.copytree(small_box_out, out)
+    layer = Sdf.Layer.FindOrOpen(str(layer_file(out, "object")))
+    stage = Usd.Stage.Open(layer)
+    stage.GetPrimAtPath(paths.object_collision("Box")).RemoveAPI(UsdPhysics.CollisionAPI)
+    layer.Save()
+    result = _collect(sample_case, out)
+    assert result.status == "no-collider" and "no collision mesh" in result.message and result.rollouts == 0
+
+
+def test_a_path_out_of_reach_gets_a_layer_that_says_so(tmp_path, small_box_out, sample_case):
+    """A base placed 2 m away (rose.toml / --set collect.base) reaches nothing: status unreachable."""
+    out = tmp_path / "out"
+    shutil.copytree(small_box_out, out)
+    result = _collect(sample_case, out, base="2.0,2.0")
+    assert result.status == "unreachable" and "reach" in result.message and result.rollouts == 0
+    assert np.allclose(result.base_pose[:2, 3], [2.0, 2.0])

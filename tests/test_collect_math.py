@@ -1,0 +1,140 @@
+"""The collect stage's math against analytic answers: antipodal grasps on a box, the gripper's
+collision boxes, the follow transform, the Panda's forward kinematics against Newton's."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from rose_usd.collect import motion
+from rose_usd.core import se3
+from rose_usd.geometry import grasps
+
+
+def _box(extents):
+    mesh = trimesh.creation.box(extents=extents)
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+def test_antipodal_pairs_on_a_box_are_its_opposing_faces():
+    """On a 6 x 4 x 10 cm box with an 8 cm gripper, every pair joins the two x faces or the two y
+    faces (the z faces are 10 cm apart), inside the friction cone, and both kinds are found."""
+    vertices, faces = _box([0.06, 0.04, 0.10])
+    points, normals = grasps.sample_surface(vertices, faces, 600, np.random.default_rng(0))
+    pairs = grasps.antipodal_pairs(points, normals, friction=0.3, max_width_m=0.08)
+    assert len(pairs) > 50
+    axis = np.abs(pairs.axis)
+    along_x, along_y = axis[:, 0] > np.cos(np.arctan(0.3)), axis[:, 1] > np.cos(np.arctan(0.3))
+    assert np.all(along_x | along_y) and along_x.any() and along_y.any()
+    np.testing.assert_allclose(np.abs(pairs.p1[along_x, 0]), 0.03, atol=1e-9)
+    np.testing.assert_allclose(np.abs(pairs.p2[along_y, 1]), 0.02, atol=1e-9)
+    assert np.all(pairs.width[along_x] >= 0.06 - 1e-9) and np.all(pairs.width[along_y] >= 0.04 - 1e-9)
+    assert np.all(pairs.alignment >= np.cos(np.arctan(0.3)) - 1e-9)
+
+
+def test_no_antipodal_pair_when_the_box_is_too_wide():
+    """A 9 cm cube has no pair within an 8 cm opening."""
+    vertices, faces = _box([0.09, 0.09, 0.09])
+    points, normals = grasps.sample_surface(vertices, faces, 400, np.random.default_rng(1))
+    assert len(grasps.antipodal_pairs(points, normals, friction=0.5, max_width_m=0.08)) == 0
+
+
+def test_grasp_frames_close_along_the_pair_and_turn_about_it():
+    """Frames are rotations with y along the closing line and the origin at the midpoint; the
+    turns about y are evenly spread."""
+    pairs = grasps.Antipodal(np.array([[0.0, -0.02, 0.05]]), np.array([[0.0, 0.02, 0.05]]), np.ones(1))
+    frames, which = grasps.grasp_frames(pairs, 4)
+    assert frames.shape == (4, 4, 4) and np.all(which == 0)
+    for f in frames:
+        np.testing.assert_allclose(f[:3, :3].T @ f[:3, :3], np.eye(3), atol=1e-12)
+        assert np.linalg.det(f[:3, :3]) == pytest.approx(1.0)
+        np.testing.assert_allclose(f[:3, 1], [0, 1, 0], atol=1e-12)
+        np.testing.assert_allclose(f[:3, 3], [0, 0, 0.05], atol=1e-12)
+    approach = frames[:, :3, 2]
+    np.testing.assert_allclose(approach[0], [0, 0, -1], atol=1e-12)  # the first comes from above
+    np.testing.assert_allclose(approach[2], [0, 0, 1], atol=1e-12)
+
+
+def test_boxes_hit_finds_points_inside_placed_boxes():
+    """A unit box at a frame turned 90 deg about z holds a point at its rotated offset only."""
+    frame = se3.make_pose(Rotation.from_euler("z", 90, degrees=True).as_matrix(), [1.0, 0.0, 0.0])
+    centres, halves = np.array([[0.5, 0.0, 0.0]]), np.array([[0.1, 0.1, 0.1]])
+    inside, outside = np.array([[1.0, 0.5, 0.0]]), np.array([[1.5, 0.0, 0.0]])
+    assert grasps.boxes_hit(frame[None], centres, halves, inside)[0]
+    assert not grasps.boxes_hit(frame[None], centres, halves, outside)[0]
+
+
+def test_follow_keeps_the_grasp_relative_pose():
+    """T_ee(t) = T_obj(t) T_obj(tg)^-1 T_ee(tg): at the grasp it is T_ee(tg), and the object
+    stays put in the tool frame at every t."""
+    rng = np.random.default_rng(3)
+    path = se3.make_pose(Rotation.random(10, random_state=4).as_matrix(), rng.normal(size=(10, 3)))
+    obj_grasp, ee_grasp = path[0], se3.make_pose(Rotation.random(random_state=5).as_matrix(), [0.1, 0.2, 0.3])
+    ee = motion.follow_poses(path, obj_grasp, ee_grasp)
+    np.testing.assert_allclose(ee[0], ee_grasp, atol=1e-12)
+    in_hand = np.einsum("nij,njk->nik", se3.invert(ee), path)
+    np.testing.assert_allclose(in_hand, np.broadcast_to(se3.invert(ee_grasp) @ obj_grasp, in_hand.shape), atol=1e-12)
+
+
+def test_follow_of_a_pure_translation_translates_the_tool():
+    """An object sliding 20 cm along x moves the tool 20 cm along x without turning it."""
+    path = np.stack([se3.make_pose(np.eye(3), [0.2 * s, 0.0, 0.0]) for s in np.linspace(0, 1, 5)])
+    ee_grasp = se3.make_pose(Rotation.from_euler("x", 180, degrees=True).as_matrix(), [0.0, 0.0, 0.04])
+    ee = motion.follow_poses(path, path[0], ee_grasp)
+    np.testing.assert_allclose(ee[:, :3, :3], np.broadcast_to(ee_grasp[:3, :3], (5, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(ee[:, 0, 3], np.linspace(0, 0.2, 5), atol=1e-12)
+
+
+def test_panda_forward_kinematics_matches_newton():
+    """The URDF chain in numpy gives Newton's body poses (eval_fk) for random joint coordinates."""
+    import warp as wp
+
+    from rose_usd.sim import panda
+    from rose_usd.sim.engine import newton as load_newton
+
+    newton = load_newton()
+    chain = panda.chain()
+    builder = newton.ModelBuilder()
+    builder.add_urdf(str(panda.panda_urdf()), floating=False, enable_self_collisions=False, hide_visuals=True)
+    model = builder.finalize(device="cpu")
+    state = model.state()
+    qs = np.random.default_rng(0).uniform(chain.lower, chain.upper, size=(4, 9))
+    for q in qs:
+        newton.eval_fk(model, wp.array(q.astype(np.float32)), model.joint_qd, state)
+        body_q = state.body_q.numpy()
+        mine = chain.forward(q)
+        for i, label in enumerate(builder.body_label):
+            link = chain.index(label.rsplit("/", 1)[-1])
+            np.testing.assert_allclose(body_q[i, :3], mine[link, :3, 3], atol=1e-5)
+            np.testing.assert_allclose(se3.matrix_from_quat_xyzw(body_q[i, 3:]), mine[link, :3, :3], atol=1e-5)
+
+
+def test_a_missing_robot_description_is_one_line(monkeypatch):
+    """Without the mani-skill wheel the error names the pip command that fixes it."""
+    from rose_usd.errors import EnvironmentProblem
+    from rose_usd.sim import panda
+
+    panda._urdf_path.cache_clear()
+    monkeypatch.setattr(panda, "URDF_IN_WHEEL", "mani_skill/assets/robots/panda/missing.urdf")
+    try:
+        with pytest.raises(EnvironmentProblem, match="pip install --no-deps"):
+            panda.panda_urdf()
+    finally:
+        panda._urdf_path.cache_clear()
+
+
+def test_flat_pads_open_as_wide_as_the_object_across_them():
+    """On an 8 cm cylinder an off-centre chord inside the friction cone is shorter than 8 cm, but
+    the pads must open to about the full diameter: closing_extent puts every such frame over a
+    7.6 cm limit (within a point sample's resolution of 8 cm)."""
+    mesh = trimesh.creation.cylinder(radius=0.04, height=0.1, sections=96)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    points, normals = grasps.sample_surface(vertices, faces, 800, np.random.default_rng(2))
+    pairs = grasps.antipodal_pairs(points, normals, friction=0.5, max_width_m=0.076)
+    assert len(pairs) > 0 and pairs.width.max() <= 0.076  # chords that pass a width test on their own
+    frames, _ = grasps.grasp_frames(pairs, 2)
+    cloud, _ = grasps.sample_surface(vertices, faces, 4000, np.random.default_rng(3))
+    extent = grasps.closing_extent(frames, cloud, 0.00875, (-0.00925, 0.00925))
+    horizontal = np.abs(frames[:, 2, 1]) < 0.1  # closing across the axis, not along it
+    assert np.all(extent[horizontal] > 0.076)
+    assert np.median(extent[horizontal]) == pytest.approx(0.08, abs=0.001)
