@@ -147,7 +147,8 @@ def run_case(
             result.error = result.error or f"{rec.path}: the stage is not valid ({rec.validation.errors[0]})"
         if rec.gate is not None:
             result.gate_passed, result.ssim_mean = bool(rec.gate.passed), round(float(rec.gate.ssim_mean), 4)
-        result.collect_success = _collect_success(rec)
+        if rec.collect is not None and rec.collect.rollouts:
+            result.collect_success = round(float(rec.collect.success_rate), 4)
         result.status = "done" if result.error is None else "failed"
     except RoseError as exc:
         result.error = exc.one_line()
@@ -159,16 +160,6 @@ def run_case(
         result.layers = _layer_hashes(out)
         _write_atomic(out / RECORD, json.dumps(asdict(result) | {"options": options_key}, indent=1))
     return asdict(result)
-
-
-def _collect_success(rec) -> float | None:
-    """The collect stage's success rate, when the stage has a robot layer."""
-    try:
-        from rose_usd.layers import robot
-    except ImportError:
-        return None
-    read = getattr(robot, "success_rate", None)
-    return None if read is None else read(rec.stage)
 
 
 def batch(
