@@ -6,7 +6,7 @@
 - A backend module (a ``StageDef.backends`` entry) imports no sibling backend module; what two
   backends of a stage share sits in a shared module of that stage.
 - Neutral packages (core, geometry, layers, io, usd, render, sim, case, ...) import no stage
-  package, and nothing below the orchestration (pipeline, plan, api, cli, registry, bench, synth)
+  package, and nothing below the orchestration (pipeline, plan, api, cli, registry, bench, synth, batch)
   imports it.
 """
 
@@ -24,7 +24,7 @@ from rose_usd.usd.schema import schema_dir
 
 PACKAGE = Path(__file__).resolve().parents[1] / "rose_usd"
 STAGES = set(registry.STAGE_NAMES)
-ORCHESTRATION = {"pipeline", "plan", "api", "cli", "registry", "bench", "synth", "__main__"}
+ORCHESTRATION = {"pipeline", "plan", "api", "cli", "registry", "bench", "synth", "batch", "__main__"}
 BACKEND_MODULES = {stage.name: {entry.split(":")[0] for entry in stage.backends.values()} for stage in registry.STAGES}
 
 
