@@ -50,7 +50,7 @@ def write_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
 def read_depth_m(path: str | os.PathLike) -> np.ndarray:
     """Metric depth [m], float32 (H, W), invalid pixels (0, NaN, inf, negative) set to 0.
 
-    uint16 PNG in millimeters (below 1 mm invalid), .npy or .exr in meters.
+    uint16 PNG in millimeters (0 and 65535, a sensor's saturation, invalid), .npy or .exr in meters.
     Raises InputError when a uint16 PNG looks like it holds meters (all values tiny)."""
     path = Path(path)
     suffix = path.suffix.lower()
@@ -84,14 +84,14 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
                 path=path,
                 hint="save depth as uint16 PNG in millimeters, or as .npy float meters",
             )
-        valid = raw[raw > 0]
+        valid = raw[(raw > 0) & (raw < 65535)]
         if valid.size and np.percentile(valid, 99) < 20:
             raise InputError(
                 f"uint16 depth values are all below {int(valid.max()) + 1}: they look like meters, not millimeters",
                 path=path,
                 hint="save depth PNGs in millimeters (meters x 1000), or as .npy float meters",
             )
-        depth = raw.astype(np.float32) / 1000.0
+        depth = np.where(raw == 65535, 0, raw).astype(np.float32) / 1000.0
     if depth.ndim != 2:
         raise InputError(f"depth has shape {depth.shape}, expected (H, W)", path=path, hint="store one depth channel")
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
