@@ -31,16 +31,19 @@ def _parse_assignments(values: list[str] | None, what: str) -> dict:
     for item in values or []:
         if "=" not in item:
             raise ConfigError(
-                f"{what} {item!r} is not KEY=VALUE",
+                f"{item!r} is not KEY=VALUE",
+                path=what,
                 hint=f"write e.g. {'capture=oracle' if what == '--backend' else 'gate.spp=16'}",
             )
         key, value = item.split("=", 1)
         if what == "--set":
             if "." not in key:
-                raise ConfigError(f"--set {item!r} needs STAGE.FIELD=VALUE", hint="write e.g. gate.spp=16")
+                raise ConfigError(f"{item!r} needs STAGE.FIELD=VALUE", path="--set", hint="write e.g. gate.spp=16")
             stage, field = key.split(".", 1)
             out.setdefault(stage.strip(), {})[field.strip().replace("-", "_")] = value.strip()
         else:
+            if not key.strip() or not value.strip():
+                raise ConfigError(f"{item!r} is not STAGE=NAME", path=what, hint="write e.g. capture=oracle")
             out[key.strip()] = value.strip()
     return out
 
@@ -54,11 +57,30 @@ def _size(text: str) -> tuple[int, int]:
     return width, height
 
 
+def _prompts(values: list[str]) -> tuple:
+    from rose_usd.case.config import parse_object_prompts
+
+    out = []
+    for value in values:
+        try:
+            out += parse_object_prompts([value])
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(str(exc), path="--prompt", hint="write e.g. --prompt Box=0:120,80,200,170") from None
+    return tuple(out)
+
+
 def _api_args(args) -> dict:
     settings = _parse_assignments(args.set, "--set")
+    options = {}
     if getattr(args, "prompt", None):
-        settings.setdefault("segment", {})["prompts"] = ";".join(args.prompt)
-    return {"backends": _parse_assignments(args.backend, "--backend"), "settings": settings, "force": args.force}
+        settings.setdefault("segment", {})["prompts"] = _prompts(args.prompt)
+        options["prompt_source"] = "--prompt"
+    return {
+        "backends": _parse_assignments(args.backend, "--backend"),
+        "settings": settings,
+        "force": args.force,
+        "options": options,
+    }
 
 
 def cmd_reconstruct(args) -> int:
