@@ -595,3 +595,51 @@ def test_bad_input(case, tmp_path, sample_case, oracle_out, capsys, monkeypatch)
         with open(os.environ["ROSE_CORPUS_LOG"], "a") as f:
             f.write(json.dumps({"id": case.id, "class": case.cls, "outcome": outcome, "err": err[-400:]}) + "\n")
     assert outcome == "clean", f"{outcome}: exit {code}\n{err[-3000:]}"
+
+
+# ----------------------------------------------------------------------------- what should work
+def short_case(src: Path, dst: Path, n: int) -> Path:
+    """The sample cut to its first ``n`` frames (no ground truth)."""
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("gt"))
+    for folder in ("rgb", "depth"):
+        for p in sorted((dst / folder).glob("*.png"))[n:]:
+            p.unlink()
+    return dst
+
+
+def test_depth_dropouts_are_skipped(tmp_path, sample_case, capsys):
+    """An all-zero and a saturated depth frame (sensor dropouts) are skipped with a warning: capture
+    succeeds, records them, and their cameras are interpolated (class 1)."""
+    from rose_usd.layers.world import read_cameras
+    from rose_usd.usd.stage import open_stage, read_provenance
+
+    case = short_case(sample_case, tmp_path / "case", 12)
+    cv2.imwrite(str(case / "depth" / "000004.png"), np.zeros((240, 320), np.uint16))
+    cv2.imwrite(str(case / "depth" / "000007.png"), np.full((240, 320), 65535, np.uint16))
+    out = tmp_path / "out"
+    assert main(["run", "capture", str(case), "-o", str(out)]) == 0, capsys.readouterr().err
+    prov = read_provenance(out / "layers" / "world.usda")
+    assert prov["results"]["depth_dropouts"] == [4, 7]
+    assert any("dropout" in w for w in prov["warnings"])
+    cameras = read_cameras(open_stage(out / "rose.usda"), 12)
+    centers = cameras.world_from_cv[:, :3, 3]
+    assert np.all(np.isfinite(centers))
+    # an interpolated camera lies between its neighbours
+    assert np.linalg.norm(centers[4] - (centers[3] + centers[5]) / 2) < 0.01
+
+
+def test_capture_on_another_case_removes_stale_layers(tmp_path, sample_case, oracle_out, capsys):
+    """Capture re-run on a 2-frame case into a folder holding the 48-frame reconstruction removes
+    the masks, scene, object, trajectory and gate it made stale: the folder is that capture alone,
+    and validate finds nothing to disagree about (class 2)."""
+    from rose_usd.usd.stage import consistency_problems, existing_layers, read_time_info
+
+    case = short_case(sample_case, tmp_path / "case", 2)
+    out = tmp_path / "out"
+    shutil.copytree(oracle_out, out)
+    assert main(["run", "capture", str(case), "-o", str(out)]) == 0, capsys.readouterr().err
+    assert existing_layers(out) == ["world"]
+    assert not any((out / side).exists() for side in ("masks", "textures", "trajectory", "report"))
+    assert read_time_info(out).n_frames == 2
+    assert consistency_problems(out) == []
+    assert [p.name for p in out.rglob(".*")] == []
