@@ -309,7 +309,12 @@ def cmd_bench_report(args) -> int:
 
 
 def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", required=True, help="output folder (rose.usda, layers/, masks/, report/)")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="output folder (rose.usda, layers/, masks/, report/); made if missing, checked before any work",
+    )
     p.add_argument(
         "--backend",
         action="append",
@@ -371,7 +376,10 @@ def _add_pipeline_commands(sub) -> None:
 
 def _add_stage_commands(sub) -> None:
     """inspect, diff, validate, stages: what a stage holds, without running anything."""
-    p = sub.add_parser("inspect", help="dump a stage: layers, prims, schemas, physics, meshes, cameras, gate")
+    p = sub.add_parser(
+        "inspect",
+        help="dump a stage: layers, prims, schemas, physics, meshes, cameras, gate; where its layers disagree",
+    )
     p.add_argument("stage", help="a .usda/.usd file (usually OUT/rose.usda)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--normalized", action="store_true", help="with --json: the stable form used by stages/ and diff")
@@ -385,7 +393,11 @@ def _add_stage_commands(sub) -> None:
     p.add_argument("--ignore", action="append", metavar="SUBSTRING", help="skip keys containing this (repeatable)")
     p.set_defaults(func=cmd_diff)
 
-    p = sub.add_parser("validate", help="run every pxr.UsdValidation validator and Newton's add_usd on a stage")
+    p = sub.add_parser(
+        "validate",
+        help="run every pxr.UsdValidation validator and Newton's add_usd on a stage; in an output folder, also"
+        " check that its layers were made from one another and one case",
+    )
     p.add_argument("stage")
     p.add_argument("--no-newton", action="store_true", help="skip the Newton load")
     p.set_defaults(func=cmd_validate)
