@@ -14,8 +14,26 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 DEPTH_SUFFIXES = (".png", ".npy", ".exr")
 
 
+def check_decodes(path: str | os.PathLike, what: str = "image") -> None:
+    """InputError naming ``path`` unless its pixels decode. Decoded with Pillow first because a broken
+    PNG or JPEG handed to OpenCV prints libpng/libjpeg messages on stderr besides our one line."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+    except (OSError, ValueError, SyntaxError, UnidentifiedImageError, Image.DecompressionBombError):
+        raise InputError(
+            f"cannot read this {what} (missing, truncated or not an image)",
+            path=path,
+            hint="replace or remove the file",
+        ) from None
+
+
 def read_rgb(path: str | os.PathLike) -> np.ndarray:
     """8-bit RGB image (H, W, 3)."""
+    if Path(path).suffix.lower() in IMAGE_SUFFIXES:
+        check_decodes(path)
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise InputError(
@@ -32,6 +50,7 @@ def write_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
     """Boolean mask (H, W): nonzero pixels of an 8-bit or paletted PNG."""
+    check_decodes(path, "mask")
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError(
@@ -70,6 +89,7 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
         if depth.ndim == 3:
             depth = depth[..., 0]
     else:
+        check_decodes(path, "depth image")
         raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if raw is None:
             raise InputError(
