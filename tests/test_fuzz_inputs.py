@@ -25,6 +25,9 @@ from hypothesis import strategies as st
 from rose_usd import registry
 from rose_usd.errors import RoseError
 
+# a numpy warning would print on stderr beside the one-line error: the readers must not raise any
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning", "error::UserWarning")
+
 EXAMPLES = int(os.environ.get("ROSE_FUZZ_EXAMPLES", "25"))
 FUZZ = settings(
     max_examples=EXAMPLES,

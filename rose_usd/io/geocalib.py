@@ -79,7 +79,9 @@ def read_geocalib(path: str | os.PathLike) -> GeoCalib:
     if "gravity" not in data:
         raise InputError("geocalib.json has no 'gravity'", path=path, hint=hint)
     up = _vector(data, "gravity", 3, path, hint)
-    if abs(np.linalg.norm(up) - 1.0) > 1e-3:
+    with np.errstate(over="ignore"):
+        norm = float(np.linalg.norm(up))
+    if abs(norm - 1.0) > 1e-3:
         raise InputError(f"'gravity' {up.tolist()} is not a unit 3-vector", path=path, hint=hint)
     roll, pitch = _vector(data, "rp", 2, path, hint) if "rp" in data else rp_from_up(up)
     if "rp" in data and np.degrees(np.arccos(np.clip(up @ up_from_rp(roll, pitch), -1, 1))) > 0.5:

@@ -132,7 +132,7 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     try:
         with Image.open(path) as im:
             return im.size
-    except (OSError, UnidentifiedImageError):
+    except (OSError, ValueError, SyntaxError, UnidentifiedImageError, Image.DecompressionBombError):
         raise InputError(
             "cannot read this image's header (truncated or not an image)", path=path, hint="replace or remove the file"
         ) from None

@@ -28,7 +28,8 @@ def read_gravity(path: str | os.PathLike, n_frames: int) -> np.ndarray:
         raise InputError(f"has shape {g.shape}, expected 1 or {n_frames} rows of 3", path=path, hint=HINT)
     if not np.all(np.isfinite(g)):
         raise InputError("has NaN or infinite gravity vectors", path=path, hint=HINT)
-    norms = np.linalg.norm(g, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norms = np.linalg.norm(g, axis=1)
     if np.any(norms < 1e-6) or np.any(norms > 1e6):
         raise InputError("has zero or absurd gravity vectors", path=path, hint=HINT)
     return np.broadcast_to(g, (n_frames, 3)).copy()

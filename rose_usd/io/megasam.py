@@ -64,8 +64,9 @@ def read_megasam(path: str | os.PathLike) -> MegaSamOutput:
     far = float(np.abs(out.cam_c2w[:, :3, 3]).max())
     if far > MAX_TRANSLATION:
         raise InputError(f"a camera lies {far:.3g} units away (more than {MAX_TRANSLATION:g})", path=path, hint=hint)
-    for t in range(n):
-        se3.check_rotation(out.cam_c2w[t, :3, :3].astype(float), tol=1e-2, what=f"cam_c2w[{t}]", path=path)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for t in range(n):
+            se3.check_rotation(out.cam_c2w[t, :3, :3].astype(float), tol=1e-2, what=f"cam_c2w[{t}]", path=path)
     h, w = out.images.shape[1:3]
     fx, fy, cx, cy = (float(out.intrinsic[i, j]) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))
     if not (fx > 0 and fy > 0 and 0 < cx < w and 0 < cy < h):

@@ -48,7 +48,8 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(
             "a position lies more than 10 km away", path=path, hint="positions are in meters; fix or remove those lines"
         )
-    norms = np.linalg.norm(data[:, 4:8], axis=1)
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(data[:, 4:8], axis=1)
     if np.any(np.abs(norms - 1.0) > 1e-3):
         bad = int(np.argmax(np.abs(norms - 1.0)))
         raise InputError(
