@@ -88,6 +88,7 @@ def reconstruct(
     force: bool = False,
     validate: bool = True,
     check: bool = True,
+    options: Mapping[str, Any] | None = None,
 ) -> Reconstruction:
     """Reconstruct a case (a folder or a video file) into ``out/rose.usda``.
 
@@ -106,6 +107,8 @@ def reconstruct(
         force: re-run the stages even when their layers are current (with ``until``, that stage only).
         validate: run every UsdValidation validator and Newton's ``add_usd`` on the result.
         check: raise the error of a failing stage; with False it is recorded in the result.
+        options: further :class:`rose_usd.pipeline.Options` fields (``settings_source``,
+            ``prompt_source``: what errors name as the source of ``settings``; the CLI's flags).
 
     Returns:
         A :class:`Reconstruction`: the plan, each stage's outcome, the gate's results, the
@@ -116,7 +119,11 @@ def reconstruct(
             (with ``check``).
     """
     t0 = time.perf_counter()
-    pipe = Pipeline(case, out, Options(backends=dict(backends or {}), settings=dict(settings or {}), force=force))
+    pipe = Pipeline(
+        case,
+        out,
+        Options(backends=dict(backends or {}), settings=dict(settings or {}), force=force, **dict(options or {})),
+    )
     outcomes = pipe.run(until, check=check)
     result = Reconstruction(
         case=Path(case),

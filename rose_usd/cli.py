@@ -31,16 +31,19 @@ def _parse_assignments(values: list[str] | None, what: str) -> dict:
     for item in values or []:
         if "=" not in item:
             raise ConfigError(
-                f"{what} {item!r} is not KEY=VALUE",
+                f"{item!r} is not KEY=VALUE",
+                path=what,
                 hint=f"write e.g. {'capture=oracle' if what == '--backend' else 'gate.spp=16'}",
             )
         key, value = item.split("=", 1)
         if what == "--set":
             if "." not in key:
-                raise ConfigError(f"--set {item!r} needs STAGE.FIELD=VALUE", hint="write e.g. gate.spp=16")
+                raise ConfigError(f"{item!r} needs STAGE.FIELD=VALUE", path="--set", hint="write e.g. gate.spp=16")
             stage, field = key.split(".", 1)
             out.setdefault(stage.strip(), {})[field.strip().replace("-", "_")] = value.strip()
         else:
+            if not key.strip() or not value.strip():
+                raise ConfigError(f"{item!r} is not STAGE=NAME", path=what, hint="write e.g. capture=oracle")
             out[key.strip()] = value.strip()
     return out
 
@@ -54,11 +57,30 @@ def _size(text: str) -> tuple[int, int]:
     return width, height
 
 
+def _prompts(values: list[str]) -> tuple:
+    from rose_usd.case.config import parse_object_prompts
+
+    out = []
+    for value in values:
+        try:
+            out += parse_object_prompts([value])
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(str(exc), path="--prompt", hint="write e.g. --prompt Box=0:120,80,200,170") from None
+    return tuple(out)
+
+
 def _api_args(args) -> dict:
     settings = _parse_assignments(args.set, "--set")
+    options = {}
     if getattr(args, "prompt", None):
-        settings.setdefault("segment", {})["prompts"] = ";".join(args.prompt)
-    return {"backends": _parse_assignments(args.backend, "--backend"), "settings": settings, "force": args.force}
+        settings.setdefault("segment", {})["prompts"] = _prompts(args.prompt)
+        options["prompt_source"] = "--prompt"
+    return {
+        "backends": _parse_assignments(args.backend, "--backend"),
+        "settings": settings,
+        "force": args.force,
+        "options": options,
+    }
 
 
 def cmd_reconstruct(args) -> int:
@@ -317,7 +339,12 @@ def cmd_bench_report(args) -> int:
 
 
 def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", required=True, help="output folder (rose.usda, layers/, masks/, report/)")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="output folder (rose.usda, layers/, masks/, report/); made if missing, checked before any work",
+    )
     p.add_argument(
         "--backend",
         action="append",
@@ -397,7 +424,10 @@ def _add_pipeline_commands(sub) -> None:
 
 def _add_stage_commands(sub) -> None:
     """inspect, diff, validate, stages: what a stage holds, without running anything."""
-    p = sub.add_parser("inspect", help="dump a stage: layers, prims, schemas, physics, meshes, cameras, gate")
+    p = sub.add_parser(
+        "inspect",
+        help="dump a stage: layers, prims, schemas, physics, meshes, cameras, gate; where its layers disagree",
+    )
     p.add_argument("stage", help="a .usda/.usd file (usually OUT/rose.usda)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--normalized", action="store_true", help="with --json: the stable form used by stages/ and diff")
@@ -411,7 +441,11 @@ def _add_stage_commands(sub) -> None:
     p.add_argument("--ignore", action="append", metavar="SUBSTRING", help="skip keys containing this (repeatable)")
     p.set_defaults(func=cmd_diff)
 
-    p = sub.add_parser("validate", help="run every pxr.UsdValidation validator and Newton's add_usd on a stage")
+    p = sub.add_parser(
+        "validate",
+        help="run every pxr.UsdValidation validator and Newton's add_usd on a stage; in an output folder, also"
+        " check that its layers were made from one another and one case",
+    )
     p.add_argument("stage")
     p.add_argument("--no-newton", action="store_true", help="skip the Newton load")
     p.set_defaults(func=cmd_validate)

@@ -19,7 +19,7 @@ from rose_usd.case.layout import Case, load_case
 from rose_usd.errors import ConfigError, RoseError, StageError
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext, StageDef, code_version
-from rose_usd.stage_config import build_config, config_hash, config_to_dict, flatten, setting_names
+from rose_usd.stage_config import build_config, check_config, config_hash, config_to_dict, flatten, setting_names
 from rose_usd.usd import stage as usd_stage
 
 _hash_cache: dict[tuple[str, int, int], str] = {}
@@ -57,6 +57,10 @@ class Options:
     """stage -> {field: value}."""
     force: bool = False
     """Re-run stages even when they are up to date."""
+    settings_source: str = "--set"
+    """What errors in ``settings`` name as their source."""
+    prompt_source: str = "--set"
+    """What errors in ``settings["segment"]["prompts"]`` name as their source."""
 
 
 @dataclass(frozen=True)
@@ -81,60 +85,96 @@ class Pipeline:
     """The stages of one case writing into one output folder."""
 
     def __init__(self, case: Case | str | Path, out_dir: str | Path, options: Options | None = None):
-        self.case = case if isinstance(case, Case) else load_case(case, registry.STAGE_NAMES)
-        self.out_dir = Path(out_dir)
         self.options = options or Options()
-        for stage in list(self.options.backends) + list(self.options.settings):
-            if stage != "all":
-                registry.get(stage)
+        self._check_option_stages()
+        self.case = case if isinstance(case, Case) else load_case(case, registry.STAGE_NAMES)
+        self.out_dir = usd_stage.check_out_dir(out_dir)
         self.time_info = usd_stage.TimeInfo(fps=self.case.fps, n_frames=self.case.n_frames)
         self._configs: dict[str, Any] = {}
+        self._unresolved: dict[str, Any] = {}
+        # one typed reading of every stage's settings (rose.toml, then the caller's), whichever
+        # stages this run involves: a mistake anywhere fails before anything is written
+        for stage_def in registry.STAGES:
+            self._unresolved[stage_def.name] = self._build_config(stage_def)
+        planning.check_categories(self.case)
+        prompts_given = "prompts" in flatten(self.options.settings.get("segment", {}))
+        planning.check_prompts(
+            self.case,
+            self._unresolved["segment"].prompts,
+            self.options.prompt_source if prompts_given else str(self.case.config.path or "rose.toml"),
+        )
+
+    def _check_option_stages(self) -> None:
+        sources = (("--backend", self.options.backends), (self.options.settings_source, self.options.settings))
+        for what, given in sources:
+            for stage in given:
+                if stage == "all" and what == "--backend":
+                    continue
+                if stage not in registry.STAGE_NAMES:
+                    raise ConfigError(
+                        f"unknown stage {stage!r}", path=what, hint=f"stages: {', '.join(registry.STAGE_NAMES)}"
+                    )
+        everyone = self.options.backends.get("all")
+        if everyone is not None:
+            name = everyone.value if isinstance(everyone, enum.Enum) else everyone
+            known = sorted({b for s in registry.STAGES for b in s.backends})
+            if not isinstance(name, str) or (name != planning.AUTO and name not in known):
+                raise ConfigError(
+                    f"no stage has a backend {name!r}", path="--backend", hint=f"backends: auto, {', '.join(known)}"
+                )
 
     # ------------------------------------------------------------------ config
-    def _backend_choice(self, stage_def: StageDef) -> BackendChoice | None:
+    def _backend_choice(self, stage_def: StageDef) -> tuple[BackendChoice | None, str | None]:
+        """The backend asked for and where it was asked (``--backend`` or rose.toml's path)."""
         choice = self.options.backends.get(stage_def.name)
-        if choice is None:
-            choice = self.case.config.backends.get(stage_def.name)
-        if choice is None and isinstance(self.options.backends.get("all"), str | enum.Enum):
-            everyone = self.options.backends["all"]
+        if choice is not None:
+            return choice, "--backend"
+        choice = self.case.config.backends.get(stage_def.name)
+        if choice is not None:
+            return choice, str(self.case.config.path or self.case.folder / "rose.toml")
+        everyone = self.options.backends.get("all")
+        if isinstance(everyone, str | enum.Enum):
             everyone = everyone.value if isinstance(everyone, enum.Enum) else everyone
             if everyone in stage_def.backends:
-                choice = everyone
-        return choice
+                return everyone, "--backend"
+        return None, None
 
     def config(self, stage_def: StageDef):
         """The stage's config with ``auto`` resolved (the layer records the backend that ran)."""
         if stage_def.name not in self._configs:
-            self._configs[stage_def.name] = self._build_config(stage_def)
+            config = self._unresolved[stage_def.name]
+            if config.backend.value == planning.AUTO:
+                backend = planning.resolve_auto(stage_def.name, self.case)
+                config = dataclasses.replace(config, backend=type(config.backend)(backend))
+            self._configs[stage_def.name] = config
         return self._configs[stage_def.name]
 
     def _build_config(self, stage_def: StageDef):
-        source = str(self.case.folder / "rose.toml")
-        choice = self._backend_choice(stage_def)
+        toml = str(self.case.config.path or self.case.folder / "rose.toml")
+        choice, where = self._backend_choice(stage_def)
         if isinstance(choice, stage_def.config):
-            config = choice
-        else:
-            values = dict(self.case.config.stage_overrides.get(stage_def.name, {}))
-            if choice is not None:
-                if isinstance(choice, enum.Enum):
-                    choice = choice.value
-                if not isinstance(choice, str) or (choice not in stage_def.backends and choice != planning.AUTO):
-                    given = f"{type(choice).__name__} instance" if dataclasses.is_dataclass(choice) else repr(choice)
-                    raise ConfigError(
-                        f"stage {stage_def.name!r} has no backend {given}",
-                        path=source if choice == self.case.config.backends.get(stage_def.name) else None,
-                        hint=f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}"
-                        f" (or a {stage_def.config.__name__})",
-                    )
-                values["backend"] = choice
-            names = setting_names(stage_def.config)
-            values = flatten(values, names)
-            values.update(flatten(self.options.settings.get(stage_def.name, {}), names))
-            config = build_config(stage_def.name, stage_def.config, values, source=source)
-        if config.backend.value == planning.AUTO:
-            backend = planning.resolve_auto(stage_def.name, self.case)
-            config = dataclasses.replace(config, backend=type(config.backend)(backend))
-        return config
+            return check_config(stage_def.name, choice, source=where)
+        if choice is not None:
+            if isinstance(choice, enum.Enum):
+                choice = choice.value
+            if not isinstance(choice, str) or (choice not in stage_def.backends and choice != planning.AUTO):
+                given = f"{type(choice).__name__} instance" if dataclasses.is_dataclass(choice) else repr(choice)
+                raise ConfigError(
+                    f"stage {stage_def.name!r} has no backend {given}",
+                    path=where,
+                    hint=f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}"
+                    f" (or a {stage_def.config.__name__})",
+                )
+        names = setting_names(stage_def.config)
+        from_toml = flatten(self.case.config.stage_overrides.get(stage_def.name, {}), names)
+        from_caller = flatten(self.options.settings.get(stage_def.name, {}), names)
+        # each source on its own first, so that an error names the one it is in
+        build_config(stage_def.name, stage_def.config, from_toml, source=toml, strict=True)
+        build_config(stage_def.name, stage_def.config, from_caller, source=self.options.settings_source)
+        values = {**from_toml, **from_caller}
+        if choice is not None:
+            values["backend"] = choice
+        return build_config(stage_def.name, stage_def.config, values, source=where)
 
     # ------------------------------------------------------------------ plan
     def plan(self, target: str | None = None) -> list[StageDef]:
@@ -198,11 +238,17 @@ class Pipeline:
         }
         func = stage_def.backend_function(config.backend.value)
         say(f"[{stage_def.name}] backend {config.backend.value}")
-        writer = usd_stage.LayerWriter(self.out_dir, stage_def.layer, self.time_info, provenance)
+        side_dirs = {s.layer: s.side_dirs for s in registry.STAGES}
+        writer = usd_stage.LayerWriter(self.out_dir, stage_def.layer, self.time_info, provenance, side_dirs)
         with writer:
             func(StageContext(stage_def, config, self.case, self.out_dir, self.time_info, writer))
         wall = float(writer.provenance["wall_time_s"])
         say(f"[{stage_def.name}] wrote {usd_stage.layer_file(self.out_dir, stage_def.layer)} in {wall:.1f} s")
+        if writer.removed:
+            say(
+                f"[{stage_def.name}] removed the layers it made stale: {', '.join(writer.removed)}"
+                " (re-run them, or `rose-usd reconstruct`)"
+            )
         return StageOutcome(stage_def.name, "ran", wall, config.backend.value)
 
     def run(self, target: str | None = None, *, check: bool = True) -> list[StageOutcome]:
@@ -213,6 +259,8 @@ class Pipeline:
         it is recorded in its outcome and the stages after it are ``not run``."""
         stages = self.plan(target)
         say(self.plan_line(stages))
+        for line in usd_stage.recover(self.out_dir):
+            say(f"[{self.out_dir}] {line}")
         outcomes: list[StageOutcome] = []
         failed: str | None = None
         for stage_def in stages:

@@ -98,6 +98,7 @@ def _need_sensor_depth(case: Case, plan: Mapping[str, str], stage: str) -> None:
             path=case.folder / "depth",
             hint="put one depth map per frame there (uint16 PNG in mm, or .npy in m), or pick another backend",
         )
+    case.check_depth()
 
 
 def _need_megasam(case: Case, plan: Mapping[str, str], stage: str) -> None:
@@ -107,6 +108,12 @@ def _need_megasam(case: Case, plan: Mapping[str, str], stage: str) -> None:
             path=case.perception_dir / "<scene>_sgd_cvd_hr.npz",
             hint="run MegaSaM and copy its npz there, or pick another capture backend",
         )
+    from rose_usd.io.megasam import read_megasam
+    from rose_usd.io.unidepth import read_unidepth
+
+    read_megasam(case.megasam_file())
+    for path in sorted((case.perception_dir / "unidepth").glob("*.npz")):
+        read_unidepth(path)
 
 
 def _need_metric_depth(case: Case, plan: Mapping[str, str], stage: str) -> None:
@@ -129,10 +136,31 @@ def _need_sam2_masks(case: Case, plan: Mapping[str, str], stage: str) -> None:
             path=case.sam2_dir,
             hint="put SAM 2's PNG masks there (DAVIS paletted, or one folder per object id)",
         )
+    from rose_usd.io.sam2 import check_mask_file, read_masks
+
+    for frame, entries in sorted(read_masks(case.sam2_dir).items()):
+        for object_id, path in sorted(entries.items()):
+            size = check_mask_file(path, paletted=object_id == 0)
+            if size != (case.width, case.height):
+                raise InputError(
+                    f"mask is {size[0]}x{size[1]}, the frames are {case.width}x{case.height}",
+                    path=path,
+                    hint="give SAM 2 masks at the frames' size",
+                )
+            if frame >= case.n_frames:
+                raise InputError(
+                    f"mask of frame {frame}, the video has {case.n_frames}",
+                    path=path,
+                    hint="give masks of this video's frames only",
+                )
 
 
 def _need_meshes(case: Case, plan: Mapping[str, str], stage: str) -> None:
+    from rose_usd.io.meshfile import read_mesh_file
+
     for spec in case.config.objects:
+        if case.mesh_file(spec) is not None:
+            read_mesh_file(case.mesh_file(spec))
         if case.mesh_file(spec) is None:
             raise InputError(
                 f"the object stage's imported backend needs a mesh of object {spec.name!r}, and there is none",
@@ -143,6 +171,8 @@ def _need_meshes(case: Case, plan: Mapping[str, str], stage: str) -> None:
 
 
 def _need_poses(case: Case, plan: Mapping[str, str], stage: str) -> None:
+    from rose_usd.io.foundationpose import read_track
+
     for spec in case.config.objects:
         if not case.has_poses(spec.name):
             raise InputError(
@@ -151,6 +181,7 @@ def _need_poses(case: Case, plan: Mapping[str, str], stage: str) -> None:
                 hint="put ob_in_cam/*.txt there (one folder per object when there are several),"
                 " or pick another backend",
             )
+        read_track(case.pose_dir(spec.name), [case.frame_name(t) for t in range(case.n_frames)])
 
 
 REQUIREMENTS: dict[str, Callable[[Case, Mapping[str, str], str], None]] = {
@@ -165,8 +196,70 @@ REQUIREMENTS: dict[str, Callable[[Case, Mapping[str, str], str], None]] = {
 """What a backend may require (``StageDef.requires``), and the check that it is there."""
 
 
+def _check_gravity_inputs(case: Case) -> None:
+    """The IMU's and GeoCalib's files, where the case has them (the capture's gravity reads them)."""
+    from rose_usd.io.geocalib import read_geocalib
+    from rose_usd.io.imu import read_gravity
+
+    imu = case.folder / "imu" / "gravity.txt"
+    if imu.is_file():
+        read_gravity(imu, case.n_frames)
+    geocalib = case.perception_dir / "geocalib.json"
+    if geocalib.is_file():
+        calib = read_geocalib(geocalib)
+        if calib.frame >= case.n_frames:
+            raise InputError(
+                f"geocalib.json is for frame {calib.frame}, the video has {case.n_frames}",
+                path=geocalib,
+                hint="calibrate a frame of this video",
+            )
+
+
+def check_categories(case: Case) -> None:
+    """Every object's category is known (a near miss of a known one is an error, naming rose.toml)."""
+    from rose_usd.errors import ConfigError
+    from rose_usd.object.priors import lookup
+
+    for spec in case.config.objects:
+        try:
+            lookup(spec.category)
+        except ConfigError as exc:
+            raise ConfigError(f"object {spec.name!r}: {exc.message}", path=case.config.path, hint=exc.hint) from None
+
+
+def check_prompts(case: Case, prompts, where: str) -> None:
+    """The objects' prompts, rose.toml's and ``prompts`` (segment.prompts, from ``where``), against
+    the objects and the video: every prompt names an object, lies on a frame and inside the image."""
+    from rose_usd.errors import ConfigError
+    from rose_usd.segment.prompts import check_prompts as check_inside
+    from rose_usd.segment.prompts import parse_prompts
+
+    specs = list(case.config.objects)
+    if prompts and not specs:
+        raise ConfigError(
+            f"prompt {str(prompts[0])!r} has no object to point at: rose.toml says objects = [] (a static scene)",
+            path=where,
+            hint="drop the prompt, or declare the object in rose.toml ([[objects]] name = ...)",
+        )
+    names = [s.name for s in specs]
+    for item in prompts:
+        name = item.name or (names[0] if len(names) == 1 else "")
+        if name not in names:
+            raise ConfigError(
+                f"prompt {str(item)!r} names no object of the case (its objects: {', '.join(names)})",
+                path=where,
+                hint=f"write e.g. {names[0]}=0:120,80,200,170",
+            )
+    specs = parse_prompts(prompts, specs)
+    from_cli = {p.name or specs[0].name for p in prompts} if prompts and specs else set()
+    for spec in specs:
+        source = where if spec.name in from_cli else (case.config.path or case.folder / "rose.toml")
+        check_inside([spec], case.width, case.height, case.n_frames, source)
+
+
 def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[str, ...]]) -> None:
-    """Check every requirement of the planned backends (stage -> backend), in run order.
+    """Check every requirement of the planned backends (stage -> backend), in run order, and
+    every imported file they read.
 
     Args:
         case: the case.
@@ -179,3 +272,5 @@ def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[
     for stage, needs in requires.items():
         for need in needs:
             REQUIREMENTS[need](case, plan, stage)
+    if plan.get("capture") in ("rgbd", "megasam"):
+        _check_gravity_inputs(case)

@@ -9,7 +9,10 @@ staleness hash and the layer's provenance cover the shared fields and the runnin
 nested config only: a setting of another backend never makes a layer stale.
 
 Values are converted to the field's type only where nothing is lost: ``"3"`` and ``3.0`` make an
-int 3, ``2.9`` is an error; a field may name its own parser in ``metadata["parse"]``.
+int 3, ``2.9`` is an error; a field may name its own parser in ``metadata["parse"]``. Numbers are
+range-checked: an int must be at least 1 and a float above 0 unless the field's metadata says
+otherwise (``min``/``max`` inclusive, ``below`` exclusive), so ``track_width = 0`` or
+``depth_max_m = -1`` is a one-line error, not a crash or a silent nonsense run.
 """
 
 from __future__ import annotations
@@ -99,8 +102,11 @@ def flatten(overrides: Mapping[str, Any], names: list[str] | None = None, prefix
     return out
 
 
-def build_config(stage: str, cls: type, overrides: Mapping[str, Any], *, source: str | None) -> Any:
-    """``cls`` with ``overrides`` (setting -> value, see :func:`flatten`) applied and type-checked."""
+def build_config(
+    stage: str, cls: type, overrides: Mapping[str, Any], *, source: str | None, strict: bool = False
+) -> Any:
+    """``cls`` with ``overrides`` (setting -> value, see :func:`flatten`) applied and type-checked;
+    with ``strict`` (values from TOML, which has types) text is not read as a number or a boolean."""
     nested = backend_configs(cls)
     names = setting_names(cls)
     shared: dict[str, Any] = {}
@@ -113,7 +119,14 @@ def build_config(stage: str, cls: type, overrides: Mapping[str, Any], *, source:
         owner, _, name = key.rpartition(".")
         target_cls = nested[owner] if owner else cls
         field = next(f for f in dataclasses.fields(target_cls) if f.name == name)
-        converted = coerce(f"{stage}.{key}", value, _hints(target_cls)[name], field, source)
+        kind = _hints(target_cls)[name]
+        if strict and isinstance(value, str) and kind in (bool, int, float):
+            raise ConfigError(
+                f"{stage}.{key} = {value!r} is text, not a {'boolean' if kind is bool else 'number'}",
+                path=source,
+                hint=f"write it without quotes (the default is {_plain(_default(field))!r})",
+            )
+        converted = coerce(f"{stage}.{key}", value, kind, field, source)
         (per_backend.setdefault(owner, {}) if owner else shared)[name] = converted
     for owner, values in per_backend.items():
         shared[owner] = nested[owner](**values)
@@ -127,21 +140,82 @@ def _setting_hint(key: str, names: list[str], stage: str) -> str:
     return f"settings: {', '.join(names)}"
 
 
+def limits(minimum: float | None = None, maximum: float | None = None, below: float | None = None) -> dict:
+    """Field metadata for a number's range when the default (int >= 1, float > 0) does not fit."""
+    out = {}
+    if minimum is not None:
+        out["min"] = minimum
+    if maximum is not None:
+        out["max"] = maximum
+    if below is not None:
+        out["below"] = below
+    return out
+
+
+def _check_range(value: Any, kind: Any, field: dataclasses.Field) -> None:
+    if kind not in (int, float) or isinstance(value, bool):
+        return
+    meta = field.metadata
+    if "min" in meta:
+        if value < meta["min"]:
+            raise ValueError(f"below {meta['min']:g}")
+    elif kind is int and value < 1:
+        raise ValueError("must be 1 or more")
+    elif kind is float and value <= 0:
+        raise ValueError("must be above 0")
+    if "max" in meta and value > meta["max"]:
+        raise ValueError(f"above {meta['max']:g}")
+    if "below" in meta and value >= meta["below"]:
+        raise ValueError(f"must be below {meta['below']:g}")
+
+
+def check_config(stage: str, config: Any, *, source: str | None) -> Any:
+    """Type- and range-check every field of a config instance (and its backends' nested
+    configs), as :func:`build_config` does for the values it is given; returns ``config``."""
+    nested = backend_configs(type(config))
+    hints = _hints(type(config))
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.name in nested:
+            if not isinstance(value, nested[f.name]):
+                raise ConfigError(
+                    f"{stage}.{f.name} is a {type(value).__name__}, not a {nested[f.name].__name__}",
+                    path=source,
+                    hint=f"give a {nested[f.name].__name__}",
+                )
+            check_config(f"{stage}.{f.name}", value, source=source)
+        elif f.metadata.get("parse") is None:
+            coerce(f"{stage}.{f.name}", value, hints[f.name], f, source)
+    return config
+
+
+def _default(field: dataclasses.Field) -> Any:
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return None
+
+
 def coerce(where: str, value: Any, kind: Any, field: dataclasses.Field, source: str | None) -> Any:
-    """``value`` as type ``kind``, or a ConfigError naming ``where``; never a lossy conversion."""
+    """``value`` as type ``kind``, or a ConfigError naming ``where``; never a lossy conversion,
+    never a number out of the field's range."""
     try:
         parse = field.metadata.get("parse")
         if parse is not None:
             return parse(value)
-        return _convert(value, kind)
+        converted = _convert(value, kind)
+        _check_range(converted, kind, field)
+        return converted
     except (ValueError, TypeError) as exc:
         allowed = ""
         if isinstance(kind, type) and issubclass(kind, enum.Enum):
             allowed = f" (one of {', '.join(m.value for m in kind)})"
-        default = field.default if field.default is not dataclasses.MISSING else None
+        default = _default(field)
         detail = f": {exc}" if str(exc) and not allowed else ""
+        shown = _plain(value) if isinstance(value, enum.Enum) else value
         raise ConfigError(
-            f"{where} = {value!r} is not valid{allowed}{detail}",
+            f"{where} = {shown!r} is not valid{allowed}{detail}",
             path=source,
             hint=f"the default is {_plain(default)!r}",
         ) from None

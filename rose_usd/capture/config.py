@@ -3,6 +3,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
+from rose_usd.stage_config import limits
+
 
 class CaptureBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
@@ -52,7 +54,7 @@ class CaptureConfig:
     """Which backend recovers the cameras (default auto: rgbd, megasam or oracle by what the case holds)."""
     gravity: GravityMethod = GravityMethod.AUTO
     """Where gravity comes from (default auto: imu, then geocalib, then the support plane)."""
-    fov_guess_deg: float = 60.0
+    fov_guess_deg: float = field(default=60.0, metadata=limits(below=180.0))
     """Horizontal field of view assumed when no intrinsics are given [deg] (default 60; a warning is recorded)."""
     depth_max_m: float = 3.0
     """Depth beyond this is ignored for tracking and gravity [m] (default 3)."""

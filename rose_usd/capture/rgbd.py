@@ -16,6 +16,7 @@ from rose_usd.capture.intrinsics import resolve_K
 from rose_usd.capture.static import still_fraction
 from rose_usd.capture.tracking import RgbdTracker, TrackingParams
 from rose_usd.capture.world import author_tracked_world, fused_points, locate
+from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.geometry.registration import DepthShift, find_depth_shift, shift_depth
 from rose_usd.layers.world import cached_frames
@@ -34,20 +35,27 @@ def run(ctx: StageContext) -> None:
     cfg = ctx.config
     downscale = max(1, int(round(case.width / cfg.rgbd.track_width)))
     params = TrackingParams(downscale=downscale, keyframe_every=cfg.rgbd.keyframe_every, depth_max_m=cfg.depth_max_m)
-    depth_of = cached_frames(case.depth_m, 64)
-
     n = case.n_frames
+    valid = case.depth_valid()
+    dropped = [int(t) for t in np.flatnonzero(~valid)]
+    if dropped:
+        ctx.warn(
+            f"{len(dropped)} depth frame(s) hold no valid depth (a sensor dropout): {dropped[:10]}"
+            f"{' ...' if len(dropped) > 10 else ''}; their cameras are interpolated from their neighbours"
+        )
+    depth_of = cached_frames(_nearest_valid(case.depth_m, valid), 64)
+
     still = still_fraction(case.rgb, n)
     shift = DepthShift(0, 0, 0.0, 0.0, 0)
     if still >= cfg.rgbd.static_fraction:
         poses = np.repeat(np.eye(4)[None], n, axis=0)
-        keyframes = list(range(0, n, max(1, n // 24)))
+        keyframes = [t for t in range(0, n, max(1, n // 24)) if valid[t]] or [int(np.flatnonzero(valid)[0])]
         tracking = {"static_camera": True}
         shift = _registration(ctx, depth_of)
         if shift.applies:
             depth_of = cached_frames(lambda t: shift_depth(case.depth_m(t), shift.dx, shift.dy), 64)
     else:
-        poses, keyframes, tracking = _track(ctx, K, params, depth_of)
+        poses, keyframes, tracking = _track(ctx, K, params, depth_of, valid)
     points = fused_points(depth_of, keyframes, K, poses, depth_max_m=cfg.depth_max_m)
     gravity, support, world_from_track, how = locate(ctx, poses, points, depth_of, K)
     author_tracked_world(
@@ -67,6 +75,7 @@ def run(ctx: StageContext) -> None:
         support_plane_inliers=support.inliers,
         planes=[{"inliers": p.inliers, "tilt_deg": round(p.angle_to_prior_deg, 2)} for p in gravity.planes],
         origin=how,
+        depth_dropouts=dropped,
         depth_shift={
             "dx": shift.dx,
             "dy": shift.dy,
@@ -78,12 +87,48 @@ def run(ctx: StageContext) -> None:
     )
 
 
-def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of):
-    """Poses of a moving camera by keyframe RGB-D tracking: (poses, keyframes, what to record)."""
+def _nearest_valid(depth_m, valid: np.ndarray):
+    """Depth of frame t, or of the nearest frame with valid depth when t's dropped out (used
+    where one frame's depth must stand for it: the prompt's anchor, the first view's center)."""
+    good = np.flatnonzero(valid)
+
+    def load(t: int) -> np.ndarray:
+        return depth_m(t if valid[t] else int(good[np.argmin(np.abs(good - t))]))
+
+    return load
+
+
+def _fill_dropped(poses_valid: np.ndarray, frames: np.ndarray, n: int) -> np.ndarray:
+    """Poses of all ``n`` frames from those of ``frames`` (sorted): interpolated between the valid
+    frames around a dropped one, held before the first and after the last."""
+    poses = np.repeat(np.eye(4)[None], n, axis=0)
+    poses[frames] = poses_valid
+    for t in range(n):
+        if t in frames:
+            continue
+        after = int(np.searchsorted(frames, t))
+        if after == 0:
+            poses[t] = poses_valid[0]
+        elif after == len(frames):
+            poses[t] = poses_valid[-1]
+        else:
+            a, b = frames[after - 1], frames[after]
+            poses[t] = se3.slerp_poses(poses_valid[after - 1], poses_valid[after], (t - a) / (b - a))
+    return poses
+
+
+def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of, valid: np.ndarray):
+    """Poses of a moving camera by keyframe RGB-D tracking over the frames with valid depth, the
+    others interpolated: (poses, keyframes, what to record)."""
     case = ctx.case
+    frames = np.flatnonzero(valid)
     result = RgbdTracker(K, case.width, case.height, params).track(
-        case.n_frames, lambda t: (case.rgb(t), depth_of(t), None)
+        len(frames), lambda i: (case.rgb(int(frames[i])), depth_of(int(frames[i])), None)
     )
+    poses = _fill_dropped(result.world_from_camera, frames, case.n_frames)
+    # the first camera is the tracking frame's origin even when its own depth dropped out
+    poses = np.einsum("ij,njk->nik", se3.invert(poses[0]), poses)
+    keyframes = [int(frames[k]) for k in result.keyframes]
     low = int(np.sum(result.fitness < params.min_fitness))
     if low:
         ctx.warn(
@@ -99,7 +144,7 @@ def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of):
         "fitness_min": round(float(result.fitness.min()), 3),
         "fitness_mean": round(float(result.fitness.mean()), 3),
     }
-    return result.world_from_camera, result.keyframes, record
+    return poses, keyframes, record
 
 
 def _registration(ctx: StageContext, depth_of) -> DepthShift:

@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import math
+import os
 import re
+import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +28,15 @@ MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
 MEGASAM_PATTERNS = ("*_sgd_cvd_hr.npz", "*_droid.npz")
 DEFAULT_FPS = 30.0
 _NUMBER = re.compile(r"(\d+)")
+
+
+def cache_dir() -> Path:
+    """Where rose_usd caches what it can make again (decoded video frames)."""
+    if os.environ.get("ROSE_USD_CACHE"):
+        return Path(os.environ["ROSE_USD_CACHE"])
+    if os.environ.get("XDG_CACHE_HOME"):
+        return Path(os.environ["XDG_CACHE_HOME"]) / "rose_usd"
+    return Path.home() / ".cache" / "rose_usd"
 
 
 def _frame_number(path: Path) -> int | None:
@@ -104,6 +117,7 @@ class Case:
                 )
         if self.video is not None:
             self._probe_video()
+            _ = self._video_frames  # decoded now: a truncated video fails before anything is written
         else:
             self.width, self.height = images.image_size(self.frame_paths[0])
             for p in self.frame_paths[1:]:
@@ -114,6 +128,7 @@ class Case:
                         path=p,
                         hint="all frames of a case must have one size",
                     )
+        self._depth_valid: np.ndarray | None = None
         self.depth_paths = self._find_depth()
         self.K_path = next(
             (
@@ -139,39 +154,62 @@ class Case:
                 hint="re-encode it as H.264 MP4 or extract PNG frames into rgb/",
             )
         self.height, self.width = frame.shape[:2]
-        self._video_fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+        self._video_fps = fps if math.isfinite(fps) and 0 < fps <= 1000 else None
         count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         cap.release()
         self._video_count = count if count > 0 else None
 
     @functools.cached_property
     def _video_frames(self) -> list[Path]:
-        """Decode the video once into a cache folder of PNGs keyed by the video's content hash."""
+        """Decode the video once into a cache folder of PNGs keyed by the video's content hash
+        (under ``$ROSE_USD_CACHE``, else ``$XDG_CACHE_HOME/rose_usd``, else ``~/.cache/rose_usd``).
+        A video that ends before the frame count its header announces is refused."""
         import cv2
 
         h = hashlib.sha256()
         with open(self.video, "rb") as f:
             for chunk in iter(lambda: f.read(1 << 20), b""):
                 h.update(chunk)
-        cache = Path.home() / ".cache" / "rose_usd" / "frames" / h.hexdigest()[:16]
+        cache = cache_dir() / "frames" / h.hexdigest()[:16]
         done = cache / ".complete"
         if not done.is_file():
-            cache.mkdir(parents=True, exist_ok=True)
-            cap = cv2.VideoCapture(str(self.video))
-            i = 0
-            while True:
-                ok, frame = cap.read()
-                if not ok:
-                    break
-                cv2.imwrite(str(cache / f"{i:06d}.png"), frame)
-                i += 1
-            cap.release()
-            if i == 0:
+            staging = cache.with_name(f".{cache.name}-{os.getpid()}")
+            try:
+                staging.mkdir(parents=True, exist_ok=True)
+                cap = cv2.VideoCapture(str(self.video))
+                i = 0
+                while True:
+                    ok, frame = cap.read()
+                    if not ok:
+                        break
+                    if not cv2.imwrite(str(staging / f"{i:06d}.png"), frame):
+                        raise OSError(f"cannot write {staging / f'{i:06d}.png'}")
+                    i += 1
+                cap.release()
+                if i == 0:
+                    raise InputError(
+                        "the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4"
+                    )
+                (staging / ".complete").write_text(str(i))
+                if cache.exists():
+                    shutil.rmtree(cache)
+                os.replace(staging, cache)
+            except OSError as exc:
                 raise InputError(
-                    "the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4"
-                )
-            done.write_text(str(i))
+                    f"cannot write the decoded frames' cache ({getattr(exc, 'strerror', None) or exc})",
+                    path=cache_dir(),
+                    hint="set ROSE_USD_CACHE to a folder you can write to",
+                ) from None
+            finally:
+                shutil.rmtree(staging, ignore_errors=True)
         n = int(done.read_text())
+        if self._video_count is not None and n < self._video_count - max(1, self._video_count // 100):
+            raise InputError(
+                f"the video ends after {n} of the {self._video_count} frames its header announces (truncated?)",
+                path=self.video,
+                hint="copy the whole file again, or re-encode it (ffmpeg -i in.mp4 -c:v libx264 video.mp4)",
+            )
         return [cache / f"{i:06d}.png" for i in range(n)]
 
     @property
@@ -218,6 +256,12 @@ class Case:
             if depth_dir is None or not depth_dir.is_dir():
                 return None
             paths = _sorted_frames(depth_dir, images.DEPTH_SUFFIXES, "depth")
+        if self.video is not None and len(paths) != self.n_frames:
+            raise InputError(
+                f"depth/ has {len(paths)} frames but {self.video.name} has {self.n_frames}",
+                path=depth_dir,
+                hint="give one depth map per video frame, or remove depth/",
+            )
         if self.video is None:
             if len(paths) != len(self.frame_paths):
                 raise InputError(
@@ -255,6 +299,38 @@ class Case:
             )
         return depth
 
+    MIN_VALID_DEPTH_FRACTION = 0.01
+    """A depth frame with valid depth on fewer of its pixels than this is a sensor dropout."""
+
+    def depth_valid(self) -> np.ndarray:
+        """Per frame, whether its depth map holds valid depth (at least 1 % of its pixels; an
+        all-zero, all-NaN or saturated frame is a dropout). Reads every depth map once, so a
+        broken one fails here, before anything is written."""
+        if self._depth_valid is None:
+            if self.depth_paths is None:
+                raise InputError("case has no depth/ folder", path=self.folder, hint="add depth/")
+            self._depth_valid = np.array(
+                [
+                    np.count_nonzero(self.depth_m(t)) >= self.MIN_VALID_DEPTH_FRACTION * self.width * self.height
+                    for t in range(len(self.depth_paths))
+                ]
+            )
+        return self._depth_valid
+
+    def check_depth(self) -> None:
+        """Refuse a depth video with too few valid frames (fewer than half, or than 2); a few
+        dropouts are skipped by the stages, with a warning."""
+        valid = self.depth_valid()
+        n_valid = int(valid.sum())
+        if n_valid < max(2, (len(valid) + 1) // 2):
+            folder = self.depth_paths[0].parent
+            raise InputError(
+                f"only {n_valid} of {len(valid)} depth frames hold valid depth (the others are empty, NaN or "
+                "saturated)",
+                path=folder,
+                hint="check the depth sensor's recording (or remove depth/ to run without depth)",
+            )
+
     # ------------------------------------------------------------------ intrinsics
     def K(self) -> np.ndarray:
         """The case's 3x3 intrinsics [px] from cam_K.txt, validated against the frame size."""
@@ -265,7 +341,9 @@ class Case:
                 hint="write the 3x3 intrinsics (fx 0 cx / 0 fy cy / 0 0 1) to cam_K.txt",
             )
         try:
-            K = np.loadtxt(self.K_path, dtype=float)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # an empty file: check_K says what it holds
+                K = np.loadtxt(self.K_path, dtype=float)
         except ValueError as exc:
             raise InputError(
                 f"not a numeric 3x3 matrix ({exc})", path=self.K_path, hint="write three rows of three numbers"

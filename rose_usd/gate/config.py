@@ -1,7 +1,9 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+from rose_usd.stage_config import limits
 
 
 class GateBackend(enum.Enum):
@@ -13,7 +15,7 @@ class GateBackend(enum.Enum):
 class GateConfig:
     backend: GateBackend = GateBackend.AUTO
     """How the stage is checked (default auto)."""
-    ssim_threshold: float = 0.75
+    ssim_threshold: float = field(default=0.75, metadata=limits(0.0, 1.0))
     """Mean SSIM needed to pass [-] (default 0.75; the paper's real videos score 0.71-0.80)."""
     spp: int = 8
     """Samples per pixel of the re-render (anti-aliasing; shading is noise-free) (default 8)."""
@@ -21,7 +23,7 @@ class GateConfig:
     """Re-render every k-th frame (default 1: all frames)."""
     exclude_interactor: bool = True
     """Leave the interactor's pixels (hand, arm) out of the SSIM mean: it is not reconstructed (default true)."""
-    interactor_dilate_px: int = 3
+    interactor_dilate_px: int = field(default=3, metadata=limits(0))
     """Grow the interactor mask by this many pixels before excluding it (default 3)."""
     physics: bool = True
     """Run the Newton rest check (default true)."""

@@ -14,8 +14,26 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 DEPTH_SUFFIXES = (".png", ".npy", ".exr")
 
 
+def check_decodes(path: str | os.PathLike, what: str = "image") -> None:
+    """InputError naming ``path`` unless its pixels decode. Decoded with Pillow first because a broken
+    PNG or JPEG handed to OpenCV prints libpng/libjpeg messages on stderr besides our one line."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+    except (OSError, ValueError, SyntaxError, UnidentifiedImageError, Image.DecompressionBombError):
+        raise InputError(
+            f"cannot read this {what} (missing, truncated or not an image)",
+            path=path,
+            hint="replace or remove the file",
+        ) from None
+
+
 def read_rgb(path: str | os.PathLike) -> np.ndarray:
     """8-bit RGB image (H, W, 3)."""
+    if Path(path).suffix.lower() in IMAGE_SUFFIXES:
+        check_decodes(path)
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise InputError(
@@ -32,6 +50,7 @@ def write_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
     """Boolean mask (H, W): nonzero pixels of an 8-bit or paletted PNG."""
+    check_decodes(path, "mask")
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError(
@@ -50,7 +69,7 @@ def write_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
 def read_depth_m(path: str | os.PathLike) -> np.ndarray:
     """Metric depth [m], float32 (H, W), invalid pixels (0, NaN, inf, negative) set to 0.
 
-    uint16 PNG in millimeters (below 1 mm invalid), .npy or .exr in meters.
+    uint16 PNG in millimeters (0 and 65535, a sensor's saturation, invalid), .npy or .exr in meters.
     Raises InputError when a uint16 PNG looks like it holds meters (all values tiny)."""
     path = Path(path)
     suffix = path.suffix.lower()
@@ -70,6 +89,7 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
         if depth.ndim == 3:
             depth = depth[..., 0]
     else:
+        check_decodes(path, "depth image")
         raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if raw is None:
             raise InputError(
@@ -84,14 +104,14 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
                 path=path,
                 hint="save depth as uint16 PNG in millimeters, or as .npy float meters",
             )
-        valid = raw[raw > 0]
+        valid = raw[(raw > 0) & (raw < 65535)]
         if valid.size and np.percentile(valid, 99) < 20:
             raise InputError(
                 f"uint16 depth values are all below {int(valid.max()) + 1}: they look like meters, not millimeters",
                 path=path,
                 hint="save depth PNGs in millimeters (meters x 1000), or as .npy float meters",
             )
-        depth = raw.astype(np.float32) / 1000.0
+        depth = np.where(raw == 65535, 0, raw).astype(np.float32) / 1000.0
     if depth.ndim != 2:
         raise InputError(f"depth has shape {depth.shape}, expected (H, W)", path=path, hint="store one depth channel")
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
@@ -112,7 +132,7 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     try:
         with Image.open(path) as im:
             return im.size
-    except (OSError, UnidentifiedImageError):
+    except (OSError, ValueError, SyntaxError, UnidentifiedImageError, Image.DecompressionBombError):
         raise InputError(
             "cannot read this image's header (truncated or not an image)", path=path, hint="replace or remove the file"
         ) from None

@@ -15,11 +15,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.io.npz import load_npz
 
 KEYS = ("images", "depths", "intrinsic", "cam_c2w")
+MAX_TRANSLATION = 1e4
+"""MegaSaM's translations are up to scale, but not this far."""
 DEPTH_CLIP = (1e-3, 1e2)
+FAR_CLIP = 99.0  # MegaSaM clips 1/disparity at 1e2: treat the clip as "no depth"
 
 
 @dataclass
@@ -55,6 +59,24 @@ def read_megasam(path: str | os.PathLike) -> MegaSamOutput:
         )
     if not (np.all(np.isfinite(out.cam_c2w)) and np.all(np.isfinite(out.intrinsic))):
         raise InputError("poses or intrinsics contain NaN", path=path, hint=hint)
+    if n == 0:
+        raise InputError("the npz holds no frames", path=path, hint=hint)
+    far = float(np.abs(out.cam_c2w[:, :3, 3]).max())
+    if far > MAX_TRANSLATION:
+        raise InputError(f"a camera lies {far:.3g} units away (more than {MAX_TRANSLATION:g})", path=path, hint=hint)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for t in range(n):
+            se3.check_rotation(out.cam_c2w[t, :3, :3].astype(float), tol=1e-2, what=f"cam_c2w[{t}]", path=path)
+    h, w = out.images.shape[1:3]
+    fx, fy, cx, cy = (float(out.intrinsic[i, j]) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))
+    if not (fx > 0 and fy > 0 and 0 < cx < w and 0 < cy < h):
+        raise InputError(
+            f"intrinsic fx={fx:g} fy={fy:g} cx={cx:g} cy={cy:g} does not fit its {w}x{h} images", path=path, hint=hint
+        )
+    for t in range(n):
+        d = out.depths[t].astype(np.float32)
+        if np.count_nonzero(np.isfinite(d) & (d > 0) & (d < FAR_CLIP)) < 0.01 * d.size:
+            raise InputError(f"depth of frame {t} holds no valid value (NaN, zero or clipped)", path=path, hint=hint)
     return out
 
 
@@ -68,9 +90,6 @@ def write_megasam(path: str | os.PathLike, out: MegaSamOutput, *, depth_dtype=np
         intrinsic=np.asarray(out.intrinsic, dtype=np.float32),
         cam_c2w=np.asarray(out.cam_c2w, dtype=np.float32),
     )
-
-
-FAR_CLIP = 99.0  # MegaSaM clips 1/disparity at 1e2: treat the clip as "no depth"
 
 
 def metric_from_megasam(relative: np.ndarray, alpha: float, beta: float, width: int, height: int) -> np.ndarray:

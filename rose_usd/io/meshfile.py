@@ -63,4 +63,19 @@ def read_mesh_file(path: str | os.PathLike) -> trimesh.Trimesh:
         loaded = loaded.to_mesh() if hasattr(loaded, "to_mesh") else loaded.dump(concatenate=True)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise MeshError("the file holds no triangles", path=path, hint="export a triangle mesh")
+    check_vertices(loaded, path)
     return loaded
+
+
+def check_vertices(mesh: trimesh.Trimesh, path: Path) -> None:
+    """MeshError unless the vertices are finite, within 1 km, and the faces index them."""
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    if not np.all(np.isfinite(vertices)):
+        raise MeshError("the mesh has NaN or infinite vertices", path=path, hint="export it again")
+    if np.abs(vertices).max() > 1e3:
+        raise MeshError(
+            f"the mesh reaches {np.abs(vertices).max():.3g} units from its origin", path=path, hint="export it again"
+        )
+    faces = np.asarray(mesh.faces)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise MeshError("the mesh's faces index vertices it does not have", path=path, hint="export it again")

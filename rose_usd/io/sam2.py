@@ -66,18 +66,37 @@ def read_masks(folder: str | os.PathLike) -> dict[int, dict[int, Path]]:
     return frames
 
 
+def _open(path: Path) -> Image.Image:
+    try:
+        img = Image.open(path)
+        img.load()
+    except (OSError, ValueError, Image.DecompressionBombError) as exc:
+        raise InputError(
+            f"cannot read this mask ({type(exc).__name__})", path=path, hint="save SAM 2 masks as PNG images"
+        ) from None
+    return img
+
+
+def check_mask_file(path: Path, *, paletted: bool) -> tuple[int, int]:
+    """Open one SAM 2 mask (fully decoded) and return its (width, height); InputError naming it when
+    it is not an image, or not a paletted/grey PNG of object ids where ``paletted``."""
+    with _open(path) as img:
+        if paletted and img.mode not in ("P", "L"):
+            raise InputError(
+                f"mask is mode {img.mode}, expected a paletted (P) PNG of object ids",
+                path=path,
+                hint="save SAM 2 masks as DAVIS paletted PNGs",
+            )
+        return img.size
+
+
 def read_object_mask(entries: dict[int, Path], object_id: int) -> np.ndarray:
     """Boolean mask of ``object_id`` in one frame's entries from :func:`read_masks`."""
     if 0 in entries:
-        with Image.open(entries[0]) as img:
-            if img.mode not in ("P", "L"):
-                raise InputError(
-                    f"mask is mode {img.mode}, expected a paletted (P) PNG of object ids",
-                    path=entries[0],
-                    hint="save SAM 2 masks as DAVIS paletted PNGs",
-                )
+        check_mask_file(entries[0], paletted=True)
+        with _open(entries[0]) as img:
             return np.asarray(img) == object_id
     if object_id not in entries:
         return None
-    with Image.open(entries[object_id]) as img:
+    with _open(entries[object_id]) as img:
         return np.asarray(img.convert("L")) > 0

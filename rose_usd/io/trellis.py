@@ -11,6 +11,7 @@ import numpy as np
 import trimesh
 
 from rose_usd.errors import MeshError
+from rose_usd.io.meshfile import check_vertices
 
 # Z-up (x, y, z) -> glTF Y-up (x, z, -y): a rotation of -90 degrees about X
 Y_UP_FROM_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -47,8 +48,9 @@ def read_trellis_glb(path: str | os.PathLike) -> trimesh.Trimesh:
             f"cannot read the GLB ({type(exc).__name__}: {exc})", path=path, hint="export it again from TRELLIS"
         ) from None
     mesh = loaded.to_mesh() if isinstance(loaded, trimesh.Scene) else loaded
-    if len(mesh.faces) == 0:
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise MeshError("the GLB holds no triangles", path=path, hint="export it again from TRELLIS")
+    check_vertices(mesh, path)
     extent = np.abs(mesh.vertices).max()
     if extent > 0.5 + 1e-3:
         raise MeshError(

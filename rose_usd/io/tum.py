@@ -44,7 +44,12 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     data = np.asarray(rows)
     if not np.all(np.isfinite(data)):
         raise InputError("trajectory contains NaN or infinite values", path=path, hint="remove or fix those lines")
-    norms = np.linalg.norm(data[:, 4:8], axis=1)
+    if np.abs(data[:, 1:4]).max() > 1e4:
+        raise InputError(
+            "a position lies more than 10 km away", path=path, hint="positions are in meters; fix or remove those lines"
+        )
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(data[:, 4:8], axis=1)
     if np.any(np.abs(norms - 1.0) > 1e-3):
         bad = int(np.argmax(np.abs(norms - 1.0)))
         raise InputError(

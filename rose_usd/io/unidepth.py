@@ -28,7 +28,12 @@ def read_unidepth(path: str | os.PathLike) -> UniDepthFrame:
     depth = np.asarray(data["depth"], dtype=np.float32)
     if depth.ndim != 2:
         raise InputError(f"depth has shape {depth.shape}, expected [H, W]", path=path, hint=hint)
-    fov = float(np.asarray(data["fov"]).reshape(-1)[0])
+    if not np.all(np.isfinite(depth)) and not np.any(np.isfinite(depth) & (depth > 0)):
+        raise InputError("depth holds no finite value", path=path, hint=hint)
+    try:
+        fov = float(np.asarray(data["fov"], dtype=float).reshape(-1)[0])
+    except (TypeError, ValueError, IndexError):
+        raise InputError("fov is not a number", path=path, hint=hint) from None
     if not 1.0 < fov < 179.0:
         raise InputError(f"fov {fov:g} is not a field of view in degrees", path=path, hint=hint)
     intr = np.asarray(data["intrinsics"], dtype=float).reshape(3, 3) if "intrinsics" in data.files else None

@@ -3,6 +3,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
+from rose_usd.stage_config import limits
+
 
 class ObjectBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
@@ -28,7 +30,7 @@ class ImportedConfig:
     """rho is searched in [rho_0 / alpha, rho_0 * alpha] (the paper's Eq. 3) [-] (default 1.5)."""
     scale_search_steps: int = 15
     """Log-spaced scales tried over that range before refining around the best (default 15)."""
-    scale_depth_weight: float = 0.1
+    scale_depth_weight: float = field(default=0.1, metadata=limits(0.0))
     """Scale and pose minimize (1 - silhouette IoU) + this x the depth fit's RMS in mm
     (default 0.1: a millimeter of RMS weighs as much as 0.1 of IoU)."""
 
@@ -39,7 +41,7 @@ class ObjectConfig:
     """Which backend reconstructs the object(s) (default auto)."""
     voxel_m: float = 0.002
     """fusion, imported: point spacing of the fused resting object (and of the completed one) [m] (default 0.002)."""
-    support_gap_m: float = 0.003
+    support_gap_m: float = field(default=0.003, metadata=limits(0.0))
     """fusion, imported: resting points this near the support are dropped as table [m] (default 0.003)."""
     rest_tolerance_m: float = 0.01
     """fusion, imported: the object rests while its median point stays this near its first one [m]

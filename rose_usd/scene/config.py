@@ -3,6 +3,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
+from rose_usd.stage_config import limits
+
 
 class SceneBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
@@ -18,9 +20,9 @@ class TsdfConfig:
     """TSDF voxel size [m] (default 0.008)."""
     frame_stride: int = 2
     """Fuse every n-th frame (default 2)."""
-    mask_margin_px: int = 6
+    mask_margin_px: int = field(default=6, metadata=limits(0))
     """Object and interactor masks are dilated by this many pixels before fusion (default 6)."""
-    carve_m: float = 0.01
+    carve_m: float = field(default=0.01, metadata=limits(0.0))
     """Fused surface above the support this near to points of the object masks is removed [m] (default 0.01)."""
     depth_max_m: float = 5.0
     """Depth beyond this is not fused [m] (default 5: all a Kinect-class sensor gives)."""
@@ -31,7 +33,7 @@ class TsdfConfig:
     than a centimetre, and an object whose edge overhangs its pad tips in simulation)."""
     alpha_m: float = 0.03
     """Alpha wrapping's alpha, the largest gap it bridges [m] (default 0.03)."""
-    offset_m: float = 0.002
+    offset_m: float = field(default=0.002, metadata=limits(0.0))
     """Alpha wrapping's offset from the fused surface [m] (default 0.002)."""
     thickness_m: float = 0.02
     """The collider is solidified this far below the fused surface [m] (default 0.02)."""

@@ -4,6 +4,7 @@ import enum
 from dataclasses import dataclass, field
 
 from rose_usd.case.config import ObjectPrompt, parse_object_prompts
+from rose_usd.stage_config import limits
 
 
 class SegmentBackend(enum.Enum):
@@ -54,7 +55,7 @@ class Sam2Config:
 
     ids: tuple[tuple[str, int], ...] = field(default=(), metadata={"parse": parse_sam2_ids})
     """Object ids as "Name=id,Name=id" (default: the objects of rose.toml in order, ids 1, 2, ...)."""
-    interactor_id: int = 0
+    interactor_id: int = field(default=0, metadata=limits(0))
     """The id SAM 2 gave the hand, 0 if it was not prompted (the interactor is then the static-world residual)."""
 
 

@@ -3,6 +3,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
+from rose_usd.stage_config import limits
+
 
 class TrajectoryBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
@@ -19,21 +21,21 @@ class TrackerConfig:
     """Points sampled on the object mesh to register against (default 3000)."""
     max_points: int = 1500
     """At most this many masked depth points per frame (default 1500)."""
-    erode_px: int = 2
+    erode_px: int = field(default=2, metadata=limits(0))
     """The object's mask is eroded by this many pixels (mixed depth at its border) [px] (default 2)."""
     min_points: int = 60
     """A frame with fewer masked depth points is lost (default 60)."""
-    min_fitness: float = 0.3
+    min_fitness: float = field(default=0.3, metadata=limits(0.0, 1.0))
     """A fit with fewer observed points within 5 mm of the mesh is lost [-] (default 0.3)."""
-    prior_weight: float = 0.001
+    prior_weight: float = field(default=0.001, metadata=limits(0.0))
     """Pull toward the constant-velocity prediction, a fraction of the depth's mean stiffness
     (trace of the ICP Hessian / 6) [-] (default 0.001)."""
     smooth_window: int = 5
     """Frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""
-    release_frames: int = 10
+    release_frames: int = field(default=10, metadata=limits(0))
     """An object may move for this many frames after the interactor last touched it (it
     settles) (default 10)."""
-    slide_span_m: float = 0.0
+    slide_span_m: float = field(default=0.0, metadata=limits(0.0))
     """Where depth leaves a direction free (a can seen only by its wall), slide the pose
     along it up to this far to where fitness plus silhouette IoU is best; 0 turns it off [m]
     (default 0: it rarely changes the pose by more than a fraction of a millimetre and can cost

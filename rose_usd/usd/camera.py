@@ -68,12 +68,28 @@ def check_K(K: np.ndarray, width: int, height: int, *, path=None) -> np.ndarray:
             path=path,
             hint="K must be in pixels of the frames as stored (rescale K if the frames were resized)",
         )
-    if not (0.1 * max(width, height) < fx < 20 * max(width, height)):
+    if not (0.25 * width <= cx <= 0.75 * width and 0.25 * height <= cy <= 0.75 * height):
         raise InputError(
-            f"focal length fx={fx:g} px is implausible for a {width}x{height} image (field of view "
-            f"{np.degrees(2 * np.arctan(width / (2 * fx))):.1f} deg)",
+            f"principal point ({cx:g}, {cy:g}) lies far from the center of the {width}x{height} image "
+            "(a camera's is within a quarter of the size of it)",
             path=path,
-            hint="K must be in pixels of the frames as stored",
+            hint="K's cx, cy are in pixels (about width/2, height/2), not normalized",
+        )
+    for name, f, size in (("fx", fx, width), ("fy", fy, height)):
+        if not (0.1 * max(width, height) < f < 20 * max(width, height)):
+            fov = float(np.degrees(2 * np.arctan(size / f / 2)))
+            raise InputError(
+                f"focal length {name}={f:g} px is implausible for a {width}x{height} image (field of view "
+                f"{fov:.1f} deg)",
+                path=path,
+                hint="K must be in pixels of the frames as stored",
+            )
+    if not 0.8 <= fx / fy <= 1.25:
+        raise InputError(
+            f"fx={fx:g} and fy={fy:g} differ by a factor {max(fx / fy, fy / fx):.2f}: pixels this far from "
+            "square are a mistake",
+            path=path,
+            hint="write fx 0 cx / 0 fy cy / 0 0 1 with fx and fy in pixels of this image size",
         )
     return K
 

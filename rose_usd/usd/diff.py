@@ -15,16 +15,25 @@ from rose_usd.usd.inspect import dump, normalize
 def load_dump(path: str | os.PathLike) -> dict[str, Any]:
     """A normalized dump of a stage file (.usd/.usda/.usdc) or of a saved dump (.json)."""
     path = Path(path)
-    if path.suffix == ".json":
+    hint = "give a stage file or the output of `rose-usd inspect --json`"
+    if path.suffix.lower() == ".json":
         try:
-            return normalize(json.loads(path.read_text()))
-        except json.JSONDecodeError as exc:
+            data = json.loads(path.read_bytes().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"not a JSON dump ({exc})", path=path, hint=hint) from None
+        missing = [k for k in DUMP_KEYS if not isinstance(data, dict) or k not in data]
+        if missing or not isinstance(data.get("prims"), dict) or not isinstance(data.get("layers"), list):
             raise InputError(
-                f"not a JSON dump ({exc})",
+                "not a dump of a stage (it lacks " + ", ".join(repr(k) for k in missing or ["prims", "layers"]) + ")",
                 path=path,
-                hint="give a stage file or the output of `rose-usd inspect --json`",
-            ) from None
+                hint=hint,
+            )
+        return normalize(data)
     return normalize(dump(path))
+
+
+DUMP_KEYS = ("metadata", "layers", "prims")
+"""What every ``rose-usd inspect --json`` dump holds."""
 
 
 def _flatten(data: Any, prefix: str = "") -> dict[str, Any]:

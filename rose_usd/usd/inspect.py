@@ -176,6 +176,10 @@ def dump(path: str | os.PathLike) -> dict[str, Any]:
                 versions=prov.get("versions"),
             )
         out["layers"].append(entry)
+    if path.name == paths.ROOT_FILE:
+        problems = stage_mod.consistency_problems(path.parent)
+        if problems:  # absent when the layers agree (the normalized reference dumps stay as they are)
+            out["problems"] = problems
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         p: dict[str, Any] = {"type": prim.GetTypeName()}
         schemas = list(prim.GetAppliedSchemas())
@@ -257,6 +261,8 @@ def to_text(data: dict[str, Any]) -> str:
         lines.append(f"  {layer['name']:<11} {layer.get('specs', 0):>5} specs  backend {layer.get('backend')}  {wall}")
         for warning in layer.get("warnings") or []:
             lines.append(f"      warning: {warning}")
+    for problem in data.get("problems", []):
+        lines.append(f"  LAYERS DISAGREE: {problem}")
     lines.append("prims:")
     for path, p in data["prims"].items():
         lines += _prim_lines(path, p)

@@ -57,6 +57,41 @@ def check_name(name: str, *, what: str = "object name") -> str:
     return name
 
 
+RESERVED_NAMES = frozenset(
+    p.name
+    for p in (
+        WORLD,
+        PHYSICS_SCENE,
+        CAMERAS,
+        CAMERA,
+        SCENE,
+        SCENE_VISUAL,
+        SCENE_COLLISION,
+        SCENE_LIGHTS,
+        SCENE_LOOKS,
+        OBJECTS,
+        MASKS,
+        INTERACTOR_MASK,
+        GATE,
+        ROBOTS,
+    )
+)
+"""Prim names rose_usd itself uses: an object named like one would share its prim, mask key or
+folder (an object named ``Interactor`` lost its masks to the hand's)."""
+
+
+def check_object_name(name: str) -> str:
+    """Return ``name`` if it can name an object: a valid prim name that is none of
+    :data:`RESERVED_NAMES` (in any letter case: folders are named after objects); else ConfigError."""
+    check_name(name)
+    if name.lower() in {r.lower() for r in RESERVED_NAMES}:
+        raise ConfigError(
+            f"object name {name!r} is reserved",
+            hint=f"rose_usd itself uses {', '.join(sorted(RESERVED_NAMES))}; call the object e.g. {name}Object",
+        )
+    return name
+
+
 def object_path(name: str) -> Sdf.Path:
     return OBJECTS.AppendChild(check_name(name))
 

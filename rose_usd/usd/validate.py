@@ -72,6 +72,9 @@ def validate(path: str | os.PathLike, *, with_newton: bool = True) -> Validation
     report = ValidationReport(path=str(path))
     stage = stage_mod.open_stage(path)  # composition errors raise
     report.validators, report.errors, report.warnings = usd_validation(stage)
+    if path.name == stage_mod.paths.ROOT_FILE:
+        # an output folder: its layers must have been made from one another and from one case
+        report.errors[:0] = stage_mod.consistency_problems(path.parent)
     if with_newton:
         try:
             report.newton = newton_load(path)
