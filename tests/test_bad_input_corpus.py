@@ -367,7 +367,7 @@ CORPUS: list[Bad] = [
     _c("mix-other-case", 2, mixed, "layers/", "another case"),
     _c("mix-remade-object", 2, changed_object, "layers/trajectory.usda"),
     _c("mix-root-time-range", 2, short_root, "rose.usda"),
-    _c("mix-lost-upstream", 2, lost_layer, "layers/gate.usda"),
+    _c("mix-lost-upstream", 2, lost_layer, "layers/trajectory.usda"),
     # 3. physics overrides
     _toml_case("mass-negative", 3, "mass_kg = -1", "mass_kg"),
     _toml_case("mass-zero", 3, "mass_kg = 0", "mass_kg"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from rose_usd import registry
 from rose_usd.errors import ConfigError
 from rose_usd.object.config import ObjectBackend, ObjectConfig
 from rose_usd.segment.config import SegmentConfig
@@ -94,3 +95,13 @@ def test_rose_toml_tables_and_command_line_settings(case_copy, tmp_path):
     assert pipe.config(registry.get("segment")).sam2.ids == (("Box", 2),)
     pipe = Pipeline(case_copy, tmp_path / "out", Options(settings={"object": {"fusion.revolution_tolerance": "0.06"}}))
     assert pipe.config(registry.get("object")).fusion.revolution_tolerance == 0.06
+
+
+@pytest.mark.parametrize("stage", registry.STAGES, ids=lambda s: s.name)
+def test_every_default_can_be_given_back(stage):
+    """Each setting's default, given on the command line, passes its own type and range check
+    (a 0 that means "off" must not be refused as out of range)."""
+    config = stage.config()
+    values = flatten(config_to_dict(config, running_only=False), setting_names(stage.config))
+    rebuilt = build_config(stage.name, stage.config, values, source="--set")
+    assert config_to_dict(rebuilt, running_only=False) == config_to_dict(config, running_only=False)

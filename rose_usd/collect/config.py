@@ -3,6 +3,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
+from rose_usd.stage_config import limits
+
 
 class CollectBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
@@ -57,12 +59,12 @@ class CollectConfig:
     perturbations: int = 2
     """Rollouts per grasp: the first as reconstructed, the others with the object's pose, mass
     and friction perturbed (default 2)."""
-    seed: int = 0
+    seed: int = field(default=0, metadata=limits(0))
     """Seed of the grasp sampling and the perturbations (default 0)."""
     base: tuple[float, ...] = field(default=(), metadata={"parse": parse_base})
     """Robot base "x,y" or "x,y,yaw_deg" in the world [m, deg], on the support's height
     (default "": placed where the whole path is best reachable)."""
-    lift_m: float = 0.01
+    lift_m: float = field(default=0.01, metadata=limits(0.0))
     """The object is carried this far above its reconstructed path, clear of the support [m] (default 0.01)."""
     max_width_m: float = 0.076
     """Widest grasp: the Panda opens 0.08 m, less a clearance (default 0.076)."""
@@ -72,9 +74,9 @@ class CollectConfig:
     """Points sampled on the object's visual mesh for antipodal pairs (default 400)."""
     approach_turns: int = 12
     """Approach directions tried about each pair's closing axis (default 12)."""
-    pose_noise_m: float = 0.005
+    pose_noise_m: float = field(default=0.005, metadata=limits(0.0))
     """Largest perturbation of the object's position [m] (default 0.005)."""
-    pose_noise_deg: float = 5.0
+    pose_noise_deg: float = field(default=5.0, metadata=limits(0.0))
     """Largest perturbation of the object's yaw [deg] (default 5)."""
     approach_s: float = 1.5
     """Time from the home pose to the pre-grasp pose [s] (default 1.5)."""

@@ -41,7 +41,7 @@ class TsdfConfig:
     """Triangle budget of the scene mesh (default 60000)."""
     texture_size: int = 2048
     """Baked texture width and height [px] (default 2048)."""
-    texture_frames: int = 24
+    texture_frames: int = field(default=24, metadata=limits(0))
     """Texels take the median color of their projections into this many frames spread over
     the video; 0: the fused points' 3-NN colors (default 24)."""
 
