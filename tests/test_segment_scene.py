@@ -271,7 +271,7 @@ def test_a_still_box_whose_top_a_hand_covers_has_not_moved():
     covering the top half of a box that stands still moves that mean down by half its height."""
     import trimesh
 
-    from rose_usd.segment.segmenter import _shift
+    from rose_usd.segment.motion import translation as _shift
 
     box = np.asarray(trimesh.sample.sample_surface_even(trimesh.creation.box([0.1, 0.1, 0.08]), 4000, seed=0)[0])
     rng = np.random.default_rng(1)

@@ -52,6 +52,7 @@ from rose_usd.errors import InputError
 from rose_usd.geometry.background import StaticBackground
 from rose_usd.geometry.support import SupportSurface
 from rose_usd.segment.config import SegmentConfig
+from rose_usd.segment.motion import diameter, rigid_motion, rotation_matrix, subsample
 
 BINS = 16
 
@@ -134,7 +135,7 @@ class ObjectTrack:
     def predicted(self) -> np.ndarray:
         """The points moved by the last motion (turned about their centre, then shifted)."""
         centre = np.median(self.points, axis=0)
-        return (self.points - centre) @ _rotation(self.spin).T + centre + self.velocity
+        return (self.points - centre) @ rotation_matrix(self.spin).T + centre + self.velocity
 
     def motion_m(self) -> float:
         """How far the last motion moved the farthest point [m]."""
@@ -151,18 +152,6 @@ class ObjectTrack:
             spin=self.spin.copy(),
             first_color=self.first_color.copy(),
         )
-
-
-def _subsample(points: np.ndarray, k: int = 4000, seed: int = 0) -> np.ndarray:
-    if len(points) <= k:
-        return points
-    return points[np.random.default_rng(seed).choice(len(points), k, replace=False)]
-
-
-def _diameter(points: np.ndarray) -> float:
-    p = _subsample(points, 1500)
-    lo, hi = np.percentile(p, 2, axis=0), np.percentile(p, 98, axis=0)
-    return float(np.linalg.norm(hi - lo))
 
 
 def separate(
@@ -240,7 +229,7 @@ def grow_across_edges(
         candidates = [int(v) for v in np.unique(labels[ring]) if int(v) not in tried]
         if not candidates:
             return region
-        tree = cKDTree(_subsample(pts[region & np.isfinite(pts[..., 2])], 3000))
+        tree = cKDTree(subsample(pts[region & np.isfinite(pts[..., 2])], 3000))
         grown = False
         for label in candidates:
             tried.add(label)
@@ -251,7 +240,7 @@ def grow_across_edges(
             if float(np.median(d)) > gap_m:
                 continue
             union = region | (labels == label)
-            if _diameter(pts[union & np.isfinite(pts[..., 2])]) > max_diameter_m:
+            if diameter(pts[union & np.isfinite(pts[..., 2])]) > max_diameter_m:
                 continue
             region, grown = union, True
         if not grown:
@@ -377,7 +366,7 @@ class Segmenter:
         rgb, depth, pts, edges, cidx, _ = self.frame(t)
         obj_pts = pts[mask & (depth > 0)]
         return ObjectTrack(
-            name, _subsample(obj_pts), histogram(cidx[mask]), max(_diameter(obj_pts), 0.02), float(mask.sum())
+            name, subsample(obj_pts), histogram(cidx[mask]), max(diameter(obj_pts), 0.02), float(mask.sum())
         )
 
     def discover(
@@ -396,9 +385,9 @@ class Segmenter:
             if label in border or areas[label] < MIN_REGION_PX * self.scale_px:
                 continue
             p = pts[labels == label]
-            if _diameter(p) > 0.4:
+            if diameter(p) > 0.4:
                 continue
-            regions.append((label, cKDTree(_subsample(p, 2000))))
+            regions.append((label, cKDTree(subsample(p, 2000))))
         if not regions:
             raise InputError(
                 "no object stands on the support in the first frame",
@@ -414,7 +403,7 @@ class Segmenter:
             hand &= self.frame(t).depth > 0
             if not hand.any():
                 continue
-            hp = _subsample(self.frame(t).pts[hand], 3000)
+            hp = subsample(self.frame(t).pts[hand], 3000)
             for i, (_, tree) in enumerate(regions):
                 d, _ = tree.query(hp, k=1)
                 nearest[i] = min(nearest[i], float(d.min()))
@@ -431,7 +420,7 @@ class Segmenter:
                 labels = labels.copy()
                 new_label = labels.max() + 1
                 labels[stayed] = new_label
-                regions.append((new_label, cKDTree(_subsample(pts[stayed], 2000))))
+                regions.append((new_label, cKDTree(subsample(pts[stayed], 2000))))
                 nearest = np.append(nearest, nearest[i])
                 order = [i, len(regions) - 1] + order[1:]
         if len(regions) < len(names) or not np.isfinite(nearest[order[len(names) - 1]]):
@@ -454,10 +443,10 @@ class Segmenter:
         self, labels: np.ndarray, region: np.ndarray, pts: np.ndarray, *, within_m: float = 0.03
     ) -> list[int]:
         """Labels of the components with a point within ``within_m`` of ``region``'s points."""
-        tree = cKDTree(_subsample(pts[region & np.isfinite(pts[..., 2])], 2000))
+        tree = cKDTree(subsample(pts[region & np.isfinite(pts[..., 2])], 2000))
         out = []
         for label in np.unique(labels[(labels > 0) & ~region]):
-            part = _subsample(pts[(labels == label) & np.isfinite(pts[..., 2])], 500)
+            part = subsample(pts[(labels == label) & np.isfinite(pts[..., 2])], 500)
             if len(part) and float(tree.query(part, k=1)[0].min()) < within_m:
                 out.append(int(label))
         return out
@@ -469,7 +458,7 @@ class Segmenter:
         n_frames = len(self.cam.world_from_cv)
         pts = self.frame(t0).pts
         v, u = np.nonzero(region & np.isfinite(pts[..., 2]))
-        world = _subsample(pts[v, u], 1500)
+        world = subsample(pts[v, u], 1500)
         out = []
         for t in range(0, n_frames, max(1, n_frames // samples)):
             uu, vv, z = pixels_of(world, self.cam.world_from_cv[t], self.cam.K[t], self.width, self.height)
@@ -506,7 +495,7 @@ class Segmenter:
             if abs(int(np.argmax(mine)) - int(np.argmax(theirs))) > 2:
                 continue  # they did not start to move together: two objects, carried together later
             union = region | part
-            if _diameter(pts[union & np.isfinite(pts[..., 2])]) <= max_diameter_m:
+            if diameter(pts[union & np.isfinite(pts[..., 2])]) <= max_diameter_m:
                 region = union
         return region
 
@@ -668,11 +657,11 @@ class Segmenter:
             track.velocity *= 0.5
             track.spin *= 0.5
             return
-        new = _subsample(pts[mask & (depth > 0)], 4000, seed=t)
+        new = subsample(pts[mask & (depth > 0)], 4000, seed=t)
         if len(new) < 20:
             track.hidden += 1
             return
-        turn, shift = _motion(track.points, new, track.spin if track.hidden == 0 else np.zeros(3))
+        turn, shift = rigid_motion(track.points, new, track.spin if track.hidden == 0 else np.zeros(3))
         if track.hidden == 0:
             track.velocity = 0.5 * track.velocity + 0.5 * shift
             track.spin = 0.5 * track.spin + 0.5 * Rotation.from_matrix(turn).as_rotvec()
@@ -691,66 +680,11 @@ class Segmenter:
         # would stay behind what hides them and draw the mask to them frame after frame
         centre = np.median(moved, axis=0)
         near = np.linalg.norm(points - centre, axis=1) <= 0.65 * track.diameter + 0.015
-        track.points = _subsample(points[near] if near.sum() >= 20 else points, 4000, seed=t)
+        track.points = subsample(points[near] if near.sum() >= 20 else points, 4000, seed=t)
         track.hidden = 0
         track.color = 0.5 * track.first_color + 0.5 * (
             0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask])
         )
-
-
-def _shift(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.ndarray:
-    """How far the points moved from ``old`` to ``new``: translation-only ICP (the median offset
-    of each new point to its nearest old one), started from no motion and from the difference of
-    the means, whichever ends nearer. The means alone are wrong under occlusion: a hand covering
-    the top of a box that stands still moves the mean of what is seen down, and a velocity read
-    from that carries the box's track into the table (the track is lost, and the scene fuses the
-    box as a ghost)."""
-    tree = cKDTree(old)
-    best, best_gap = np.zeros(3), np.inf
-    for shift in (np.zeros(3), new.mean(axis=0) - old.mean(axis=0)):
-        for _ in range(iterations):
-            _, nearest = tree.query(new - shift)
-            shift = np.median(new - old[nearest], axis=0)
-        gap = float(np.median(tree.query(new - shift)[0]))
-        if gap < best_gap:
-            best, best_gap = shift, gap
-    return best
-
-
-def _rotation(rotvec: np.ndarray) -> np.ndarray:
-    return Rotation.from_rotvec(rotvec).as_matrix()
-
-
-def _motion(
-    old: np.ndarray, new: np.ndarray, spin: np.ndarray, *, iterations: int = 6, max_turn_deg: float = 30.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """The rigid motion (turn R about the old points' centre c, then shift t: x -> R (x - c) +
-    c + t) that carries ``old`` onto ``new``. The shift alone first (``_shift``: robust to what a
-    hand hides); then, started from it and from the last turn ``spin``, point-to-point ICP with
-    the turn (Kabsch on the pairs within their 80th-percentile gap). The turn is kept only where
-    it brings the points nearer than the shift alone by 15 % of the median gap: the seen part of
-    a still or sliding object must not turn with depth noise."""
-    shift = _shift(old, new)
-    centre = np.median(old, axis=0)
-    tree = cKDTree(new)
-    base = float(np.median(tree.query(old + shift)[0]))
-    best = (np.eye(3), shift, base)
-    for rot0 in (np.eye(3), _rotation(spin)):
-        rot, t = rot0, shift.copy()
-        for _ in range(iterations):
-            moved = (old - centre) @ rot.T + centre + t
-            d, idx = tree.query(moved)
-            keep = d <= np.percentile(d, 80)
-            a, b = old[keep] - centre, new[idx[keep]]
-            ca, cb = a.mean(axis=0), b.mean(axis=0)
-            u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-            rot = vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
-            t = cb - rot @ ca - centre
-        gap = float(np.median(tree.query((old - centre) @ rot.T + centre + t)[0]))
-        angle = np.degrees(np.linalg.norm(Rotation.from_matrix(rot).as_rotvec()))
-        if gap < best[2] - 0.15 * base and angle <= max_turn_deg:
-            best = (rot, t, gap)
-    return best[0], best[1]
 
 
 def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
