@@ -58,6 +58,7 @@ def _api_args(args) -> dict:
     settings = _parse_assignments(args.set, "--set")
     if getattr(args, "prompt", None):
         settings.setdefault("segment", {})["prompts"] = ";".join(args.prompt)
+        settings.setdefault("capture", {})["prompts"] = ";".join(args.prompt)  # sfm: origin and scale
     return {"backends": _parse_assignments(args.backend, "--backend"), "settings": settings, "force": args.force}
 
 
@@ -305,7 +306,8 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
         action="append",
         metavar="[NAME=]FRAME:X0,Y0,X1,Y1",
         help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml"
-        " (repeatable; NAME may be left out for one object)",
+        " (repeatable; NAME may be left out for one object); segment's, and capture sfm's (RGB only:"
+        " the prompted object sets the world's origin and metric scale)",
     )
     p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
 

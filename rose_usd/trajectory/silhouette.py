@@ -1,0 +1,214 @@
+"""The ``silhouette`` trajectory backend: the object stage's mesh tracked against its masks by
+render and compare, for videos without depth (capture ``sfm``).
+
+1. **Start.** Frame 0's pose is the object stage's default pose (fitted to the resting
+   silhouettes and rested on the scene).
+2. **Hold.** An object rests while the mask does not say otherwise: when the last pose's
+   silhouette still overlaps the frame's mask (outside the interactor and other objects, which may
+   hide it) within ``hold_drop`` of the IoU it had when it was set, the pose holds. A hand over a
+   resting object hides part of its mask, not the overlap of the rest.
+3. **Track.** Otherwise the 6-DoF pose is fitted to the mask (Nelder-Mead on the silhouette IoU,
+   ``geometry.silhouette.fit_free``, ``maxfev`` evaluations) from the last pose and from a
+   constant-velocity prediction, the better kept. A frame whose mask is missing or too small, or
+   whose best IoU is under ``min_iou``, is lost: the pose holds (confidence 0), and frames lost
+   between tracked ones are interpolated on SE(3) (confidence 0.5).
+4. **Rest on the support.** When the object holds still again for ``settle_frames`` frames with its
+   lowest point within ``settle_m`` of the support, it is set down: turned onto its nearest stable
+   face (the convex hull's face nearest its center of mass facing down), lowered onto the support,
+   and its position and yaw refitted standing (``fit_standing``), for the rest of the hold.
+
+Confidence is the silhouette IoU of the pose (0 lost, 0.5 interpolated).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull
+
+from rose_usd.core import se3
+from rose_usd.errors import InputError
+from rose_usd.geometry.mesh import decimate
+from rose_usd.geometry.silhouette import View, crop_view, fit_free, fit_standing, iou, is_convex
+from rose_usd.layers.masks import read_masks
+from rose_usd.layers.objects import default_pose, visual_mesh
+from rose_usd.layers.scene import support_heights
+from rose_usd.layers.world import read_cameras
+from rose_usd.progress import progress
+from rose_usd.stage_api import StageContext
+from rose_usd.trajectory.author import author_trajectory, fill_gaps
+
+
+def stable_down(vertices: np.ndarray, world_from_object: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3, world) that turns the posed object onto the face of its convex hull that
+    faces most nearly down (of the faces near enough its center of mass to stand on)."""
+    world = se3.transform_points(world_from_object, vertices)
+    hull = ConvexHull(world)
+    normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
+    com = world.mean(axis=0)
+    dist = -(normals @ com + offsets)
+    stand = dist <= np.percentile(dist, 50)
+    i = int(np.argmin(np.where(stand, normals[:, 2], np.inf)))
+    n = normals[i]
+    axis = np.cross(n, [0.0, 0.0, -1.0])
+    s, c = np.linalg.norm(axis), float(-n[2])
+    if s < 1e-9:
+        return np.eye(3)
+    k = axis / s
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * kx + (1 - c) * kx @ kx
+
+
+def run(ctx: StageContext) -> None:
+    cfg, case, n = ctx.config.silhouette, ctx.case, ctx.time_info.n_frames
+    cameras = read_cameras(ctx.stage, n)
+    layer = read_masks(ctx.stage, n, (case.height, case.width))
+    pads = support_heights(ctx.stage)
+    facts = {}
+    for spec in case.config.objects:
+        if not layer.has(spec.name):
+            raise InputError(
+                f"no masks of object {spec.name!r}",
+                path=ctx.stage.GetRootLayer().identifier,
+                hint="run the segment stage",
+            )
+        default = default_pose(ctx.stage, spec.name)
+        mesh = visual_mesh(ctx.stage, spec.name)
+        local = se3.transform_points(se3.invert(default), mesh.vertices)
+        convex = is_convex(local, mesh.faces)
+        if convex:  # its silhouette is its projected hull: the hull's vertices are all it takes
+            hull = ConvexHull(local)
+            remap = np.full(len(local), -1)
+            remap[hull.vertices] = np.arange(len(hull.vertices))
+            v, f = local[hull.vertices], remap[hull.simplices]
+        else:
+            tm = trimesh.Trimesh(local, mesh.faces, process=False)
+            if len(tm.faces) > cfg.max_faces:
+                tm = decimate(tm, cfg.max_faces, check=False)
+            v, f = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
+        support_z = float(pads.get(spec.name, 0.0))
+        poses, conf, record = _track(ctx, spec.name, v, f, default, layer, cameras, support_z, cfg, convex)
+        record["convex"] = convex
+        author_trajectory(ctx, spec.name, poses, conf, "silhouette")
+        facts[spec.name] = record
+    ctx.record(objects=facts)
+
+
+def _view(layer, name, t, mask, cameras, cfg) -> View:
+    return crop_view(
+        mask,
+        layer.occluders(name, t, mask.shape, grow_px=2),
+        cameras.K[t],
+        cameras.world_from_cv[t],
+        frame=t,
+        max_side=cfg.max_side_px,
+    )
+
+
+def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
+    n = ctx.time_info.n_frames
+    mask_of = functools.partial(layer.mask, name)
+    poses = np.repeat(default[None], n, axis=0)
+    present = np.zeros(n, bool)
+    conf = np.zeros(n)
+    pose, ref_iou, velocity = default.copy(), None, np.eye(4)
+    still, settled = 0, False
+    fitted = held = lost = set_down = 0
+    for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
+        mask = mask_of(t)
+        if mask is None or mask.sum() < cfg.min_pixels:
+            poses[t], lost = pose, lost + 1
+            continue
+        view = _view(layer, name, t, mask, cameras, cfg)
+        now = iou([view], se3.transform_points(pose, v), f, convex=convex)
+        if ref_iou is None:
+            ref_iou = now
+        if now >= max(cfg.min_iou, ref_iou - cfg.hold_drop):
+            poses[t], conf[t], present[t] = pose, now, True
+            held, still = held + 1, still + 1
+            velocity = np.eye(4)
+            if not settled and still >= cfg.settle_frames:
+                down = _set_down(view, v, f, pose, support_z, cfg, convex)
+                if down is not None:
+                    pose, ref_iou = down
+                    poses[t] = pose
+                    settled, set_down = True, set_down + 1
+            continue
+        starts = [pose, velocity @ pose, _recentered(view, pose, v)]
+        best = None
+        for start in starts:
+            got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
+            if best is None or score > best[1]:
+                best = (got, score)
+        if best[1] < cfg.min_iou:
+            poses[t], lost = pose, lost + 1
+            continue
+        velocity = best[0] @ se3.invert(pose)
+        pose, ref_iou = best[0], best[1]
+        poses[t], conf[t], present[t] = pose, best[1], True
+        fitted, still, settled = fitted + 1, 0, False
+    if not present.any():
+        return poses, np.zeros(n), {"tracked": 0}
+    filled, fill_conf = fill_gaps(poses, present)
+    conf = np.where(present, conf, fill_conf)
+    return (
+        filled,
+        conf,
+        {
+            "held": held,
+            "fitted": fitted,
+            "lost": lost,
+            "set_down": set_down,
+            "iou_mean": round(float(conf[present].mean()), 4),
+        },
+    )
+
+
+def _recentered(view: View, pose: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The pose moved, at its depth, so that its center projects onto the mask's centroid: a
+    start from which the silhouette overlaps the mask again after a fast move."""
+    ys, xs = np.nonzero(view.mask & ~view.ignore)
+    if not len(xs):
+        return pose
+    cam_from_world = se3.invert(view.world_from_cv)
+    center = se3.transform_points(cam_from_world @ pose, v.mean(axis=0)[None])[0]
+    k = view.K
+    target = np.array([(xs.mean() - k[0, 2]) / k[0, 0], (ys.mean() - k[1, 2]) / k[1, 1], 1.0]) * center[2]
+    shift = view.world_from_cv[:3, :3] @ (target - center)
+    moved = pose.copy()
+    moved[:3, 3] += shift
+    return moved
+
+
+def _set_down(view, v, f, pose, support_z, cfg, convex):
+    """The pose turned onto its stable face and standing on the support, position and yaw refitted;
+    (pose, IoU) or None when the object is not near the support or standing fits worse."""
+    world = se3.transform_points(pose, v)
+    if world[:, 2].min() - support_z > cfg.settle_m:
+        return None
+    turn = stable_down(v, pose)
+    rot = turn @ pose[:3, :3]
+    turned = se3.transform_points(se3.make_pose(rot, np.zeros(3)), v)
+    base = np.array([*turned[:, :2].mean(axis=0), turned[:, 2].min()])
+    center = world.mean(axis=0)
+
+    def shape(_size):
+        return turned - base, f
+
+    fit = fit_standing(
+        shape,
+        np.array([1.0]),
+        [view],
+        center[:2],
+        support_z=support_z,
+        free_size=np.array([False]),
+        maxfev=120,
+        convex=convex,
+    )
+    before = iou([view], world, f, convex=convex)
+    if fit.iou < before - 0.03:
+        return None
+    standing = fit.pose(support_z) @ se3.make_pose(rot, -base)
+    return standing, fit.iou
