@@ -16,7 +16,7 @@ from rose_usd.case.config import ObjectSpec
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
 from rose_usd.geometry.primitives import TYPICAL, PrimitiveKind, largest_dimension, primitive_mesh
-from rose_usd.geometry.silhouette import crop_view, fit_free, fit_standing, iou
+from rose_usd.geometry.silhouette import ColorPosterior, crop_view, fit_free, fit_standing, iou
 from rose_usd.geometry.vanishing import up_from_lines
 from rose_usd.scene.plane import backdrop_points, slab
 
@@ -152,6 +152,24 @@ def test_silhouettes_track_a_moving_box():
         assert score > 0.98
         assert np.linalg.norm(est[:3, 3] - target[:3, 3]) < 0.003
         assert se3.rotation_angle_deg(est[:3, :3].T @ target[:3, :3]) < 4.0
+
+
+def test_the_color_posterior_finds_the_object_where_its_mask_is_wrong():
+    """A yellow object on a patterned grey table: the posterior learned in one frame is high on the
+    object in another frame and low around it; a soft IoU against it peaks at the object."""
+    rng = np.random.default_rng(2)
+    table = rng.integers(60, 140, (H, W, 1)).repeat(3, axis=2).astype(np.uint8)
+    first, later = table.copy(), table.copy()
+    cv2.circle(first, (200, 200), 40, (230, 200, 40), -1)
+    cv2.circle(later, (380, 260), 40, (225, 205, 45), -1)
+    obj = np.zeros((H, W), np.uint8)
+    cv2.circle(obj, (200, 200), 40, 1, -1)
+    inside, around = ColorPosterior.regions(obj.astype(bool), None)
+    posterior = ColorPosterior(first, inside, around)(later)
+    here = np.zeros((H, W), np.uint8)
+    cv2.circle(here, (380, 260), 36, 1, -1)
+    assert posterior[here.astype(bool)].mean() > 0.95
+    assert posterior[~cv2.dilate(here, np.ones((15, 15), np.uint8)).astype(bool)].mean() < 0.1
 
 
 def test_a_standing_fit_finds_the_box_position_and_yaw():

@@ -45,6 +45,9 @@ class View:
     """Crop pixels per video pixel."""
     offset: tuple[int, int] = (0, 0)
     """(x0, y0) of the crop in video pixels."""
+    soft: np.ndarray | None = None
+    """Float (h, w) in [0, 1]: how likely each pixel is the object's (a color posterior blended
+    with the mask); when given, the IoU is the soft one against it."""
 
     def render(
         self, vertices_world: np.ndarray, faces: np.ndarray, *, closed: bool = True, convex: bool = False
@@ -72,9 +75,11 @@ def crop_view(
     grow: float = 0.75,
     max_side: int = 320,
     box: tuple[float, float, float, float] | None = None,
+    soft: np.ndarray | None = None,
 ) -> View:
     """The view of ``mask`` (bool, video size) cropped to its bounding box (or ``box``) grown by
-    ``grow`` of its size on every side and downscaled so its long side is at most ``max_side``."""
+    ``grow`` of its size on every side and downscaled so its long side is at most ``max_side``;
+    ``soft`` (float, video size) is cropped with it."""
     h, w = mask.shape
     if box is None:
         ys, xs = np.nonzero(mask)
@@ -100,7 +105,11 @@ def crop_view(
     )
     mask8 = mask.astype(np.uint8) * 255
     ignore8 = (np.zeros_like(mask) if ignore is None else ignore).astype(np.uint8) * 255
-    return View(cut(mask8), cut(ignore8), kc, np.asarray(world_from_cv, float), frame, s, (x0, y0))
+    soft_crop = None
+    if soft is not None:
+        part = np.ascontiguousarray(soft[y0:y1, x0:x1], dtype=np.float32)
+        soft_crop = cv2.resize(part, (cw, ch), interpolation=cv2.INTER_AREA) if s < 1 else part
+    return View(cut(mask8), cut(ignore8), kc, np.asarray(world_from_cv, float), frame, s, (x0, y0), soft_crop)
 
 
 def is_convex(vertices: np.ndarray, faces: np.ndarray, tolerance: float = 0.01) -> bool:
@@ -116,13 +125,20 @@ def iou(
     views: list[View], vertices_world: np.ndarray, faces: np.ndarray, *, closed: bool = True, convex: bool = False
 ) -> float:
     """Silhouette IoU of the mesh (world coordinates) with the views' masks, outside what they ignore."""
-    inter = union = 0
+    inter = union = 0.0
     for view in views:
         r = view.render(vertices_world, faces, closed=closed, convex=convex)
         keep = ~view.ignore
+        if view.soft is not None:  # soft IoU: sum(r S) / sum(r + S - r S)
+            soft = np.where(keep, view.soft, 0.0)
+            rk = r & keep
+            inside = float(soft[rk].sum())
+            inter += inside
+            union += float(np.count_nonzero(rk)) + float(soft.sum()) - inside
+            continue
         inter += int(np.count_nonzero(r & view.mask & keep))
         union += int(np.count_nonzero((r | view.mask) & keep))
-    return inter / max(union, 1)
+    return inter / max(union, 1e-9)
 
 
 def nelder_mead(cost: Callable[[np.ndarray], float], x0: np.ndarray, steps: np.ndarray, *, maxfev: int = 200):
@@ -338,3 +354,45 @@ def fit_free(
             break
     pose = perturb(world_from_object, ref, p)
     return pose, iou(views, se3.transform_points(pose, vertices), faces, convex=convex)
+
+
+# ----------------------------------------------------------------------------- color
+
+
+class ColorPosterior:
+    """How likely each pixel's color is the object's rather than its surroundings': color
+    histograms (``bins`` per RGB channel) of the object's pixels and of a ring around them in one
+    frame, P(object | color) = h_object / (h_object + h_around). A tracker that follows these
+    probabilities (PWP3D's region term, here as a soft IoU) does not need the masks to be right."""
+
+    def __init__(self, rgb: np.ndarray, inside: np.ndarray, around: np.ndarray, *, bins: int = 16):
+        self.bins = bins
+        count = bins**3
+        idx = self._index(rgb)
+        self.h_in = np.bincount(idx[inside], minlength=count).astype(np.float64) + 0.5
+        self.h_out = np.bincount(idx[around], minlength=count).astype(np.float64) + 0.5
+        self.h_in /= self.h_in.sum()
+        self.h_out /= self.h_out.sum()
+
+    def _index(self, rgb: np.ndarray) -> np.ndarray:
+        q = (rgb.astype(np.int32) * self.bins) // 256
+        return (q[..., 0] * self.bins + q[..., 1]) * self.bins + q[..., 2]
+
+    def __call__(self, rgb: np.ndarray) -> np.ndarray:
+        idx = self._index(rgb)
+        p_in, p_out = self.h_in[idx], self.h_out[idx]
+        return (p_in / (p_in + p_out)).astype(np.float32)
+
+    @staticmethod
+    def regions(silhouette_mask: np.ndarray, ignore: np.ndarray | None, *, ring_px: int = 25, gap_px: int = 4):
+        """The object's pixels (its silhouette eroded by ``gap_px``) and a ring ``ring_px`` wide
+        around it, ``gap_px`` off it, both outside ``ignore``."""
+        sil = silhouette_mask.astype(np.uint8)
+        inside = cv2.erode(sil, np.ones((2 * gap_px + 1,) * 2, np.uint8)).astype(bool)
+        outer = cv2.dilate(sil, np.ones((2 * (ring_px + gap_px) + 1,) * 2, np.uint8)).astype(bool)
+        inner = cv2.dilate(sil, np.ones((2 * gap_px + 1,) * 2, np.uint8)).astype(bool)
+        around = outer & ~inner
+        if ignore is not None:
+            inside &= ~ignore
+            around &= ~ignore
+        return inside, around

@@ -45,11 +45,16 @@ class TrackerConfig:
 class SilhouetteConfig:
     """Settings of the silhouette backend (RGB only)."""
 
+    color_weight: float = 0.7
+    """The silhouette is compared with this much of the color posterior P(object | color) (object
+    and surroundings' color histograms from the first frame) plus the rest of the mask, by soft
+    IoU; 0: the mask alone (default 0.7: the posterior follows an object the masks lose)."""
     hold_drop: float = 0.04
-    """The pose holds while its silhouette IoU with the frame's mask is within this of the IoU it
-    had when set [-] (default 0.04)."""
+    """The pose holds while its silhouette IoU with the frame's target is within this fraction of
+    the first frame's IoU of where it was when set [-] (default 0.04)."""
     min_iou: float = 0.5
-    """A fit with a lower IoU is lost: the pose holds, confidence 0 [-] (default 0.5)."""
+    """A fit under this fraction of the first frame's IoU is lost: the pose holds, confidence 0
+    [-] (default 0.5)."""
     min_pixels: int = 50
     """A mask with fewer pixels is lost (default 50)."""
     maxfev: int = 160

@@ -24,14 +24,16 @@ from __future__ import annotations
 
 import functools
 
+import cv2
 import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull
 
 from rose_usd.core import se3
+from rose_usd.core.pinhole import silhouette
 from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate
-from rose_usd.geometry.silhouette import View, crop_view, fit_free, fit_standing, iou, is_convex
+from rose_usd.geometry.silhouette import ColorPosterior, View, crop_view, fit_free, fit_standing, iou, is_convex
 from rose_usd.layers.masks import read_masks
 from rose_usd.layers.objects import default_pose, visual_mesh
 from rose_usd.layers.scene import support_heights
@@ -96,19 +98,53 @@ def run(ctx: StageContext) -> None:
     ctx.record(objects=facts)
 
 
-def _view(layer, name, t, mask, cameras, cfg) -> View:
+def _projected_box(pose: np.ndarray, v: np.ndarray, cameras, t: int, width: int, height: int):
+    """The bounding box (x0, y0, x1, y1) of the posed mesh's projected vertices, clipped to the image."""
+    cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
+    cam = cam[cam[:, 2] > 1e-3]
+    if not len(cam):
+        return None
+    k = cameras.K[t]
+    u, w = k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]
+    box = (max(0.0, u.min()), max(0.0, w.min()), min(float(width), u.max()), min(float(height), w.max()))
+    return box if box[2] > box[0] and box[3] > box[1] else None
+
+
+def _target(mask, posterior, color_weight: float):
+    """What the silhouette is compared with: the mask, or (with a color posterior) a blend of the
+    two: color_weight x (2 P(object | color) - 1, clipped to [0, 1]) + the rest x the mask."""
+    if posterior is None:
+        return mask, None
+    # P(object | color) above even odds, stretched to [0, 1]: the surroundings' colors that the
+    # object shares (a table's speckle) weigh nothing instead of a little everywhere
+    soft = color_weight * np.clip(2.0 * posterior - 1.0, 0.0, 1.0)
+    if mask is not None:
+        soft = soft + (1.0 - color_weight) * mask.astype(np.float32)
+    return soft >= 0.5, soft
+
+
+def _view(layer, name, t, mask, cameras, cfg, *, soft=None, box=None) -> View:
+    ignore = layer.occluders(name, t, mask.shape, grow_px=2)
+    if box is not None and mask.any():
+        ys, xs = np.nonzero(mask)
+        mbox = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+        # the mask joins the crop only where it is near the prediction (not a track run off elsewhere)
+        if mbox[0] < box[2] + (box[2] - box[0]) and mbox[2] > box[0] - (box[2] - box[0]):
+            box = (min(box[0], mbox[0]), min(box[1], mbox[1]), max(box[2], mbox[2]), max(box[3], mbox[3]))
     return crop_view(
         mask,
-        layer.occluders(name, t, mask.shape, grow_px=2),
+        ignore,
         cameras.K[t],
         cameras.world_from_cv[t],
         frame=t,
         max_side=cfg.max_side_px,
+        box=box,
+        soft=soft,
     )
 
 
 def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
-    n = ctx.time_info.n_frames
+    n, case = ctx.time_info.n_frames, ctx.case
     mask_of = functools.partial(layer.mask, name)
     poses = np.repeat(default[None], n, axis=0)
     present = np.zeros(n, bool)
@@ -116,17 +152,42 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
     pose, ref_iou, velocity = default.copy(), None, np.eye(4)
     still, settled = 0, False
     fitted = held = lost = set_down = 0
+    colors, base = None, None
     for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
         mask = mask_of(t)
-        if mask is None or mask.sum() < cfg.min_pixels:
+        has_mask = mask is not None and mask.sum() >= cfg.min_pixels
+        if colors is None and cfg.color_weight > 0 and has_mask:
+            sil = (
+                silhouette(
+                    se3.transform_points(pose, v),
+                    f,
+                    cameras.world_from_cv[t],
+                    cameras.K[t],
+                    case.width,
+                    case.height,
+                    closed=not convex,
+                )
+                if not convex
+                else _hull_mask(pose, v, cameras, t, case)
+            )
+            inside, around = ColorPosterior.regions(sil & mask, layer.occluders(name, t, mask.shape, grow_px=2))
+            if inside.sum() >= cfg.min_pixels:
+                colors = ColorPosterior(case.rgb(t), inside, around)
+        posterior = colors(case.rgb(t)) if colors is not None else None
+        box = _projected_box(pose, v, cameras, t, case.width, case.height)
+        if not has_mask and (posterior is None or box is None):
             poses[t], lost = pose, lost + 1
             continue
-        view = _view(layer, name, t, mask, cameras, cfg)
+        if mask is None:
+            mask = np.zeros((case.height, case.width), bool)
+        binary, soft = _target(mask if has_mask else None, posterior, cfg.color_weight)
+        view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box if posterior is not None else None)
         now = iou([view], se3.transform_points(pose, v), f, convex=convex)
         if ref_iou is None:
-            ref_iou = now
-        if now >= max(cfg.min_iou, ref_iou - cfg.hold_drop):
-            poses[t], conf[t], present[t] = pose, now, True
+            ref_iou = base = now
+        floor = cfg.min_iou * base
+        if now >= max(floor, ref_iou - cfg.hold_drop * base):
+            poses[t], conf[t], present[t] = pose, now / base, True
             held, still = held + 1, still + 1
             velocity = np.eye(4)
             if not settled and still >= cfg.settle_frames:
@@ -142,12 +203,12 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
             got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
             if best is None or score > best[1]:
                 best = (got, score)
-        if best[1] < cfg.min_iou:
+        if best[1] < floor:
             poses[t], lost = pose, lost + 1
             continue
         velocity = best[0] @ se3.invert(pose)
         pose, ref_iou = best[0], best[1]
-        poses[t], conf[t], present[t] = pose, best[1], True
+        poses[t], conf[t], present[t] = pose, min(1.0, best[1] / base), True
         fitted, still, settled = fitted + 1, 0, False
     if not present.any():
         return poses, np.zeros(n), {"tracked": 0}
@@ -161,9 +222,21 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
             "fitted": fitted,
             "lost": lost,
             "set_down": set_down,
-            "iou_mean": round(float(conf[present].mean()), 4),
+            "color_model": colors is not None,
+            "score_first": None if base is None else round(float(base), 4),
+            "confidence_mean": round(float(conf[present].mean()), 4),
         },
     )
+
+
+def _hull_mask(pose, v, cameras, t, case) -> np.ndarray:
+    """A convex mesh's silhouette in the whole frame: its projected vertices' hull."""
+    cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
+    k = cameras.K[t]
+    uv = np.column_stack([k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]])
+    out = np.zeros((case.height, case.width), np.uint8)
+    cv2.fillConvexPoly(out, cv2.convexHull(np.round(uv * 16).astype(np.int32)), 1, shift=4)
+    return out.astype(bool)
 
 
 def _recentered(view: View, pose: np.ndarray, v: np.ndarray) -> np.ndarray:
