@@ -76,6 +76,22 @@ def test_the_metric_scale_from_a_size_prior_on_a_synthetic_view():
     assert fit["iou"] > 0.95
 
 
+def test_a_standing_object_corrects_a_wrong_gravity():
+    """The gravity guessed 8 deg off: the tilt that lets the box stand in its silhouette undoes it."""
+    from rose_usd.capture.scale import level_by_object
+
+    pose = _camera(0.5, 35.0)
+    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.12, 0.08, 0.07]))
+    placed = se3.make_pose(cv2.Rodrigues(np.array([0, 0, np.radians(30.0)]))[0], [0.0, 0.0, 0.0])
+    mask = silhouette(se3.transform_points(placed, v), f, pose, K, W, H, closed=True)
+    wrong = se3.make_pose(cv2.Rodrigues(np.array([np.radians(8.0), 0.0, 0.0]))[0], np.zeros(3)) @ pose
+    tilt, record = level_by_object(ObjectSpec("Box", category="box"), mask, K, wrong, 10.0)
+    fixed = tilt @ wrong
+    up_true = pose[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    up_fixed = fixed[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    assert np.degrees(np.arccos(np.clip(up_true @ up_fixed, -1, 1))) < 2.0, record
+
+
 def test_the_most_certain_cue_is_chosen_and_the_others_compared_with_it():
     cues = [
         ScaleCue("camera-height", 0.5, 0.5),

@@ -64,6 +64,9 @@ class SfmConfig:
     interpolated (default 60: 7-Scenes' 200 frames in about a minute on 2 CPU cores)."""
     max_side: int = 640
     """Keyframes are downscaled to this long side for structure from motion [px] (default 640)."""
+    level_by_object: bool = True
+    """Gravity from one image (vanishing points, or the upright guess) is refined by the tilt of the
+    support that lets the prompted object's primitive stand in its silhouette best (default true)."""
 
 
 @dataclass(frozen=True, kw_only=True)

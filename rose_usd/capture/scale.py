@@ -71,7 +71,9 @@ def _view(mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> View:
     return crop_view(mask, None, K, world_from_cv, max_side=320)
 
 
-def fit_primitive(spec: ObjectSpec, view: View, mask: np.ndarray, K, world_from_cv) -> dict | None:
+def fit_primitive(
+    spec: ObjectSpec, view: View, mask: np.ndarray, K, world_from_cv, *, maxfev: int = 300
+) -> dict | None:
     """The category's primitive standing on z = 0 fitted to the silhouette, in the world's units:
     its dimensions, largest dimension, pose and IoU; None when the object's foot is not below the
     horizon."""
@@ -89,7 +91,9 @@ def fit_primitive(spec: ObjectSpec, view: View, mask: np.ndarray, K, world_from_
     cam = world_from_cv[:3, 3]
     toward = np.asarray(xy) - cam[:2]
     xy0 = np.asarray(xy) + 0.3 * width_units * toward / max(np.linalg.norm(toward), 1e-9)  # center behind the front
-    fit = fit_standing(lambda d: primitive_mesh(typ.kind, d), dims0, [view], xy0, yaws=yaws, turn=turn, convex=True)
+    fit = fit_standing(
+        lambda d: primitive_mesh(typ.kind, d), dims0, [view], xy0, yaws=yaws, turn=turn, convex=True, maxfev=maxfev
+    )
     size = largest_dimension(typ.kind, fit.size)
     return {
         "kind": typ.kind.value,
@@ -101,6 +105,56 @@ def fit_primitive(spec: ObjectSpec, view: View, mask: np.ndarray, K, world_from_
         "typical_sigma": typ.sigma,
         "typical_source": typ.source,
     }
+
+
+def level_by_object(
+    spec: ObjectSpec,
+    mask: np.ndarray,
+    K: np.ndarray,
+    world_from_cv: np.ndarray,
+    sigma_deg: float,
+    *,
+    max_deg: float = 25.0,
+) -> tuple[np.ndarray, dict]:
+    """The world's tilt that makes the prompted object stand on the support best: the rotation
+    (4, 4) about the world origin (the object's foot) by which the world's up is corrected, and
+    what the search found. A primitive standing on a tilted plane does not fit the silhouette of
+    one standing on the true one (a cup's rim ellipse, a box's vertical edges), so the tilt (two
+    angles) is fitted with the primitive, with a prior of ``sigma_deg`` on it (the gravity source's
+    sigma): one sigma of tilt costs 0.01 of IoU. The identity when nothing improves."""
+    from rose_usd.geometry.silhouette import nelder_mead
+
+    def fitted(tilt_deg: np.ndarray):
+        rot = _tilt(tilt_deg)
+        pose = rot @ world_from_cv
+        view = crop_view(mask, None, K, pose, max_side=240)
+        fit = fit_primitive(spec, view, mask, K, pose, maxfev=150)
+        return fit, rot
+
+    def cost(tilt_deg):
+        if np.hypot(*tilt_deg) > max_deg:
+            return 2.0
+        fit, _ = fitted(tilt_deg)
+        iou = fit["iou"] if fit is not None else 0.0
+        return 1.0 - iou + 0.01 * float(np.sum(np.square(tilt_deg))) / max(sigma_deg, 0.5) ** 2
+
+    level = cost(np.zeros(2))
+    best, best_cost = nelder_mead(cost, np.zeros(2), np.array([4.0, 4.0]), maxfev=40)
+    if best_cost >= level - 0.005:
+        return np.eye(4), {"tilt_deg": [0.0, 0.0], "cost_level": round(level, 4), "cost_tilted": round(best_cost, 4)}
+    return _tilt(best), {
+        "tilt_deg": [round(float(a), 2) for a in best],
+        "cost_level": round(level, 4),
+        "cost_tilted": round(best_cost, 4),
+    }
+
+
+def _tilt(tilt_deg) -> np.ndarray:
+    """A rotation about the world's x then y axes by the given degrees."""
+    a, b = np.radians(tilt_deg)
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    return se3.make_pose(ry @ rx, np.zeros(3))
 
 
 def fit_mesh(vertices: np.ndarray, faces: np.ndarray, view: View, mask, K, world_from_cv) -> dict | None:

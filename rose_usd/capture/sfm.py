@@ -15,7 +15,8 @@ No depth, no imported tool: what a casual monocular video gives.
 3. **Gravity**: imu/gravity.txt, else perception/geocalib.json, else (moving camera) the support
    plane of the map's points under the prompted object (``capture.gravity``), else the vertical
    vanishing point of the reference frame's lines (``geometry.vanishing``), else a level camera
-   pitched 30 deg down (``upright-prior``, a warning).
+   pitched 30 deg down (``upright-prior``, a warning). Gravity from one image is then refined by
+   the prompted object standing on the support (``sfm.level_by_object``, ``scale.level_by_object``).
 4. **Scale** (``capture.scale``): the prompted object's silhouette in its prompt frame fitted by its
    mesh or its category's primitive standing on the support plane; the scale from ``mesh``,
    ``size-prior``, ``category-prior`` or ``camera-height``, the most certain; all of them and their
@@ -48,6 +49,7 @@ from rose_usd.capture.scale import (
     choose,
     fit_mesh,
     fit_primitive,
+    level_by_object,
     prompt_silhouette,
 )
 from rose_usd.capture.static import still_fraction
@@ -59,6 +61,9 @@ from rose_usd.geometry.silhouette import crop_view
 from rose_usd.geometry.vanishing import up_from_lines, upright_prior
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext
+
+_IMAGE_GRAVITY = ("vanishing-points", "upright-prior")
+"""Gravity sources of a single image (not a map's plane, not a sensor): the object may refine them."""
 
 
 def _prompted(ctx: StageContext):
@@ -207,6 +212,18 @@ def run(ctx: StageContext) -> None:
     anchor_pt, mask = _anchor_on_plane(ctx, spec, poses[ref], K, support)
     world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
     world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+    if cfg.sfm.level_by_object and mask is not None and mask.sum() >= 30 and gravity.source in _IMAGE_GRAVITY:
+        # gravity from one image's lines (or a guess) is refined by the prompted object standing on
+        # the support: the tilt that lets its primitive fit its silhouette best
+        tilt, record["level_by_object"] = level_by_object(spec, mask, K, world_units[ref], gravity.uncertainty_deg)
+        if not np.allclose(tilt, np.eye(4)):
+            world_from_track = tilt @ world_from_track
+            world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+            angle = float(np.degrees(np.arccos(np.clip(tilt[2, 2], -1, 1))))
+            # the refined up keeps its source; its sigma is not measured: no more than the source's,
+            # no less than 2 deg, and the tilt applied when that is smaller
+            sigma = float(min(gravity.uncertainty_deg, max(2.0, angle)))
+            gravity = GravityEstimate(world_from_track[2, :3], gravity.source, None, [], sigma)
     cues, fit_record = _scale_cues(ctx, spec, mask, K, world_units[ref])
     record["scale_fit"] = fit_record
     chosen, agreement = choose(cues)
