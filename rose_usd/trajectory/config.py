@@ -59,6 +59,10 @@ class SilhouetteConfig:
     """A mask with fewer pixels is lost (default 50)."""
     maxfev: int = 160
     """Cost evaluations of each 6-DoF fit, per start (default 160)."""
+    turn_search_below: float = 0.9
+    """A fit under this fraction of the last IoU is tried again from turned starts [-] (default 0.9)."""
+    turn_search_deg: float = 25.0
+    """... the best pose turned by this much both ways about each camera axis [deg] (default 25)."""
     max_side_px: int = 320
     """Each frame's view is cropped around the mask and downscaled to this long side [px] (default 320)."""
     max_faces: int = 1000

@@ -151,7 +151,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
     conf = np.zeros(n)
     pose, ref_iou, velocity = default.copy(), None, np.eye(4)
     still, settled = 0, False
-    fitted = held = lost = set_down = 0
+    fitted = held = lost = set_down = searched = 0
     colors, base = None, None
     for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
         mask = mask_of(t)
@@ -203,6 +203,16 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
             got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
             if best is None or score > best[1]:
                 best = (got, score)
+        if best[1] < cfg.turn_search_below * ref_iou:
+            # a fast turn (deepac-cat-rgb: 27 deg in one frame) is out of the simplex's reach:
+            # start again from the best pose turned by +-turn_search_deg about each camera axis
+            for start in _turned(best[0], view, np.radians(cfg.turn_search_deg)):
+                got, score = fit_free(
+                    v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex
+                )
+                if score > best[1]:
+                    best = (got, score)
+            searched += 1
         if best[1] < floor:
             poses[t], lost = pose, lost + 1
             continue
@@ -222,6 +232,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
             "fitted": fitted,
             "lost": lost,
             "set_down": set_down,
+            "turn_searches": searched,
             "color_model": colors is not None,
             "score_first": None if base is None else round(float(base), 4),
             "confidence_mean": round(float(conf[present].mean()), 4),
@@ -237,6 +248,17 @@ def _hull_mask(pose, v, cameras, t, case) -> np.ndarray:
     out = np.zeros((case.height, case.width), np.uint8)
     cv2.fillConvexPoly(out, cv2.convexHull(np.round(uv * 16).astype(np.int32)), 1, shift=4)
     return out.astype(bool)
+
+
+def _turned(pose: np.ndarray, view: View, angle: float) -> list[np.ndarray]:
+    """The pose turned by +-``angle`` about each of the view's camera axes, about its own origin."""
+    out = []
+    cam_rot = view.world_from_cv[:3, :3]
+    for axis in np.eye(3):
+        for sign in (1.0, -1.0):
+            turn = cam_rot @ cv2.Rodrigues(sign * angle * axis)[0] @ cam_rot.T
+            out.append(se3.make_pose(turn @ pose[:3, :3], pose[:3, 3]))
+    return out
 
 
 def _recentered(view: View, pose: np.ndarray, v: np.ndarray) -> np.ndarray:
