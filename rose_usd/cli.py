@@ -208,6 +208,8 @@ def cmd_bench_run(args) -> int:
     tag = "-".join(f"{k}={v}" for k, v in sorted(backends.items())).replace("all=", "")
     if args.no_prompts:
         tag += "-unprompted"
+    if args.size_prior:
+        tag += "-size-prior"
     if args.until:
         tag += f"-until-{args.until}"
     out = Path(args.output) if args.output else _bench_dir(f"{args.suite}-{mode.value}-{tag}")
@@ -226,6 +228,7 @@ def cmd_bench_run(args) -> int:
         command=command,
         until=args.until,
         prompts=not args.no_prompts,
+        size_prior=args.size_prior,
         start_from=Path(args.start_from) if args.start_from else None,
         rerun=tuple(args.rerun or ()),
     )
@@ -411,6 +414,11 @@ def _add_bench_commands(bench) -> None:
         "--no-prompts",
         action="store_true",
         help="drop the object prompts from the cases' rose.toml (objects are named, never pointed at)",
+    )
+    p.add_argument(
+        "--size-prior",
+        action="store_true",
+        help="give each object's size_m (its true largest extent) in the cases' rose.toml (rgb mode's metric scale)",
     )
     p.add_argument(
         "--start-from",
