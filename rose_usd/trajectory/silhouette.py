@@ -187,7 +187,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
             ref_iou = base = now
         floor = cfg.min_iou * base
         if now >= max(floor, ref_iou - cfg.hold_drop * base):
-            poses[t], conf[t], present[t] = pose, now / base, True
+            poses[t], conf[t], present[t] = pose, min(1.0, now / base), True
             held, still = held + 1, still + 1
             velocity = np.eye(4)
             if not settled and still >= cfg.settle_frames:
