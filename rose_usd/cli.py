@@ -73,7 +73,9 @@ def _api_args(args) -> dict:
     settings = _parse_assignments(args.set, "--set")
     options = {}
     if getattr(args, "prompt", None):
-        settings.setdefault("segment", {})["prompts"] = _prompts(args.prompt)
+        prompts = _prompts(args.prompt)
+        settings.setdefault("segment", {})["prompts"] = prompts
+        settings.setdefault("capture", {})["prompts"] = prompts  # sfm: origin and scale
         options["prompt_source"] = "--prompt"
     return {
         "backends": _parse_assignments(args.backend, "--backend"),
@@ -259,6 +261,8 @@ def cmd_bench_run(args) -> int:
     tag = "-".join(f"{k}={v}" for k, v in sorted(backends.items())).replace("all=", "")
     if args.no_prompts:
         tag += "-unprompted"
+    if args.size_prior:
+        tag += "-size-prior"
     if args.until:
         tag += f"-until-{args.until}"
     out = Path(args.output) if args.output else _bench_dir(f"{args.suite}-{mode.value}-{tag}")
@@ -277,6 +281,7 @@ def cmd_bench_run(args) -> int:
         command=command,
         until=args.until,
         prompts=not args.no_prompts,
+        size_prior=args.size_prior,
         start_from=Path(args.start_from) if args.start_from else None,
         rerun=tuple(args.rerun or ()),
     )
@@ -362,7 +367,8 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
         action="append",
         metavar="[NAME=]FRAME:X0,Y0,X1,Y1",
         help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml"
-        " (repeatable; NAME may be left out for one object)",
+        " (repeatable; NAME may be left out for one object); segment's, and capture sfm's (RGB only:"
+        " the prompted object sets the world's origin and metric scale)",
     )
     p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
 
@@ -491,6 +497,11 @@ def _add_bench_commands(bench) -> None:
         "--no-prompts",
         action="store_true",
         help="drop the object prompts from the cases' rose.toml (objects are named, never pointed at)",
+    )
+    p.add_argument(
+        "--size-prior",
+        action="store_true",
+        help="give each object's size_m (its true largest extent) in the cases' rose.toml (rgb mode's metric scale)",
     )
     p.add_argument(
         "--start-from",

@@ -3,13 +3,15 @@
 Every stage's default backend is ``auto``, resolved here from what the case holds:
 
 =========== ===================================================================================
-capture     ``rgbd`` with ``depth/``, else ``megasam`` with MegaSaM's npz
+capture     ``rgbd`` with ``depth/``, else ``megasam`` with MegaSaM's npz, else ``sfm`` (RGB only)
 segment     ``sam2`` with SAM 2's masks, else ``classical`` with depth (a sensor's or MegaSaM's),
             else ``flow``
-scene       ``tsdf``
-object      ``imported`` when every object has a mesh (rose.toml ``mesh``, ``perception/<Name>.glb``,
-            FoundationPose's ``mesh/``), else ``fusion``
-trajectory  ``foundationpose`` when every object has ``ob_in_cam`` poses, else ``tracker``
+scene       ``tsdf`` with depth, else ``plane``
+object      with depth: ``imported`` when every object has a mesh (rose.toml ``mesh``,
+            ``perception/<Name>.glb``, FoundationPose's ``mesh/``), else ``fusion``; without:
+            ``silhouette`` (the mesh, or a category primitive, fitted to the masks)
+trajectory  ``foundationpose`` when every object has ``ob_in_cam`` poses, else ``tracker`` with
+            depth, else ``silhouette``
 gate        ``mitsuba-newton``
 collect     ``newton``
 =========== ===================================================================================
@@ -38,11 +40,7 @@ def _capture(case: Case) -> str:
         return "rgbd"
     if case.megasam_file() is not None:
         return "megasam"
-    raise InputError(
-        "no capture backend fits this case: it has no depth/ and no MegaSaM output",
-        path=case.folder,
-        hint="add depth maps in depth/ (rgbd) or MegaSaM's perception/<scene>_sgd_cvd_hr.npz",
-    )
+    return "sfm"
 
 
 def _segment(case: Case) -> str:
@@ -52,19 +50,23 @@ def _segment(case: Case) -> str:
 
 
 def _object(case: Case) -> str:
+    if not _has_depth(case):
+        return "silhouette"
     objects = case.config.objects
     return "imported" if objects and all(case.mesh_file(o) is not None for o in objects) else "fusion"
 
 
 def _trajectory(case: Case) -> str:
     objects = case.config.objects
-    return "foundationpose" if objects and all(case.has_poses(o.name) for o in objects) else "tracker"
+    if objects and all(case.has_poses(o.name) for o in objects):
+        return "foundationpose"
+    return "tracker" if _has_depth(case) else "silhouette"
 
 
 AUTO_RULES: dict[str, Callable[[Case], str]] = {
     "capture": _capture,
     "segment": _segment,
-    "scene": lambda case: "tsdf",
+    "scene": lambda case: "tsdf" if _has_depth(case) else "plane",
     "object": _object,
     "trajectory": _trajectory,
     "gate": lambda case: "mitsuba-newton",
@@ -123,9 +125,10 @@ def _need_metric_depth(case: Case, plan: Mapping[str, str], stage: str) -> None:
         return
     raise InputError(
         f"the {stage} stage's {plan[stage]} backend needs metric depth, and this case gives none "
-        "(no depth/, no MegaSaM output)",
+        f"(no depth/, no MegaSaM output{', capture=sfm' if capture == 'sfm' else ''})",
         path=case.folder / "depth",
-        hint="add depth maps there or MegaSaM's npz under perception/",
+        hint="add depth maps there or MegaSaM's npz under perception/, or use the RGB-only backends"
+        " (scene=plane, object=silhouette, trajectory=silhouette)",
     )
 
 

@@ -41,6 +41,19 @@ def test_mode_layouts(base_case, tmp_path):
         assert (case / "gt" / "scene.json").is_file() and (case / "rose.toml").is_file()
 
 
+def test_rgb_mode_with_the_size_prior_gives_each_object_its_largest_true_extent(base_case, tmp_path):
+    """--size-prior: rose.toml gives size_m per object (prompts kept); the generated case's file is untouched."""
+    before = (base_case / "rose.toml").read_text()
+    rgb = make_mode_case(base_case, PerceptionMode.RGB, tmp_path / "rgb-size", seed=5, size_prior=True)
+    truth = {o["name"]: max(o["size_m"]) for o in json.loads((base_case / "gt" / "scene.json").read_text())["objects"]}
+    objects = {o.name: o for o in load_case(rgb).config.objects}
+    assert set(truth) <= set(objects)
+    for name, size in truth.items():
+        assert objects[name].overrides["size_m"] == pytest.approx(size, abs=1e-5)
+        assert objects[name].prompt is not None
+    assert (base_case / "rose.toml").read_text() == before
+
+
 def test_megasam_npz_format_and_scale(mono):
     """The npz has exactly MegaSaM's keys and dtypes; depth is the true depth at one unknown scale."""
     path = mono / "perception" / "scene_sgd_cvd_hr.npz"

@@ -55,8 +55,14 @@ def test_auto_resolves_each_stage_from_what_the_case_holds(case_copy):
     shutil.rmtree(perception / "masks")
     shutil.rmtree(case_copy / "depth")
     assert _plan(case_copy, backends={"capture": "oracle"})["segment"] == "flow"  # no depth: 2D masks
-    with pytest.raises(InputError, match="no capture backend fits"):
-        _plan(case_copy)
+    shutil.rmtree(perception)
+    plan = _plan(case_copy)  # frames alone: the RGB-only backends
+    assert (plan["capture"], plan["scene"], plan["object"], plan["trajectory"]) == (
+        "sfm",
+        "plane",
+        "silhouette",
+        "silhouette",
+    )
 
 
 @pytest.mark.parametrize(
@@ -89,7 +95,11 @@ def test_a_missing_input_fails_before_anything_is_written(tmp_path, case_copy, c
 def test_a_depth_backend_on_a_case_without_depth_names_what_is_missing(case_copy):
     shutil.rmtree(case_copy / "depth")
     with pytest.raises(InputError, match="needs metric depth"):
-        Pipeline(case_copy, case_copy.parent / "out", Options(backends={"capture": "oracle"})).plan("object")
+        Pipeline(case_copy, case_copy.parent / "out", Options(backends={"capture": "oracle", "object": "fusion"})).plan(
+            "object"
+        )
+    with pytest.raises(InputError, match="capture=sfm"):
+        Pipeline(case_copy, case_copy.parent / "out", Options(backends={"scene": "tsdf"})).plan("scene")
 
 
 def test_source_files_follow_imports_within_the_package():

@@ -44,7 +44,7 @@ def test_hash_covers_the_running_backend_only():
         ({"imported.scale_search_steps": True}, "not an integer"),
         ({"voxel_m": "high"}, "object.voxel_m = 'high' is not valid"),
         ({"voxel_m": float("nan")}, "not finite"),
-        ({"backend": "colmap"}, "one of auto, fusion, imported, oracle"),
+        ({"backend": "colmap"}, "one of auto, fusion, imported, silhouette, oracle"),
         ({"revolution_tolerance": 0.04}, "did you mean object.fusion.revolution_tolerance"),
     ],
 )

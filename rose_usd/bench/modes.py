@@ -3,7 +3,8 @@
 - ``rgbd``: RGB, sensor depth with realistic errors, cam_K.txt (the generated case itself);
 - ``mono-imported``: RGB and the simulated outputs of MegaSaM, UniDepth, GeoCalib, SAM 2,
   FoundationPose and TRELLIS in their own formats under ``perception/``; no depth, no K;
-- ``rgb``: frames only.
+- ``rgb``: frames only; with ``size_prior``, rose.toml also gives each object's ``size_m`` (its
+  true largest extent, what a user who measured it would write).
 All modes keep ``gt/`` and ``rose.toml`` (ground truth is read only by oracle backends and metrics).
 """
 
@@ -41,9 +42,12 @@ def _link_tree(src: Path, dst: Path) -> None:
             shutil.copy2(src, dst)
 
 
-def make_mode_case(base: Path, mode: PerceptionMode, out: Path, seed: int, *, prompts: bool = True) -> Path:
+def make_mode_case(
+    base: Path, mode: PerceptionMode, out: Path, seed: int, *, prompts: bool = True, size_prior: bool = False
+) -> Path:
     """Build the ``mode`` variant of generated case ``base`` at ``out`` (replaced if present);
-    without ``prompts``, its rose.toml names the objects but points at none of them."""
+    without ``prompts``, its rose.toml names the objects but points at none of them; with
+    ``size_prior``, it gives each object's size_m."""
     tmp = out.with_name(f".{out.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -54,19 +58,36 @@ def make_mode_case(base: Path, mode: PerceptionMode, out: Path, seed: int, *, pr
         from rose_usd.synth.perception import write_mono_imported
 
         write_mono_imported(tmp, seed)
-    if not prompts:
+    if not prompts or size_prior:
         toml = tmp / "rose.toml"
-        lines = [line for line in toml.read_text().splitlines() if not line.startswith("prompt = ")]
+        lines = [line for line in toml.read_text().splitlines() if prompts or not line.startswith("prompt = ")]
+        if size_prior:
+            lines = _with_sizes(lines, base / "gt" / "scene.json")
         toml.unlink()  # a hard link to the generated case's file: replace, never edit
         toml.write_text("\n".join(lines) + "\n")
     shutil.rmtree(out, ignore_errors=True)
     tmp.rename(out)
-    (out / ".mode").write_text(mode_stamp(mode, prompts))
+    (out / ".mode").write_text(mode_stamp(mode, prompts, size_prior))
     return out
 
 
-def mode_stamp(mode: PerceptionMode, prompts: bool = True) -> str:
-    """What a mode case was made by (its mode, prompts or not, and the simulator's version)."""
+def _with_sizes(lines: list[str], scene_json: Path) -> list[str]:
+    """rose.toml's lines with ``size_m`` (the object's largest true extent) after each object's name."""
+    import json
+
+    sizes = {o["name"]: max(o["size_m"]) for o in json.loads(scene_json.read_text())["objects"]}
+    out = []
+    for line in lines:
+        out.append(line)
+        if line.startswith("name = "):
+            name = line.split("=", 1)[1].strip().strip('"')
+            if name in sizes:
+                out.append(f"size_m = {sizes[name]:.5f}")
+    return out
+
+
+def mode_stamp(mode: PerceptionMode, prompts: bool = True, size_prior: bool = False) -> str:
+    """What a mode case was made by (its mode, prompts or not, the size prior, and the simulator's version)."""
     from rose_usd.synth.perception import PERCEPTION_VERSION
 
-    return f"{mode.value}{'' if prompts else ' unprompted'} v{PERCEPTION_VERSION}"
+    return f"{mode.value}{'' if prompts else ' unprompted'}{' size-prior' if size_prior else ''} v{PERCEPTION_VERSION}"

@@ -45,17 +45,19 @@ def ensure_case(spec: CaseSpec, suite_dir: Path) -> tuple[Path, float]:
     return base, time.perf_counter() - t0
 
 
-def ensure_mode(base: Path, spec: CaseSpec, mode: PerceptionMode, prompts: bool = True) -> Path:
-    out = base.parent / (mode.value + ("" if prompts else "-unprompted"))
+def ensure_mode(
+    base: Path, spec: CaseSpec, mode: PerceptionMode, prompts: bool = True, size_prior: bool = False
+) -> Path:
+    out = base.parent / (mode.value + ("" if prompts else "-unprompted") + ("-size" if size_prior else ""))
     stamp = out / ".mode"
     base_stamp = (base / "gt" / "scene.json").stat().st_mtime_ns
     if (
         stamp.is_file()
-        and stamp.read_text() == mode_stamp(mode, prompts)
+        and stamp.read_text() == mode_stamp(mode, prompts, size_prior)
         and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp
     ):
         return out
-    return make_mode_case(base, mode, out, spec.seed, prompts=prompts)
+    return make_mode_case(base, mode, out, spec.seed, prompts=prompts, size_prior=size_prior)
 
 
 def _flatten(result: dict) -> list[dict]:
@@ -103,6 +105,7 @@ def run_suite(
     prompts: bool = True,
     start_from: Path | None = None,
     rerun: tuple[str, ...] = (),
+    size_prior: bool = False,
 ) -> dict:
     """Run every case of ``suite`` in ``mode`` into ``out_dir``/runs and write the results. With
     ``start_from`` (an earlier results folder of the same suite, mode and prompts), each case starts
@@ -120,7 +123,7 @@ def run_suite(
     t_start = time.perf_counter()
     for i, spec in enumerate(specs, start=1):
         base, gen_time = ensure_case(spec, suite_dir)
-        case = ensure_mode(base, spec, mode, prompts)
+        case = ensure_mode(base, spec, mode, prompts, size_prior)
         run_out = out_dir / "runs" / spec.name
         result_file = out_dir / "runs" / f"{spec.name}.json"
         say(f"bench [{i}/{len(specs)}] {spec.name} ({mode.value})")
@@ -169,6 +172,7 @@ def run_suite(
         "settings": settings or {},
         "until": until,
         "prompts": prompts,
+        "size_prior": size_prior,
         "started_from": {"folder": str(start_from), "commit": source["commit"], "rerun": list(rerun)}
         if source
         else None,
@@ -247,7 +251,8 @@ def rescore(out_dir: Path, *, cases_dir: Path = DEFAULT_CASES) -> dict:
         base, _ = ensure_case(spec, Path(cases_dir) / summary["suite"])
         say(f"bench rescore {spec.name}")
         result["score"] = evaluate(
-            ensure_mode(base, spec, mode, summary.get("prompts", True)), out_dir / "runs" / spec.name
+            ensure_mode(base, spec, mode, summary.get("prompts", True), summary.get("size_prior", False)),
+            out_dir / "runs" / spec.name,
         ).to_json()
     summary["rescored_by"] = _git_commit()
     _write(summary, out_dir)

@@ -11,6 +11,7 @@ STAGE = StageDef(
     backends={
         "rgbd": "rose_usd.capture.rgbd:run",
         "megasam": "rose_usd.capture.megasam:run",
+        "sfm": "rose_usd.capture.sfm:run",
         "oracle": "rose_usd.capture.oracle:run",
     },
     requires={"rgbd": ("sensor-depth",), "megasam": ("megasam",), "oracle": ("gt",)},

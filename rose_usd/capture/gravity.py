@@ -124,6 +124,8 @@ def gravity_from_planes(
     max_pitch_deg: float = 80.0,
     upside_down_check: bool = False,
     upside_down_margin: float = 2.0,
+    min_points: int = 500,
+    distance_m: float = 0.01,
 ) -> GravityEstimate:
     """Up from the horizontal planes of ``points`` (tracking frame).
 
@@ -150,7 +152,7 @@ def gravity_from_planes(
     prior = camera_up_prior(world_from_camera)
     right = world_from_camera[:, :3, 0].mean(axis=0)
     right /= np.linalg.norm(right)
-    planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0))
+    planes = fit_planes(points, world_from_camera[:, :3, 3].mean(axis=0), min_points=min_points, distance_m=distance_m)
     choice = _horizontal_group(planes, prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
     flipped = _horizontal_group(planes, -prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
     if anchor is not None and upside_down_check:

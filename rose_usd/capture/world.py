@@ -4,7 +4,7 @@ Every capture backend ends here, so all of them write the same layer."""
 from __future__ import annotations
 
 import numpy as np
-from pxr import Gf, UsdGeom
+from pxr import Gf, UsdGeom, Vt
 
 from rose_usd.capture.anchor import anchor_from_prompt, anchor_from_view_center
 from rose_usd.capture.gravity import (
@@ -39,6 +39,9 @@ def author_world(
     gravity_uncertainty_deg: float = 0.0,
     intrinsics_source: str = "file",
     depth_shift_px: tuple[int, int] = (0, 0),
+    metric_depth: bool = True,
+    scale_uncertainty: float = 0.0,
+    scale_cues: list[tuple[str, float, float]] | None = None,
 ) -> None:
     """Write the world layer.
 
@@ -47,6 +50,10 @@ def author_world(
         K: (3, 3) or (N, 3, 3) intrinsics [px].
         world_from_input: transform from the input frame to the world (4, 4).
         depth_shift_px: (dx, dy) sensor depth pixel (x, y) shows colour pixel (x + dx, y + dy).
+        metric_depth: whether later stages get metric depth per frame (False: RGB only).
+        scale_uncertainty: relative one-sigma of the metric scale.
+        scale_cues: (cue token, meters per reconstruction unit, relative sigma) of every scale cue
+            measured (RGB only), the chosen one among them.
     """
     n = ctx.time_info.n_frames
     if len(world_from_camera) != n:
@@ -65,6 +72,14 @@ def author_world(
     prim.GetAttribute(tokens.WORLD_SCALE_ALPHA).Set(float(scale_alpha))
     prim.GetAttribute(tokens.WORLD_SCALE_BETA).Set(float(scale_beta))
     prim.GetAttribute(tokens.WORLD_SCALE_RESIDUAL).Set(float(scale_residual))
+    if not metric_depth:
+        prim.GetAttribute(tokens.WORLD_METRIC_DEPTH).Set(False)
+    if scale_uncertainty:
+        prim.GetAttribute(tokens.WORLD_SCALE_UNCERTAINTY).Set(float(scale_uncertainty))
+    if scale_cues:
+        prim.GetAttribute(tokens.WORLD_SCALE_CUES).Set(Vt.TokenArray([c[0] for c in scale_cues]))
+        prim.GetAttribute(tokens.WORLD_SCALE_CUE_VALUES).Set(Vt.DoubleArray([float(c[1]) for c in scale_cues]))
+        prim.GetAttribute(tokens.WORLD_SCALE_CUE_SIGMAS).Set(Vt.DoubleArray([float(c[2]) for c in scale_cues]))
     if tuple(depth_shift_px) != (0, 0):
         prim.GetAttribute(tokens.WORLD_DEPTH_SHIFT_PX).Set(Gf.Vec2i(*(int(v) for v in depth_shift_px)))
     author_physics_scene(stage, paths.PHYSICS_SCENE)

@@ -3,12 +3,15 @@
 The world layer says where metric depth comes from: ``scaleSource = sensor`` (the case's depth/,
 already metric) or a fit (``unidepth``, ``size-prior``, ...) of MegaSaM's depth, metric =
 ``scaleAlpha * depth + scaleBeta``. Readers get depth at the video's resolution, 0 where invalid.
+An RGB-only world (capture ``sfm``) has none (``rose:world:metricDepth = false``,
+``has_metric_depth``); its scale came from priors (``read_scale``: the cues and their uncertainty).
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from pxr import Usd
@@ -37,12 +40,26 @@ def depth_is_sensor(stage: Usd.Stage) -> bool:
     return _scale_source(stage) in SENSOR_SOURCES
 
 
+def has_metric_depth(stage: Usd.Stage) -> bool:
+    """Whether the world gives later stages metric depth per frame (``rose:world:metricDepth``;
+    False for an RGB-only video, whose stages work from silhouettes and the support plane)."""
+    world = stage.GetPrimAtPath(paths.WORLD)
+    attr = world.GetAttribute(tokens.WORLD_METRIC_DEPTH) if world else None
+    return bool(attr.Get()) if attr and attr.HasAuthoredValue() else _scale_source(stage) is not None
+
+
 def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Callable[[int], np.ndarray]:
     """A function t -> metric depth (H, W) float32 [m] of frame t (0 = no depth), with a small cache."""
     source = _scale_source(stage)
     if source is None:
         raise StageError(
             "the world layer has no scale source", path=stage.GetRootLayer().identifier, hint="run the capture stage"
+        )
+    if not has_metric_depth(stage):
+        raise StageError(
+            "the world layer has no metric depth (an RGB-only video: capture backend sfm)",
+            path=stage.GetRootLayer().identifier,
+            hint="use the depth-free backends (scene plane, object silhouette, trajectory silhouette), or give depth",
         )
     if source in SENSOR_SOURCES:
         if not case.has_depth:
@@ -88,6 +105,30 @@ def cached_frames(read: Callable[[int], np.ndarray], size: int) -> Callable[[int
         return np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32)
 
     return depth_of
+
+
+@dataclass(frozen=True)
+class ScaleInfo:
+    """How the world's metric scale was found (RGB only: from priors, with an uncertainty)."""
+
+    source: str
+    uncertainty: float
+    """Relative one-sigma [-]."""
+    cues: dict[str, tuple[float, float]]
+    """cue -> (meters per reconstruction unit, relative sigma)."""
+
+
+def read_scale(stage: Usd.Stage) -> ScaleInfo:
+    """The world's scale source, its uncertainty and the cues measured."""
+    world = stage.GetPrimAtPath(paths.WORLD)
+    names = list(world.GetAttribute(tokens.WORLD_SCALE_CUES).Get() or [])
+    values = list(world.GetAttribute(tokens.WORLD_SCALE_CUE_VALUES).Get() or [])
+    sigmas = list(world.GetAttribute(tokens.WORLD_SCALE_CUE_SIGMAS).Get() or [])
+    return ScaleInfo(
+        source=str(_scale_source(stage)),
+        uncertainty=float(world.GetAttribute(tokens.WORLD_SCALE_UNCERTAINTY).Get() or 0.0),
+        cues={str(n): (float(v), float(s)) for n, v, s in zip(names, values, sigmas, strict=True)},
+    )
 
 
 def read_cameras(stage: Usd.Stage, n_frames: int) -> CameraTrack:

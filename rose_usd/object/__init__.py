@@ -11,6 +11,7 @@ STAGE = StageDef(
     backends={
         "fusion": "rose_usd.object.fusion:run",
         "imported": "rose_usd.object.imported:run",
+        "silhouette": "rose_usd.object.silhouette:run",
         "oracle": "rose_usd.object.oracle:run",
     },
     summary="object meshes, mass priors, colliders, frame-0 poses -> layers/object.usda",

@@ -10,6 +10,7 @@ class ObjectBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     FUSION = "fusion"  # the resting object's masked depth fused and completed where never seen
     IMPORTED = "imported"  # another tool's mesh (TRELLIS GLB, scan, CAD), scaled by silhouettes, posed on its support
+    SILHOUETTE = "silhouette"  # RGB only: the mesh, or a category primitive (a proxy), fitted to the masks
     ORACLE = "oracle"  # ground-truth meshes, densities and frame-0 poses from gt/ (benchmark cases)
 
 
@@ -36,6 +37,22 @@ class ImportedConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class SilhouetteConfig:
+    """Settings of the silhouette backend (RGB only)."""
+
+    rest_iou: float = 0.85
+    """The object rests while its mask overlaps its first clear mask by this image IoU [-] (default 0.85)."""
+    views: int = 6
+    """At most this many resting frames are fitted at once (default 6)."""
+    max_side_px: int = 320
+    """Each view is cropped around the mask and downscaled to this long side [px] (default 320)."""
+    held_margin: float = 0.05
+    """A metric mesh fitting free (6-DoF) by this much more IoU than standing is held in the air (default 0.05)."""
+    free_directions: int = 150
+    """Orientations tried for a free fit: this many directions times 12 turns (default 150)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class ObjectConfig:
     backend: ObjectBackend = ObjectBackend.AUTO
     """Which backend reconstructs the object(s) (default auto)."""
@@ -53,3 +70,4 @@ class ObjectConfig:
     otherwise by convex decomposition [-] (default 0.02)."""
     fusion: FusionConfig = field(default_factory=FusionConfig)
     imported: ImportedConfig = field(default_factory=ImportedConfig)
+    silhouette: SilhouetteConfig = field(default_factory=SilhouetteConfig)

@@ -38,229 +38,30 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, cKDTree
 
-from rose_usd.case.config import ObjectSpec
-from rose_usd.case.layout import Case
 from rose_usd.core import se3
-from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.pinhole import silhouette
-from rose_usd.core.watertight import collider_problems, is_closed
-from rose_usd.errors import InputError, MeshError
-from rose_usd.geometry.mesh import decimate, self_intersects
+from rose_usd.core.watertight import is_closed
+from rose_usd.geometry.mesh import decimate
 from rose_usd.geometry.texture import transfer_colors
-from rose_usd.io import foundationpose, trellis
-from rose_usd.io.meshfile import read_mesh_file
+from rose_usd.io import foundationpose
 from rose_usd.layers.masks import Masks, read_masks
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
+from rose_usd.object.meshes import (  # noqa: F401  (re-exported: the backend's mesh reading)
+    AXES,
+    ImportedMesh,
+    axis_name,
+    axis_vector,
+    choose_unit,
+    find_mesh,
+    read_imported,
+    up_candidates,
+    world_from_up,
+)
 from rose_usd.object.rest import level_rotation, resting_clouds, support_height
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
-
-UNITS = {"millimeters": 1e-3, "centimeters": 1e-2, "inches": 0.0254}
-"""Units a metric-looking mesh may be in by mistake, and meters per unit."""
-
-
-def find_mesh(case: Case, spec: ObjectSpec) -> Path:
-    """The mesh file of object ``spec`` (:meth:`Case.mesh_file`); InputError naming where to put one."""
-    path = case.mesh_file(spec)
-    if path is None:
-        raise InputError(
-            f"no mesh of object {spec.name!r}",
-            path=case.perception_dir / f"{spec.name}.glb",
-            hint='put it there, set mesh = "..." in its [[objects]] entry of rose.toml, or use --backend object=fusion',
-        )
-    return path
-
-
-@dataclass
-class ImportedMesh:
-    vertices: np.ndarray
-    """In the file's own frame and units."""
-    faces: np.ndarray
-    colors: np.ndarray | None
-    """Linear RGB per vertex, or None."""
-    normalized: bool
-    """Inside TRELLIS's unit cube with its longest side 1: no metric scale at all."""
-    up: np.ndarray
-    """The mesh's up axis in its own frame (unit 3-vector): ``mesh_up``, else its format's convention."""
-    repairs: list[str]
-    up_given: bool = False
-    """Whether rose.toml gave ``mesh_up``; without it every axis is tried (``up_candidates``)."""
-
-
-def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
-    """sRGB8 per vertex: the texture at each vertex's UV, or the vertex colors; None if neither."""
-    visual = mesh.visual
-    try:
-        if visual.kind == "texture" and getattr(visual, "uv", None) is not None:
-            return np.asarray(visual.to_color().vertex_colors)[:, :3]
-        if visual.kind == "vertex":
-            return np.asarray(visual.vertex_colors)[:, :3]
-    except Exception:  # a material trimesh cannot sample: no colors rather than no mesh  # noqa: BLE001
-        return None
-    return None
-
-
-def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
-    """Read and repair one mesh file (the module's step 2). MeshError when nothing usable is left."""
-    raw = read_mesh_file(path)
-    colors8 = _vertex_colors(raw)
-    mesh = trimesh.Trimesh(raw.vertices, raw.faces, vertex_colors=colors8, process=False)
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise MeshError("the mesh has NaN or infinite vertices", path=path, hint="export it again")
-    mesh.merge_vertices(merge_tex=True, merge_norm=True)  # UV seams split vertices: rejoin them
-    mesh.update_faces(mesh.nondegenerate_faces())
-    mesh.update_faces(mesh.unique_faces())
-    mesh.remove_unreferenced_vertices()
-    if len(mesh.faces) < 4:
-        raise MeshError(
-            f"the mesh has only {len(mesh.faces)} usable triangles", path=path, hint="export the object's surface"
-        )
-    repairs = []
-    parts = mesh.split(only_watertight=False)
-    if len(parts) > 1:
-        areas = np.array([p.area for p in parts])
-        keep = areas >= 0.02 * areas.sum()
-        if not keep.all():
-            repairs.append(
-                f"dropped {int((~keep).sum())} loose part(s) holding "
-                f"{100 * areas[~keep].sum() / areas.sum():.1f} % of the surface"
-            )
-        if keep.sum() > 1:
-            repairs.append(f"{int(keep.sum())} separate parts kept as one rigid body")
-        mesh = trimesh.util.concatenate([p for p, k in zip(parts, keep) if k])
-    if not mesh.is_watertight:
-        holes = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
-        mesh = _fill_holes(mesh)
-        repairs.append(f"filled holes ({holes} open edges)")
-    if not mesh.is_winding_consistent or mesh.volume < 0:
-        trimesh.repair.fix_normals(mesh)
-    problems = collider_problems(mesh.vertices, mesh.faces) or (
-        ["self-intersecting"] if self_intersects(mesh.vertices, mesh.faces) else []
-    )
-    if problems:
-        mesh = _remesh(mesh)
-        repairs.append(f"the mesh is {', '.join(problems)}: rebuilt from its signed distance at 1/96 of its size")
-    colors = None
-    if colors8 is not None and mesh.visual.kind == "vertex":
-        colors = srgb8_to_linear(np.asarray(mesh.visual.vertex_colors)[:, :3])
-    elif colors8 is not None:  # rebuilt: carry the colors over from the file's vertices
-        colors = transfer_colors(mesh.vertices, raw.vertices, srgb8_to_linear(colors8))
-    extent = mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)
-    normalized = bool(np.abs(raw.vertices).max() <= 0.5 + 1e-3 and extent.max() > 0.9)
-    conventional = "y" if path.suffix.lower() in (".glb", ".gltf") else "z"  # glTF is Y-up by its spec
-    up = (up or "auto").strip().lower()
-    if up != "auto" and up.lstrip("+-") not in AXES:
-        raise MeshError(
-            f"mesh_up = {up!r}",
-            path=path,
-            hint='write mesh_up = "x", "y", "z" (or "-x", "-y", "-z", or "auto") in its [[objects]] entry',
-        )
-    return ImportedMesh(
-        np.asarray(mesh.vertices, float),
-        np.asarray(mesh.faces, np.int64),
-        colors,
-        normalized,
-        axis_vector(conventional if up == "auto" else up),
-        repairs,
-        up_given=up != "auto",
-    )
-
-
-AXES = {"x": 0, "y": 1, "z": 2}
-
-
-def axis_vector(name: str) -> np.ndarray:
-    """The unit vector of an axis name: "x", "+y", "-z", ..."""
-    axis = np.zeros(3)
-    axis[AXES[name.lstrip("+-")]] = -1.0 if name.startswith("-") else 1.0
-    return axis
-
-
-def up_candidates(mesh: ImportedMesh) -> list[np.ndarray]:
-    """The up axes to try: the given one, else the file format's convention first, then the other five."""
-    if mesh.up_given:
-        return [mesh.up]
-    others = [axis_vector(s + a) for a in AXES for s in "+-"]
-    return [mesh.up] + [a for a in others if not np.allclose(a, mesh.up)]
-
-
-def _fill_holes(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """Each hole (a loop of edges used by one triangle) closed by a fan around its centroid,
-    wound like its neighbors. Holes whose border touches itself are left to the caller's checks."""
-    directed = mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    key = np.sort(directed, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    border = directed[counts[inverse.ravel()] == 1]
-    nxt = dict(zip(border[:, 0].tolist(), border[:, 1].tolist()))
-    if len(nxt) != len(border):
-        return mesh  # a vertex starts two border edges: not simple loops
-    vertices, faces, seen = [np.asarray(mesh.vertices)], [np.asarray(mesh.faces)], set()
-    count = len(mesh.vertices)
-    for start in nxt:
-        if start in seen:
-            continue
-        loop, v = [], start
-        while v not in seen and v in nxt:
-            seen.add(v)
-            loop.append(v)
-            v = nxt[v]
-        if v != start or len(loop) < 3:
-            return mesh
-        vertices.append(mesh.vertices[loop].mean(axis=0, keepdims=True))
-        a = np.array(loop)
-        faces.append(np.column_stack([np.roll(a, -1), a, np.full(len(a), count)]))  # border edge reversed
-        count += 1
-    return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
-
-
-def _remesh(mesh: trimesh.Trimesh, resolution: int = 96) -> trimesh.Trimesh:
-    """A closed, self-intersection-free 2-manifold of the input's solid: its signed distance on a
-    grid of ``resolution`` cells along its longest side (inside by the majority of 3 ray parities,
-    Open3D, so small holes and self-intersections do not leak), marched at zero."""
-    import open3d as o3d
-    from skimage.measure import marching_cubes
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32))
-    )
-    step = float((mesh.bounds[1] - mesh.bounds[0]).max()) / resolution
-    # off the grid by an odd fraction: flat faces exactly on grid nodes give zero distances there,
-    # and marching cubes then leaves non-manifold edges
-    lo = mesh.bounds[0] - (2 - 0.3819) * step
-    shape = tuple(np.ceil((mesh.bounds[1] + 2 * step - lo) / step).astype(int) + 1)
-    grid = np.stack(np.meshgrid(*[lo[a] + np.arange(shape[a]) * step for a in range(3)], indexing="ij"), axis=-1)
-    sdf = (
-        scene.compute_signed_distance(o3d.core.Tensor(grid.reshape(-1, 3).astype(np.float32)), nsamples=3)
-        .numpy()
-        .reshape(shape)
-    )
-    verts, faces, _, _ = marching_cubes(sdf, 0.0, spacing=(step,) * 3)
-    out = trimesh.Trimesh(verts + lo, faces[:, ::-1], process=True)
-    if out.volume < 0:
-        out.invert()
-    return out
-
-
-# ---------------------------------------------------------------- scale and pose
-
-
-def world_from_up(up: np.ndarray) -> np.ndarray:
-    """The rotation (3, 3) that turns the mesh's up axis (a signed coordinate axis) into +Z (Y-up:
-    -90 degrees about X); its rows are signed coordinate axes, so it is exact."""
-    up = np.asarray(up, dtype=float)
-    if np.allclose(up, [0, 0, 1]):
-        return np.eye(3)
-    if np.allclose(up, [0, 1, 0]):
-        return trellis.Y_UP_FROM_Z_UP.T
-    k = int(np.argmax(np.abs(up)))
-    if not np.isclose(abs(up[k]), 1.0) or not np.isclose(np.abs(up).sum(), 1.0):
-        raise ValueError(f"unsupported up axis {up}")
-    first = np.zeros(3)
-    first[(k + 1) % 3] = 1.0
-    return np.stack([first, np.cross(up, first), up])
 
 
 def diameter(points: np.ndarray) -> float:
@@ -546,15 +347,6 @@ def _golden_section(at, tried: list[Fit], step: float, resolution: float) -> Non
             tried.append(fb)
 
 
-def choose_unit(rho0: float, tolerance: float = 0.25) -> tuple[float | None, str | None]:
-    """For a mesh that claims to be metric: (meters per file unit, that unit's name) when rho_0
-    is 1 or a known unit's within ``tolerance`` (ratio), else (None, None): the scale is unknown."""
-    for name, scale in {"meters": 1.0, **UNITS}.items():
-        if abs(np.log(rho0 / scale)) <= np.log(1.0 + tolerance):
-            return scale, name
-    return None, None
-
-
 # ---------------------------------------------------------------- the backend
 
 
@@ -620,15 +412,10 @@ def _choose_up(imp: ImportedMesh, observed, support: float, views, rho0: float, 
         ]
         fp = fp_start(rot)
         best = min((cost.icp(rho0, yaw, xy) for yaw, xy in ([fp] if fp else []) + starts), key=lambda f: f.cost)
-        costs[_axis_name(axis)] = [round(float(best.cost), 4), round(float(best.iou), 4), round(1e3 * best.rms_m, 2)]
+        costs[axis_name(axis)] = [round(float(best.cost), 4), round(float(best.iou), 4), round(1e3 * best.rms_m, 2)]
         if chosen is None or best.cost < chosen[0] - 0.02:
             chosen = (best.cost, rot, level)
     return chosen[1], chosen[2], costs
-
-
-def _axis_name(axis: np.ndarray) -> str:
-    k = int(np.argmax(np.abs(axis)))
-    return ("-" if axis[k] < 0 else "+") + "xyz"[k]
 
 
 def run(ctx: StageContext) -> None:
@@ -711,7 +498,7 @@ def run(ctx: StageContext) -> None:
             "support_height_m": round(float(support), 4),
             "foundationpose_start": fp is not None,
             "levelled_deg": round(float(se3.rotation_angle_deg(level)), 2),
-            "up_axis": _axis_name(np.linalg.inv(up_rot) @ np.array([0.0, 0.0, 1.0])),
+            "up_axis": axis_name(np.linalg.inv(up_rot) @ np.array([0.0, 0.0, 1.0])),
             "up_costs": up_costs,
             "repairs": imp.repairs,
             "triangles": int(len(faces)),

@@ -79,6 +79,16 @@ PRIORS: dict[str, PhysicsPrior] = {
         ),
         PhysicsPrior("fruit", (750.0, 1000.0), 0.60, 0.15, 0.20, 0.10, note="apple, orange"),
         PhysicsPrior("book", (550.0, 950.0), 0.50, 0.10, 0.05, 0.05, note="paper book"),
+        PhysicsPrior(
+            "marker",
+            (300.0, 800.0),
+            0.35,
+            0.10,
+            0.30,
+            0.10,
+            note="marker or pen: a plastic barrel and cap, mostly hollow (about 10-15 g over 25-30 cm^3)",
+        ),
+        PhysicsPrior("pen", (300.0, 800.0), 0.35, 0.10, 0.30, 0.10, note="ballpoint pen, hollow plastic barrel"),
         PhysicsPrior("toy", (150.0, 1100.0), 0.50, 0.15, 0.40, 0.15, note="plastic toy, solid or hollow"),
         PhysicsPrior("generic", (200.0, 1500.0), 0.50, 0.20, 0.20, 0.10, note="unknown category: wide prior"),
     )

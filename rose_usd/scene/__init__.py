@@ -8,7 +8,11 @@ STAGE = StageDef(
     layer="scene",
     needs=("capture", "segment"),
     config=SceneConfig,
-    backends={"tsdf": "rose_usd.scene.tsdf:run", "oracle": "rose_usd.scene.oracle:run"},
+    backends={
+        "tsdf": "rose_usd.scene.tsdf:run",
+        "plane": "rose_usd.scene.plane:run",
+        "oracle": "rose_usd.scene.oracle:run",
+    },
     summary="static collidable colored scene mesh and lights -> layers/scene.usda",
     side_dirs=("textures",),
     requires={"tsdf": ("metric-depth",), "oracle": ("gt",)},

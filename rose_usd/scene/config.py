@@ -9,6 +9,7 @@ from rose_usd.stage_config import limits
 class SceneBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, 3-NN vertex colors, xatlas texture from the frames
+    PLANE = "plane"  # RGB only: the support plane as a textured slab, the rest a textured backdrop (visual only)
     ORACLE = "oracle"  # ground-truth scene parts, materials and lights from gt/ (benchmark cases)
 
 
@@ -47,7 +48,27 @@ class TsdfConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class PlaneConfig:
+    """Settings of the plane backend (RGB only)."""
+
+    backdrop_reach: float = 2.5
+    """The support plane reaches this many times the camera's horizontal distance to the world
+    origin (0.3-5 m); beyond it the backdrop stands (default 2.5)."""
+    grid_px: float = 16.0
+    """Vertex spacing of the support and backdrop grid over the reference image [px] (default 16)."""
+    texture_size: int = 2048
+    """Long side of the texture [px] (default 2048)."""
+    texture_frames: int = 48
+    """Texels take the median color over this many frames spread over the video (default 48)."""
+    mask_margin_px: int = 6
+    """Object and interactor masks are grown by this many pixels before the texture takes a color (default 6)."""
+    thickness_m: float = 0.02
+    """The support's collider is a slab this thick [m] (default 0.02)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class SceneConfig:
     backend: SceneBackend = SceneBackend.AUTO
-    """Which backend reconstructs the scene (default auto)."""
+    """Which backend reconstructs the scene (default auto: tsdf with depth, else plane)."""
     tsdf: TsdfConfig = field(default_factory=TsdfConfig)
+    plane: PlaneConfig = field(default_factory=PlaneConfig)

@@ -11,6 +11,7 @@ STAGE = StageDef(
     backends={
         "foundationpose": "rose_usd.trajectory.foundationpose:run",
         "tracker": "rose_usd.trajectory.tracker:run",
+        "silhouette": "rose_usd.trajectory.silhouette:run",
         "oracle": "rose_usd.trajectory.oracle:run",
     },
     summary="object poses per frame (time samples) and TUM export -> layers/trajectory.usda",

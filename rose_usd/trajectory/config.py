@@ -10,6 +10,7 @@ class TrajectoryBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     FOUNDATIONPOSE = "foundationpose"  # FoundationPose's ob_in_cam/ (T_cam<-mesh per frame) through the cameras
     TRACKER = "tracker"  # the object mesh registered to its masked metric depth frame by frame
+    SILHOUETTE = "silhouette"  # RGB only: the object mesh tracked against its masks by render and compare
     ORACLE = "oracle"  # ground-truth object poses from gt/ (benchmark cases)
 
 
@@ -43,7 +44,40 @@ class TrackerConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class SilhouetteConfig:
+    """Settings of the silhouette backend (RGB only)."""
+
+    color_weight: float = 0.7
+    """The silhouette is compared with this much of the color posterior P(object | color) (object
+    and surroundings' color histograms from the first frame) plus the rest of the mask, by soft
+    IoU; 0: the mask alone (default 0.7: the posterior follows an object the masks lose)."""
+    hold_drop: float = 0.04
+    """The pose holds while its silhouette IoU with the frame's target is within this fraction of
+    the first frame's IoU of where it was when set [-] (default 0.04)."""
+    min_iou: float = 0.5
+    """A fit under this fraction of the first frame's IoU is lost: the pose holds, confidence 0
+    [-] (default 0.5)."""
+    min_pixels: int = 50
+    """A mask with fewer pixels is lost (default 50)."""
+    maxfev: int = 160
+    """Cost evaluations of each 6-DoF fit, per start (default 160)."""
+    turn_search_below: float = 0.9
+    """A fit under this fraction of the last IoU is tried again from turned starts [-] (default 0.9)."""
+    turn_search_deg: float = 25.0
+    """... the best pose turned by this much both ways about each camera axis [deg] (default 25)."""
+    max_side_px: int = 320
+    """Each frame's view is cropped around the mask and downscaled to this long side [px] (default 320)."""
+    max_faces: int = 1000
+    """The mesh is decimated to this many triangles for its silhouettes (default 1000)."""
+    settle_frames: int = 8
+    """An object still for this many frames near the support is set down on it (default 8)."""
+    settle_m: float = 0.02
+    """... when its lowest point is within this of the support [m] (default 0.02)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class TrajectoryConfig:
     backend: TrajectoryBackend = TrajectoryBackend.AUTO
     """Which backend tracks the object(s) (default auto)."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    silhouette: SilhouetteConfig = field(default_factory=SilhouetteConfig)

@@ -27,7 +27,18 @@ MASK_API = "RoseMaskAPI"
 GATE_API = "RoseGateAPI"
 SUPPORT_API = "RoseSupportAPI"
 COLLECT_API = "RoseCollectAPI"
-ALL_APIS = (WORLD_API, CAMERA_API, PHYSICS_PRIOR_API, TRAJECTORY_API, MASK_API, GATE_API, SUPPORT_API, COLLECT_API)
+SHAPE_API = "RoseShapeAPI"
+ALL_APIS = (
+    WORLD_API,
+    CAMERA_API,
+    PHYSICS_PRIOR_API,
+    TRAJECTORY_API,
+    MASK_API,
+    GATE_API,
+    SUPPORT_API,
+    COLLECT_API,
+    SHAPE_API,
+)
 
 _GENERATED = ("generatedSchema.usda", "plugInfo.json")
 _registered = False

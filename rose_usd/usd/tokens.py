@@ -65,6 +65,12 @@ PRIOR_RESTITUTION_UNCERTAINTY = "rose:prior:restitutionUncertainty"
 PRIOR_SHELL_THICKNESS = "rose:prior:shellThickness"
 PRIOR_SOURCE = "rose:prior:source"
 
+# shape (objects fitted to silhouettes)
+SHAPE_PRIMITIVE = "rose:shape:primitive"
+SHAPE_PROXY = "rose:shape:proxy"
+SHAPE_SILHOUETTE_IOU = "rose:shape:silhouetteIou"
+SHAPE_SOURCE = "rose:shape:source"
+
 # trajectory
 TRAJECTORY_CONFIDENCE = "rose:trajectory:confidence"
 TRAJECTORY_SOURCE = "rose:trajectory:source"
@@ -73,10 +79,15 @@ TRAJECTORY_SOURCE = "rose:trajectory:source"
 WORLD_GRAVITY_SOURCE = "rose:world:gravitySource"
 WORLD_GRAVITY_UNCERTAINTY_DEG = "rose:world:gravityUncertaintyDeg"
 WORLD_DEPTH_SHIFT_PX = "rose:world:depthShiftPx"
+WORLD_METRIC_DEPTH = "rose:world:metricDepth"
 WORLD_SCALE_ALPHA = "rose:world:scaleAlpha"
 WORLD_SCALE_BETA = "rose:world:scaleBeta"
 WORLD_SCALE_RESIDUAL = "rose:world:scaleResidual"
+WORLD_SCALE_CUES = "rose:world:scaleCues"
+WORLD_SCALE_CUE_SIGMAS = "rose:world:scaleCueSigmas"
+WORLD_SCALE_CUE_VALUES = "rose:world:scaleCueValues"
 WORLD_SCALE_SOURCE = "rose:world:scaleSource"
+WORLD_SCALE_UNCERTAINTY = "rose:world:scaleUncertainty"
 WORLD_WORLD_FROM_INPUT = "rose:world:worldFromInput"
 
 # support

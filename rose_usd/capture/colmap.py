@@ -1,0 +1,173 @@
+"""Structure from motion with COLMAP (pycolmap, CPU SIFT): the cameras of a moving RGB-only video.
+
+Keyframes spread over the video are written to a scratch folder (downscaled to ``max_side``),
+SIFT features extracted (4096 per image: the keyframes overlap heavily and 8192 doubles the time
+for no better pose), matched sequentially with each keyframe's ``overlap`` successors, verified,
+and mapped incrementally into one model (the largest when several come out). A given K is held
+fixed (PINHOLE); without one the focal length starts from the field-of-view guess and bundle
+adjustment refines it (SIMPLE_RADIAL, self-calibration). Masked pixels (the hand, the object:
+things that move) give no features. Poses come back as OpenCV world_from_camera in the map's own
+frame and unit (no metric scale: the caller finds it).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from rose_usd.core import se3
+
+
+@dataclass
+class SfmResult:
+    poses: dict[int, np.ndarray]
+    """Keyframe index (into the frames given) -> world_from_camera (4, 4), OpenCV axes, map units."""
+    K: np.ndarray
+    """Intrinsics at the video's resolution (3, 3) [px]."""
+    distortion: float
+    """SIMPLE_RADIAL's k1 (0 for PINHOLE)."""
+    points: np.ndarray
+    """Map points (P, 3), map units."""
+    colors: np.ndarray
+    """Their sRGB8 colors (P, 3)."""
+    observations: dict[int, tuple[np.ndarray, np.ndarray]]
+    """Keyframe index -> (pixel positions (M, 2) at the video's resolution, point indices (M,))."""
+    reprojection_px: float
+    wall_s: float
+    models: int
+    """How many separate models the mapper made (1 when everything joined)."""
+
+
+def run_sfm(
+    frames: list[np.ndarray],
+    K_guess: np.ndarray,
+    *,
+    fix_K: bool,
+    masks: list[np.ndarray | None] | None = None,
+    max_side: int = 640,
+    overlap: int = 8,
+    max_features: int = 4096,
+    num_threads: int = 2,
+    max_runtime_s: float = 600.0,
+) -> SfmResult | None:
+    """SfM over ``frames`` (RGB uint8, one size); None when no model of at least 3 images forms.
+
+    Args:
+        K_guess: intrinsics at the frames' resolution; held fixed when ``fix_K``.
+        masks: per frame, bool (H, W) of pixels to leave out (True = masked), or None.
+    """
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 2  # errors only: INFO is a line per image and step
+    h, w = frames[0].shape[:2]
+    s = min(1.0, max_side / max(w, h))
+    sw, sh = int(round(w * s)), int(round(h * s))
+    sx, sy = sw / w, sh / h
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="rose-sfm-") as tmp:
+        root = Path(tmp)
+        images, mask_dir = root / "images", root / "masks"
+        images.mkdir()
+        names = []
+        for i, rgb in enumerate(frames):
+            name = f"{i:05d}.jpg"
+            small = cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA) if s < 1 else rgb
+            cv2.imwrite(str(images / name), cv2.cvtColor(small, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
+            names.append(name)
+            if masks is not None and masks[i] is not None:
+                mask_dir.mkdir(exist_ok=True)
+                keep = ~cv2.resize(masks[i].astype(np.uint8), (sw, sh), interpolation=cv2.INTER_NEAREST).astype(bool)
+                cv2.imwrite(str(mask_dir / f"{name}.png"), keep.astype(np.uint8) * 255)
+        k = np.array(K_guess, dtype=float)
+        fx, fy = k[0, 0] * sx, k[1, 1] * sy
+        cx, cy = (k[0, 2] + 0.5) * sx - 0.5, (k[1, 2] + 0.5) * sy - 0.5
+        reader = pycolmap.ImageReaderOptions()
+        if fix_K:
+            reader.camera_model = "PINHOLE"
+            reader.camera_params = f"{fx},{fy},{cx},{cy}"
+        else:
+            reader.camera_model = "SIMPLE_RADIAL"
+            reader.camera_params = f"{0.5 * (fx + fy)},{cx},{cy},0"
+        if mask_dir.is_dir():
+            reader.mask_path = str(mask_dir)
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = num_threads
+        extraction.sift.max_num_features = max_features
+        database = root / "database.db"
+        pycolmap.extract_features(
+            database,
+            images,
+            image_names=names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = num_threads
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = overlap
+        pairing.quadratic_overlap = True
+        pycolmap.match_sequential(
+            database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+        )
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = num_threads
+        options.random_seed = 0
+        options.mapper.random_seed = 0
+        options.triangulation.random_seed = 0
+        options.max_runtime_seconds = int(max_runtime_s)
+        options.ba_refine_focal_length = not fix_K
+        options.ba_refine_extra_params = not fix_K
+        options.ba_refine_principal_point = False
+        out = root / "sparse"
+        out.mkdir()
+        models = pycolmap.incremental_mapping(database, images, out, options=options)
+    if not models:
+        return None
+    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    if rec.num_reg_images() < 3:
+        return None
+    camera = next(iter(rec.cameras.values()))
+    params = np.asarray(camera.params, dtype=float)
+    if fix_K:
+        K = k.copy()
+        k1 = 0.0
+    else:
+        f, pcx, pcy, k1 = params
+        K = np.array([[f / sx, 0, (pcx + 0.5) / sx - 0.5], [0, f / sy, (pcy + 0.5) / sy - 0.5], [0, 0, 1.0]])
+    point_ids = list(rec.point3D_ids())
+    index = {pid: i for i, pid in enumerate(point_ids)}
+    points = np.array([rec.point3D(pid).xyz for pid in point_ids]).reshape(-1, 3)
+    colors = np.array([rec.point3D(pid).color for pid in point_ids]).reshape(-1, 3).astype(np.uint8)
+    poses, observations = {}, {}
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        i = int(Path(image.name).stem)
+        cam_from_world = np.asarray(image.cam_from_world().matrix(), dtype=float)
+        poses[i] = se3.invert(np.vstack([cam_from_world, [0, 0, 0, 1]]))
+        uv, ids = [], []
+        for p2d in image.points2D:
+            if p2d.has_point3D() and p2d.point3D_id in index:
+                uv.append(p2d.xy)
+                ids.append(index[p2d.point3D_id])
+        uv = np.array(uv, dtype=float).reshape(-1, 2)
+        uv = np.column_stack([(uv[:, 0] + 0.5) / sx - 0.5, (uv[:, 1] + 0.5) / sy - 0.5]) if len(uv) else uv
+        observations[i] = (uv, np.array(ids, dtype=int))
+    return SfmResult(
+        poses=poses,
+        K=K,
+        distortion=float(k1),
+        points=points,
+        colors=colors,
+        observations=observations,
+        reprojection_px=float(rec.compute_mean_reprojection_error()) / s,
+        wall_s=time.perf_counter() - t0,
+        models=len(models),
+    )

@@ -1,0 +1,189 @@
+"""Metric scale for an RGB-only video: no measurement, only priors, each an explicit cue.
+
+A monocular reconstruction (a static camera over a support plane at an unknown height, or a
+structure-from-motion map) is right up to one scale factor. The prompted object is segmented in
+its prompt frame (GrabCut in the prompt box) and a shape standing on the support plane is fitted
+to that silhouette in the reconstruction's units (``geometry.silhouette.fit_standing``):
+
+- ``mesh``: the object's metric mesh (rose.toml's ``mesh``, not TRELLIS's unit cube), its scale
+  free: meters per unit = 1 / the fitted scale (a few % on a clean silhouette);
+- ``size-prior``: the category's primitive with free dimensions; its largest dimension against
+  the object's ``size_m``;
+- ``category-prior``: the same fit against the category's typical size (``geometry.primitives``),
+  uncertain by the category's spread (8-60 %);
+- ``camera-height``: a hand-held or tripod camera filming a tabletop from about 0.5 m above it
+  (+-50 %), when nothing else is known.
+
+The most certain cue is chosen; every cue, its value and its sigma go into the world layer, with
+their agreement (each cue's ratio to the chosen one, in sigmas) in the provenance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from rose_usd.case.config import ObjectSpec
+from rose_usd.core import se3
+from rose_usd.geometry.primitives import largest_dimension, primitive_mesh, typical
+from rose_usd.geometry.silhouette import View, crop_view, fit_standing, footprint_xy
+
+CAMERA_HEIGHT_M = (0.5, 0.5)
+"""A tabletop video's camera height over the support: (typical [m], relative sigma)."""
+
+
+@dataclass
+class ScaleCue:
+    name: str
+    """Schema token: mesh, size-prior, category-prior, hand, camera-height."""
+    meters_per_unit: float
+    sigma: float
+    """Relative one-sigma [-]."""
+    detail: dict = field(default_factory=dict)
+
+
+def prompt_silhouette(rgb: np.ndarray, box: tuple[float, float, float, float], *, max_side: int = 640) -> np.ndarray:
+    """The object's mask in the prompt frame: GrabCut initialized by the prompt box, its largest
+    part with holes filled (bool, the frame's size)."""
+    h, w = rgb.shape[:2]
+    s = min(1.0, max_side / max(w, h))
+    small = cv2.resize(rgb, (int(round(w * s)), int(round(h * s))), interpolation=cv2.INTER_AREA) if s < 1 else rgb
+    x0, y0, x1, y1 = (int(round(v * s)) for v in box)
+    x0, y0 = max(x0, 1), max(y0, 1)
+    x1, y1 = min(x1, small.shape[1] - 2), min(y1, small.shape[0] - 2)
+    mask = np.zeros(small.shape[:2], np.uint8)
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.grabCut(
+        cv2.cvtColor(small, cv2.COLOR_RGB2BGR), mask, (x0, y0, x1 - x0, y1 - y0), bgd, fgd, 5, cv2.GC_INIT_WITH_RECT
+    )
+    fg = ((mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(fg)
+    if count > 1:
+        fg = (labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
+    contours, _ = cv2.findContours(fg, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(fg, contours, -1, 1, thickness=cv2.FILLED)
+    return cv2.resize(fg, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+
+def _view(mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> View:
+    return crop_view(mask, None, K, world_from_cv, max_side=320)
+
+
+def fit_primitive(
+    spec: ObjectSpec, view: View, mask: np.ndarray, K, world_from_cv, *, maxfev: int = 300
+) -> dict | None:
+    """The category's primitive standing on z = 0 fitted to the silhouette, in the world's units:
+    its dimensions, largest dimension, pose and IoU; None when the object's foot is not below the
+    horizon."""
+    typ, _ = typical(spec.category)
+    xy = footprint_xy(mask, K, world_from_cv)
+    if xy is None:
+        return None
+    # start from the typical shape scaled to the object's width at its foot's depth
+    ys, xs = np.nonzero(mask)
+    foot = se3.invert(world_from_cv) @ np.array([*xy, 0.0, 1.0])
+    width_units = float(xs.max() - xs.min()) * foot[2] / K[0, 0]
+    dims0 = np.asarray(typ.dims) * width_units / max(typ.size_m, 1e-6)
+    yaws = (0.0, np.radians(30.0), np.radians(60.0)) if typ.kind.value in ("box", "lying-cylinder") else (0.0,)
+    turn = typ.kind.value in ("box", "lying-cylinder")
+    cam = world_from_cv[:3, 3]
+    toward = np.asarray(xy) - cam[:2]
+    xy0 = np.asarray(xy) + 0.3 * width_units * toward / max(np.linalg.norm(toward), 1e-9)  # center behind the front
+    fit = fit_standing(
+        lambda d: primitive_mesh(typ.kind, d), dims0, [view], xy0, yaws=yaws, turn=turn, convex=True, maxfev=maxfev
+    )
+    size = largest_dimension(typ.kind, fit.size)
+    return {
+        "kind": typ.kind.value,
+        "dims": fit.size,
+        "size_units": size,
+        "iou": fit.iou,
+        "pose": fit.pose(),
+        "typical_size_m": typ.size_m,
+        "typical_sigma": typ.sigma,
+        "typical_source": typ.source,
+    }
+
+
+def level_by_object(
+    spec: ObjectSpec,
+    mask: np.ndarray,
+    K: np.ndarray,
+    world_from_cv: np.ndarray,
+    sigma_deg: float,
+    *,
+    max_deg: float = 25.0,
+) -> tuple[np.ndarray, dict]:
+    """The world's tilt that makes the prompted object stand on the support best: the rotation
+    (4, 4) about the world origin (the object's foot) by which the world's up is corrected, and
+    what the search found. A primitive standing on a tilted plane does not fit the silhouette of
+    one standing on the true one (a cup's rim ellipse, a box's vertical edges), so the tilt (two
+    angles) is fitted with the primitive, with a prior of ``sigma_deg`` on it (the gravity source's
+    sigma): one sigma of tilt costs 0.01 of IoU. The identity when nothing improves."""
+    from rose_usd.geometry.silhouette import nelder_mead
+
+    def fitted(tilt_deg: np.ndarray):
+        rot = _tilt(tilt_deg)
+        pose = rot @ world_from_cv
+        view = crop_view(mask, None, K, pose, max_side=240)
+        fit = fit_primitive(spec, view, mask, K, pose, maxfev=150)
+        return fit, rot
+
+    def cost(tilt_deg):
+        if np.hypot(*tilt_deg) > max_deg:
+            return 2.0
+        fit, _ = fitted(tilt_deg)
+        iou = fit["iou"] if fit is not None else 0.0
+        return 1.0 - iou + 0.01 * float(np.sum(np.square(tilt_deg))) / max(sigma_deg, 0.5) ** 2
+
+    level = cost(np.zeros(2))
+    best, best_cost = nelder_mead(cost, np.zeros(2), np.array([4.0, 4.0]), maxfev=40)
+    if best_cost >= level - 0.005:
+        return np.eye(4), {"tilt_deg": [0.0, 0.0], "cost_level": round(level, 4), "cost_tilted": round(best_cost, 4)}
+    return _tilt(best), {
+        "tilt_deg": [round(float(a), 2) for a in best],
+        "cost_level": round(level, 4),
+        "cost_tilted": round(best_cost, 4),
+    }
+
+
+def _tilt(tilt_deg) -> np.ndarray:
+    """A rotation about the world's x then y axes by the given degrees."""
+    a, b = np.radians(tilt_deg)
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    return se3.make_pose(ry @ rx, np.zeros(3))
+
+
+def fit_mesh(vertices: np.ndarray, faces: np.ndarray, view: View, mask, K, world_from_cv) -> dict | None:
+    """A metric mesh (its +Z up, its lowest point at z = 0) standing on the support, its scale
+    free: the fitted scale (units per meter), pose and IoU."""
+    xy = footprint_xy(mask, K, world_from_cv)
+    if xy is None:
+        return None
+    ys, xs = np.nonzero(mask)
+    foot = se3.invert(world_from_cv) @ np.array([*xy, 0.0, 1.0])
+    width_units = float(xs.max() - xs.min()) * foot[2] / K[0, 0]
+    extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
+    rho0 = width_units / max(extent, 1e-9)
+    base = vertices - np.array([*(0.5 * (vertices.min(axis=0) + vertices.max(axis=0)))[:2], vertices[:, 2].min()])
+    cam = world_from_cv[:3, 3]
+    toward = np.asarray(xy) - cam[:2]
+    xy0 = np.asarray(xy) + 0.3 * width_units * toward / max(np.linalg.norm(toward), 1e-9)
+    fit = fit_standing(
+        lambda r: (base * r[0], faces), np.array([rho0]), [view], xy0, yaws=tuple(np.radians([0.0, 45.0, 90.0, 135.0]))
+    )
+    return {"rho": float(fit.size[0]), "iou": fit.iou, "pose": fit.pose()}
+
+
+def choose(cues: list[ScaleCue]) -> tuple[ScaleCue, dict]:
+    """The most certain cue and each cue's agreement with it: {name: (ratio, sigmas apart)}."""
+    chosen = min(cues, key=lambda c: c.sigma)
+    agreement = {}
+    for c in cues:
+        ratio = c.meters_per_unit / chosen.meters_per_unit
+        apart = abs(np.log(ratio)) / max(np.hypot(c.sigma, chosen.sigma), 1e-9) if c is not chosen else 0.0
+        agreement[c.name] = {"ratio": round(float(ratio), 4), "sigmas_apart": round(float(apart), 2)}
+    return chosen, agreement

@@ -1,0 +1,457 @@
+"""The sfm capture backend: cameras, gravity and a metric scale from RGB frames alone.
+
+No depth, no imported tool: what a casual monocular video gives.
+
+1. **Intrinsics**: cam_K.txt; else a field-of-view guess (``capture.fov_guess_deg``, with a
+   warning), which structure from motion refines when the camera moves (``self-calibrated``).
+2. **Cameras**, by how much the camera moves:
+   - *static* (at least ``sfm.static_fraction`` of the first frame's corners stay within 0.5 px,
+     ``capture.static``): every frame keeps the reference camera's pose;
+   - *near-static* (the reference frame's corners move by less than ``sfm.near_static_motion`` of
+     the image width over the whole video: a camera held still by hand): PnP against the corners
+     of the reference frame that lie on the support plane (``capture.planar``);
+   - *moving*: COLMAP structure from motion over at most ``sfm.keyframes`` keyframes
+     (``capture.colmap``); the frames between keyframes are interpolated on SE(3).
+3. **Gravity**: imu/gravity.txt, else perception/geocalib.json, else (moving camera) the support
+   plane of the map's points under the prompted object (``capture.gravity``), else the vertical
+   vanishing point of the reference frame's lines (``geometry.vanishing``), else a level camera
+   pitched 30 deg down (``upright-prior``, a warning). Gravity from one image is then refined by
+   the prompted object standing on the support (``sfm.level_by_object``, ``scale.level_by_object``).
+4. **Scale** (``capture.scale``): the prompted object's silhouette in its prompt frame fitted by its
+   mesh or its category's primitive standing on the support plane; the scale from ``mesh``,
+   ``size-prior``, ``category-prior`` or ``camera-height``, the most certain; all of them and their
+   agreement recorded. The world layer says there is no metric depth (``rose:world:metricDepth``).
+
+The world frame is the contract's: +Z up, the origin on the support plane under the prompted
+object, +X the first camera's image-right made horizontal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from rose_usd.capture.colmap import run_sfm
+from rose_usd.capture.gravity import (
+    GravityEstimate,
+    Plane,
+    gravity_from_geocalib,
+    gravity_from_imu,
+    gravity_from_planes,
+    world_from_tracking,
+)
+from rose_usd.capture.intrinsics import resolve_K
+from rose_usd.capture.planar import image_motion, track_planar
+from rose_usd.capture.scale import (
+    CAMERA_HEIGHT_M,
+    ScaleCue,
+    choose,
+    fit_mesh,
+    fit_primitive,
+    level_by_object,
+    prompt_silhouette,
+)
+from rose_usd.capture.static import still_fraction
+from rose_usd.capture.world import author_world
+from rose_usd.case.config import Prompt
+from rose_usd.core import se3
+from rose_usd.errors import InputError
+from rose_usd.geometry.silhouette import crop_view
+from rose_usd.geometry.vanishing import up_from_lines, upright_prior
+from rose_usd.progress import say
+from rose_usd.stage_api import StageContext
+
+_IMAGE_GRAVITY = ("vanishing-points", "upright-prior")
+"""Gravity sources of a single image (not a map's plane, not a sensor): the object may refine them."""
+
+
+def _prompted(ctx: StageContext):
+    """The first object with a prompt (``capture.prompts`` over rose.toml's), or None."""
+    specs = {s.name: s for s in ctx.case.config.objects}
+    for item in ctx.config.prompts:
+        name = item.name or (next(iter(specs)) if len(specs) == 1 else "")
+        if name not in specs:
+            raise InputError(
+                f"capture.prompts item {str(item)!r} names no object of rose.toml",
+                path=ctx.case.folder / "rose.toml",
+                hint=f"objects: {', '.join(specs) or 'none'}",
+            )
+        specs[name] = replace(specs[name], prompt=item.prompt)
+    return next((s for s in specs.values() if s.prompt is not None and 0 <= s.prompt.frame < ctx.case.n_frames), None)
+
+
+def _box(prompt: Prompt, width: int, height: int) -> tuple[float, float, float, float]:
+    if prompt.box is not None:
+        return prompt.box
+    x, y = prompt.point
+    r = 0.08 * max(width, height)
+    return (max(0.0, x - r), max(0.0, y - r), min(width, x + r), min(height, y + r))
+
+
+def _interpolate(poses: dict[int, np.ndarray], n: int) -> np.ndarray:
+    """Poses of every frame from those of some: SE(3) interpolation between neighbours, held at the ends."""
+    have = np.array(sorted(poses))
+    out = np.zeros((n, 4, 4))
+    for t in range(n):
+        if t in poses:
+            out[t] = poses[t]
+            continue
+        after, before = have[have > t], have[have < t]
+        if len(before) and len(after):
+            a, b = int(before[-1]), int(after[0])
+            out[t] = se3.slerp_poses(poses[a], poses[b], (t - a) / (b - a))
+        else:
+            out[t] = poses[int(before[-1] if len(before) else after[0])]
+    return out
+
+
+def _up_from_image(ctx: StageContext, K: np.ndarray, ref: int) -> tuple[np.ndarray, float, str, dict]:
+    """Up in the reference camera's axes from its lines, else the upright prior: (up, sigma deg, source, record)."""
+    import cv2
+
+    gray = cv2.cvtColor(ctx.case.rgb(ref), cv2.COLOR_RGB2GRAY)
+    s = min(1.0, 640 / max(gray.shape))  # LSD's segments (and their length threshold) at a 640 px image
+    small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
+    k = np.array([[K[0, 0] * s, 0, (K[0, 2] + 0.5) * s - 0.5], [0, K[1, 1] * s, (K[1, 2] + 0.5) * s - 0.5], [0, 0, 1]])
+    est = up_from_lines(small, k)
+    if est is not None:
+        return (
+            est.up_cam,
+            est.uncertainty_deg,
+            "vanishing-points",
+            {
+                "vanishing": est.how,
+                "vertical_segments": est.vertical_segments,
+                "horizontal_segments": est.horizontal_segments,
+            },
+        )
+    ctx.warn("no vanishing point in the reference frame's lines: gravity assumed level, pitched 30 deg down (a guess)")
+    return upright_prior(30.0), 20.0, "upright-prior", {}
+
+
+def _file_gravity(ctx: StageContext, poses: np.ndarray) -> GravityEstimate | None:
+    folder = ctx.case.folder
+    method = ctx.config.gravity.value
+    imu, geocalib = folder / "imu" / "gravity.txt", folder / "perception" / "geocalib.json"
+    if method in ("auto", "imu") and imu.is_file():
+        return gravity_from_imu(imu, poses)
+    if method in ("auto", "geocalib") and geocalib.is_file():
+        return gravity_from_geocalib(geocalib, poses)
+    if method in ("imu", "geocalib"):
+        raise InputError(
+            f"gravity = {method} but its file is missing", path=folder, hint="add it or choose gravity = auto"
+        )
+    return None
+
+
+def run(ctx: StageContext) -> None:
+    case, cfg = ctx.case, ctx.config
+    n = case.n_frames
+    K, k_source, warning = resolve_K(case, fov_guess_deg=cfg.fov_guess_deg)
+    spec = _prompted(ctx)
+    ref = spec.prompt.frame if spec is not None else 0
+    record: dict = {}
+
+    # ---------------------------------------------------------------- cameras (reference frame = tracking frame)
+    still = still_fraction(case.rgb, n)
+    record["still_corners"] = round(still, 3)
+    points = None
+    if still >= cfg.sfm.static_fraction:
+        motion, poses = "static", np.repeat(np.eye(4)[None], n, axis=0)
+    else:
+        moved = image_motion(case.rgb, n, ref)
+        record["image_motion"] = round(moved, 4)
+        motion = "near-static" if moved < cfg.sfm.near_static_motion else "moving"
+    if motion == "moving":
+        poses, points, K, k_source, sfm_record = _structure_from_motion(ctx, K, k_source, ref)
+        record.update(sfm_record)
+        if poses is None:
+            ctx.warn("structure from motion made no model: the camera is tracked against its support plane instead")
+            motion = "near-static"
+    if warning and k_source == "fov-guess":
+        ctx.warn(warning)
+    record["camera_motion"] = motion
+
+    # ---------------------------------------------------------------- gravity and the support plane
+    gravity = _file_gravity(ctx, np.repeat(np.eye(4)[None], n, axis=0) if motion != "moving" else poses)
+    if motion == "moving":
+        ref_pose = poses[ref]
+        anchor = _map_anchor(points, ref_pose, K, spec, case.width, case.height)
+        support = None
+        if gravity is None:
+            try:
+                est = gravity_from_planes(points, poses, anchor=anchor, min_points=max(30, len(points) // 50))
+                gravity, support = est, est.support
+            except InputError as exc:
+                record["plane_gravity"] = exc.message
+        if gravity is None:
+            up_cam, sigma, source, more = _up_from_image(ctx, K, ref)
+            record.update(more)
+            gravity = GravityEstimate(ref_pose[:3, :3] @ up_cam, source, None, [], sigma)
+        if support is None:
+            support = _plane_along(gravity.up, points, anchor)
+    else:
+        if gravity is None:
+            up_cam, sigma, source, more = _up_from_image(ctx, K, ref)
+            record.update(more)
+            gravity = GravityEstimate(up_cam, source, None, [], sigma)
+        # the reference camera 1 unit above the plane: the scale step sets the unit
+        support = Plane(gravity.up, -1.0, 0, 0.0)
+        if motion == "near-static":
+            exclude = None
+            if spec is not None:
+                exclude = np.zeros((case.height, case.width), bool)
+                x0, y0, x1, y1 = (int(v) for v in _box(spec.prompt, case.width, case.height))
+                exclude[y0:y1, x0:x1] = True
+            poses, planar = track_planar(case.rgb, n, ref, K, gravity.up, exclude=exclude)
+            record.update(planar)
+    up = gravity.up / np.linalg.norm(gravity.up)
+
+    # ---------------------------------------------------------------- world frame (units) and scale
+    anchor_pt, mask = _anchor_on_plane(ctx, spec, poses[ref], K, support)
+    world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
+    world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+    if cfg.sfm.level_by_object and mask is not None and mask.sum() >= 30 and gravity.source in _IMAGE_GRAVITY:
+        # gravity from one image's lines (or a guess) is refined by the prompted object standing on
+        # the support: the tilt that lets its primitive fit its silhouette best
+        tilt, record["level_by_object"] = level_by_object(spec, mask, K, world_units[ref], gravity.uncertainty_deg)
+        if not np.allclose(tilt, np.eye(4)):
+            world_from_track = tilt @ world_from_track
+            world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+            angle = float(np.degrees(np.arccos(np.clip(tilt[2, 2], -1, 1))))
+            # the refined up keeps its source; its sigma is not measured: no more than the source's,
+            # no less than 2 deg, and the tilt applied when that is smaller
+            sigma = float(min(gravity.uncertainty_deg, max(2.0, angle)))
+            gravity = GravityEstimate(world_from_track[2, :3], gravity.source, None, [], sigma)
+    cues, fit_record = _scale_cues(ctx, spec, mask, K, world_units[ref])
+    record["scale_fit"] = fit_record
+    chosen, agreement = choose(cues)
+    if chosen.name == "camera-height":
+        ctx.warn(
+            "no size of any object is known (no size_m, no metric mesh, no prompted object of a known category):"
+            " the metric scale assumes the camera is 0.5 m above the support (+-50 %)"
+        )
+    elif chosen.name == "category-prior":
+        ctx.warn(
+            f"metric scale from the typical size of a {spec.category!r} (+-{100 * chosen.sigma:.0f} %):"
+            " give size_m in rose.toml for a better one"
+        )
+    scale = chosen.meters_per_unit
+    world_from_camera = world_units.copy()
+    world_from_camera[:, :3, 3] *= scale
+    world_from_input = se3.make_pose(world_from_track[:3, :3], world_from_track[:3, 3] * scale)
+    author_world(
+        ctx,
+        world_from_camera=world_from_camera,
+        K=K,
+        world_from_input=world_from_input,
+        gravity_source=gravity.source,
+        gravity_uncertainty_deg=gravity.uncertainty_deg,
+        scale_source=chosen.name,
+        scale_alpha=scale,
+        intrinsics_source=k_source,
+        metric_depth=False,
+        scale_uncertainty=chosen.sigma,
+        scale_cues=[(c.name, c.meters_per_unit, c.sigma) for c in cues],
+    )
+    height = float(world_from_camera[ref, 2, 3])
+    say(
+        f"capture: {motion} camera, gravity from {gravity.source} (+-{gravity.uncertainty_deg:.1f} deg), "
+        f"scale from {chosen.name} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
+    )
+    ctx.record(
+        **record,
+        gravity=gravity.source,
+        gravity_uncertainty_deg=round(float(gravity.uncertainty_deg), 3),
+        scale_source=chosen.name,
+        meters_per_unit=scale,
+        scale_uncertainty=chosen.sigma,
+        scale_cues={c.name: {"meters_per_unit": c.meters_per_unit, "sigma": c.sigma, **c.detail} for c in cues},
+        scale_agreement=agreement,
+        camera_height_m=round(height, 4),
+        origin="prompt" if spec is not None else "view-center",
+        metric_depth=False,
+    )
+
+
+# ---------------------------------------------------------------------------- moving camera
+
+
+def _structure_from_motion(ctx: StageContext, K: np.ndarray, k_source: str, ref: int):
+    """(poses of every frame in the map, map points, K, its source, record); poses None on failure."""
+    case, cfg = ctx.case, ctx.config.sfm
+    n = case.n_frames
+    step = max(1, int(np.ceil(n / cfg.keyframes)))
+    keys = sorted(set(range(0, n, step)) | {n - 1, ref})
+    say(f"capture: structure from motion over {len(keys)} keyframes (COLMAP)")
+    result = run_sfm([case.rgb(t) for t in keys], K, fix_K=k_source == "file", max_side=cfg.max_side)
+    record = {"keyframes": len(keys)}
+    if result is None or ref not in {keys[i] for i in result.poses}:
+        record["sfm"] = "failed" if result is None else "reference frame not registered"
+        return None, None, K, k_source, record
+    poses = {keys[i]: p for i, p in result.poses.items()}
+    record.update(
+        sfm_registered=len(poses),
+        sfm_models=result.models,
+        sfm_points=int(len(result.points)),
+        sfm_reprojection_px=round(result.reprojection_px, 3),
+        sfm_seconds=round(result.wall_s, 1),
+    )
+    if k_source != "file":
+        record["sfm_focal_px"] = round(float(result.K[0, 0]), 2)
+        record["sfm_k1"] = round(result.distortion, 5)
+        K, k_source = result.K, "self-calibrated"
+    if len(poses) < len(keys):
+        ctx.warn(f"structure from motion registered {len(poses)} of {len(keys)} keyframes; the others are interpolated")
+    all_poses = _interpolate(poses, n)
+    # normalize the map: the reference camera at the origin, its points about 1 unit away
+    ref_inv = se3.invert(all_poses[ref])
+    all_poses = np.einsum("ij,njk->nik", ref_inv, all_poses)
+    points = se3.transform_points(ref_inv, result.points)
+    unit = float(np.median(np.linalg.norm(points, axis=1))) or 1.0
+    all_poses[:, :3, 3] /= unit
+    return all_poses, points / unit, K, k_source, record
+
+
+def _map_anchor(points, ref_pose, K, spec, width, height) -> np.ndarray | None:
+    """A point of the map on the prompted object (the median depth of the points inside its box), or None."""
+    if spec is None or points is None:
+        return None
+    x0, y0, x1, y1 = _box(spec.prompt, width, height)
+    cam = se3.transform_points(se3.invert(ref_pose), points)
+    front = cam[:, 2] > 1e-6
+    u = K[0, 0] * cam[front, 0] / cam[front, 2] + K[0, 2]
+    v = K[1, 1] * cam[front, 1] / cam[front, 2] + K[1, 2]
+    cx, cy, hw, hh = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.25 * (x1 - x0), 0.25 * (y1 - y0)
+    inside = (np.abs(u - cx) < hw) & (np.abs(v - cy) < hh)
+    if inside.sum() < 3:
+        return None
+    z = float(np.median(cam[front][inside, 2]))
+    ray = np.array([(cx - K[0, 2]) / K[0, 0], (cy - K[1, 2]) / K[1, 1], 1.0])
+    return se3.transform_points(ref_pose, (z * ray)[None])[0]
+
+
+def _plane_along(up: np.ndarray, points: np.ndarray, anchor: np.ndarray | None) -> Plane:
+    """The support plane with normal ``up`` among the map's points: the densest height band just
+    under the anchor (or overall), its median height."""
+    h = points @ up
+    if anchor is not None:
+        below = h[(h < anchor @ up - 0.005) & (h > anchor @ up - 0.35)]
+        h = below if len(below) >= 20 else h
+    hist, edges = np.histogram(h, bins=60)
+    k = int(np.argmax(hist))
+    band = h[(h >= edges[k] - 0.01) & (h <= edges[k + 1] + 0.01)]
+    return Plane(up, float(np.median(band)), int(len(band)), 0.0)
+
+
+# ---------------------------------------------------------------------------- origin and scale
+
+
+def _anchor_on_plane(ctx: StageContext, spec, ref_pose: np.ndarray, K: np.ndarray, support: Plane):
+    """The origin: where the prompted object's silhouette's foot meets the support plane (or the
+    first view's center without a prompt), in the tracking frame; and the object's mask (or None)."""
+    case = ctx.case
+    mask = None
+    if spec is not None:
+        mask = prompt_silhouette(case.rgb(spec.prompt.frame), _box(spec.prompt, case.width, case.height))
+    if mask is not None and mask.sum() >= 30:
+        ys, xs = np.nonzero(mask)
+        u, v = float(np.median(xs)), float(np.percentile(ys, 98))
+    else:
+        u, v = (case.width - 1) / 2.0, (case.height - 1) / 2.0
+        ctx.warn("no usable object prompt: the world origin is where the first view's center meets the support plane")
+    ray = ref_pose[:3, :3] @ np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], 1.0])
+    origin = ref_pose[:3, 3]
+    denom = support.normal @ ray
+    if denom >= -1e-6:  # at or above the horizon: straight below the camera
+        return support.project(origin), mask
+    s = (support.offset - support.normal @ origin) / denom
+    return origin + s * ray, mask
+
+
+def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np.ndarray):
+    """Every scale cue that can be measured, and what the fits found."""
+    height_units = float(world_from_cv_units[2, 3])
+    cues = [ScaleCue("camera-height", CAMERA_HEIGHT_M[0] / max(height_units, 1e-9), CAMERA_HEIGHT_M[1])]
+    record: dict = {"camera_height_units": round(height_units, 5)}
+    if spec is None or mask is None or mask.sum() < 30:
+        return cues, record
+    view = crop_view(mask, None, K, world_from_cv_units, max_side=320)
+    prim = fit_primitive(spec, view, mask, K, world_from_cv_units)
+    if prim is not None:
+        record["primitive"] = {
+            "kind": prim["kind"],
+            "dims_units": [round(float(d), 5) for d in prim["dims"]],
+            "iou": round(prim["iou"], 4),
+        }
+        fit_sigma = 0.05 + max(0.0, 0.9 - prim["iou"])  # a poor fit widens the measurement's error
+        if "size_m" in spec.overrides:
+            cues.append(
+                ScaleCue(
+                    "size-prior",
+                    float(spec.overrides["size_m"]) / prim["size_units"],
+                    fit_sigma,
+                    {"size_m": float(spec.overrides["size_m"]), "iou": round(prim["iou"], 4)},
+                )
+            )
+        cues.append(
+            ScaleCue(
+                "category-prior",
+                prim["typical_size_m"] / prim["size_units"],
+                float(np.hypot(prim["typical_sigma"], fit_sigma)),
+                {"category": spec.category, "typical_size_m": prim["typical_size_m"], "source": prim["typical_source"]},
+            )
+        )
+    mesh = _metric_mesh(ctx, spec)
+    if mesh is not None:
+        fit = fit_mesh(*mesh, view, mask, K, world_from_cv_units)
+        if fit is not None:
+            record["mesh"] = {"rho_units_per_m": round(fit["rho"], 5), "iou": round(fit["iou"], 4)}
+            if fit["iou"] >= 0.75:
+                cues.append(
+                    ScaleCue(
+                        "mesh", 1.0 / fit["rho"], 0.03 + max(0.0, 0.92 - fit["iou"]), {"iou": round(fit["iou"], 4)}
+                    )
+                )
+            else:
+                ctx.warn(
+                    f"object {spec.name!r}'s mesh stands poorly in its prompt frame's silhouette"
+                    f" (IoU {fit['iou']:.2f}):"
+                    " not used for the scale (held in the air?)"
+                )
+    return cues, record
+
+
+def _metric_mesh(ctx: StageContext, spec):
+    """The object's mesh (vertices up-aligned by mesh_up or its format's convention, faces) when it
+    is metric (1 cm to 2 m across, not TRELLIS's unit cube), decimated for silhouettes; else None."""
+    import trimesh
+
+    from rose_usd.geometry.mesh import decimate
+    from rose_usd.io.meshfile import read_mesh_file
+
+    path = ctx.case.mesh_file(spec)
+    if path is None:
+        return None
+    raw = read_mesh_file(path)
+    v = np.asarray(raw.vertices, float)
+    extent = float(np.max(v.max(axis=0) - v.min(axis=0)))
+    if not 0.01 <= extent <= 2.0 or (np.abs(v).max() <= 0.5 + 1e-3 and extent > 0.9):
+        return None
+    up = str(spec.overrides.get("mesh_up", "auto")).lower()
+    if up == "auto":
+        up = "y" if path.suffix.lower() in (".glb", ".gltf") else "z"
+    axis = "xyz".index(up.lstrip("+-"))
+    sign = -1.0 if up.startswith("-") else 1.0
+    order = [(axis + 1) % 3, (axis + 2) % 3, axis]
+    rot = np.zeros((3, 3))
+    for row, col in enumerate(order):
+        rot[row, col] = 1.0
+    rot[2] *= sign
+    if np.linalg.det(rot) < 0:
+        rot[0] *= -1
+    mesh = trimesh.Trimesh(v @ rot.T, raw.faces, process=False)
+    if len(mesh.faces) > 1500:
+        mesh = decimate(mesh, 1500, check=False)
+    return np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)

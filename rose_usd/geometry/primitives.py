@@ -1,0 +1,164 @@
+"""Category primitives: the shape that stands in for an object nobody scanned (a box, an upright
+cylinder, a cup's frustum, a pen's lying cylinder), and the typical size of its category.
+
+An RGB-only video measures no size: a monocular reconstruction is correct up to one scale. When
+rose.toml gives neither ``size_m`` nor a metric mesh, the object's category gives a typical size
+with an uncertainty (the table below, with where each figure comes from), and the capture stage
+takes the world's metric scale from it. The object stage fits the same primitive to the masks
+and marks it as a proxy (``RoseShapeAPI``).
+
+Every primitive's frame: origin at the center of its bottom (what it stands on), +Z up; its
+``size`` is its largest dimension [m], what ``size_m`` in rose.toml means.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class PrimitiveKind(enum.Enum):
+    BOX = "box"  # dims: (x, y, z) extents
+    CYLINDER = "cylinder"  # dims: (radius, height), axis +Z
+    FRUSTUM = "frustum"  # dims: (bottom radius, top radius, height), axis +Z (a cup)
+    LYING_CYLINDER = "lying-cylinder"  # dims: (radius, length), axis +X, lying on its side (a pen)
+
+
+@dataclass(frozen=True)
+class Typical:
+    """A category's primitive and its typical dimensions, with their relative one-sigma spread
+    and where the figures come from."""
+
+    kind: PrimitiveKind
+    dims: tuple[float, ...]
+    sigma: float
+    """Relative one-sigma of the category's size [-]."""
+    source: str
+
+    @property
+    def size_m(self) -> float:
+        return largest_dimension(self.kind, np.asarray(self.dims))
+
+
+TYPICAL: dict[str, Typical] = {
+    "cup": Typical(
+        PrimitiveKind.FRUSTUM,
+        (0.030, 0.047, 0.121),
+        0.15,
+        "16 oz plastic party cup (Dart Solo P16R): 12.1 cm tall, 9.4 cm rim, 6.0 cm base, the manufacturer's"
+        " spec sheet; paper coffee cups (8-16 oz) are 9-14 cm tall",
+    ),
+    "mug": Typical(
+        PrimitiveKind.CYLINDER,
+        (0.041, 0.095),
+        0.12,
+        "11 oz ceramic mug, the common sublimation blank: 9.5 cm tall, 8.2 cm across (vendors' spec sheets);"
+        " 8-15 oz mugs are 8-12 cm tall",
+    ),
+    "can": Typical(
+        PrimitiveKind.CYLINDER,
+        (0.033, 0.122),
+        0.08,
+        "12 fl oz (355 ml) beverage can: 12.2 cm tall, 6.6 cm across (Ball Corporation's 211/202 can spec)",
+    ),
+    "bottle": Typical(
+        PrimitiveKind.CYLINDER,
+        (0.033, 0.21),
+        0.2,
+        "0.5 l PET water bottle: about 21 cm tall and 6.5 cm across (retail bottles, 0.33-0.75 l: 17-25 cm)",
+    ),
+    "marker": Typical(
+        PrimitiveKind.LYING_CYLINDER,
+        (0.008, 0.138),
+        0.1,
+        "permanent marker (Sharpie Fine Point): 13.8 cm long with its cap, 1.6 cm across (manufacturer's"
+        " product data); whiteboard markers are 12-14 cm",
+    ),
+    "pen": Typical(
+        PrimitiveKind.LYING_CYLINDER,
+        (0.005, 0.145),
+        0.1,
+        "ballpoint pen: 14-15 cm long, about 1 cm across (BIC Cristal: 14.9 cm)",
+    ),
+    "book": Typical(PrimitiveKind.BOX, (0.15, 0.23, 0.03), 0.25, "paperback / A5-B5 book: 15 x 23 cm, 2-4 cm thick"),
+    "block": Typical(PrimitiveKind.BOX, (0.04, 0.04, 0.04), 0.4, "toy wooden building block: 3-5 cm"),
+    "box": Typical(PrimitiveKind.BOX, (0.12, 0.08, 0.06), 0.5, "small carton: no typical size, a wide guess"),
+    "bowl": Typical(PrimitiveKind.FRUSTUM, (0.04, 0.075, 0.07), 0.25, "cereal bowl: 15 cm across, 7 cm tall"),
+    "fruit": Typical(PrimitiveKind.CYLINDER, (0.04, 0.08), 0.2, "apple or orange: about 8 cm across"),
+    "toy": Typical(PrimitiveKind.BOX, (0.10, 0.06, 0.06), 0.5, "small toy: no typical size, a wide guess"),
+    "generic": Typical(PrimitiveKind.BOX, (0.10, 0.08, 0.08), 0.6, "unknown category: a wide guess"),
+}
+"""Category -> its primitive and typical dimensions. Categories without an entry use ``generic``."""
+
+
+def typical(category: str) -> tuple[Typical, bool]:
+    """The category's entry, and whether it has its own (False: the generic guess)."""
+    key = category.strip().lower()
+    return (TYPICAL[key], True) if key in TYPICAL else (TYPICAL["generic"], False)
+
+
+def largest_dimension(kind: PrimitiveKind, dims: np.ndarray) -> float:
+    """The primitive's largest dimension [m] (a box's longest side, a cylinder's diameter or height)."""
+    d = np.asarray(dims, dtype=float)
+    if kind is PrimitiveKind.BOX:
+        return float(d.max())
+    if kind is PrimitiveKind.CYLINDER:
+        return float(max(2 * d[0], d[1]))
+    if kind is PrimitiveKind.FRUSTUM:
+        return float(max(2 * d[0], 2 * d[1], d[2]))
+    return float(max(2 * d[0], d[1]))
+
+
+def primitive_mesh(kind: PrimitiveKind, dims, *, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """A closed, outward-wound triangle mesh of the primitive in its own frame (origin at the
+    bottom's center, +Z up): vertices (V, 3) [m] and faces (F, 3)."""
+    d = np.asarray(dims, dtype=float)
+    if kind is PrimitiveKind.BOX:
+        return box_mesh(d)
+    if kind is PrimitiveKind.CYLINDER:
+        return frustum_mesh(d[0], d[0], d[1], segments)
+    if kind is PrimitiveKind.FRUSTUM:
+        return frustum_mesh(d[0], d[1], d[2], segments)
+    v, f = frustum_mesh(d[0], d[0], d[1], segments)
+    v = v - np.array([0.0, 0.0, 0.5 * d[1]])
+    v = v @ np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]).T  # axis +Z -> +X
+    return v + np.array([0.0, 0.0, d[0]]), f
+
+
+def box_mesh(extents) -> tuple[np.ndarray, np.ndarray]:
+    """A box of ``extents`` (x, y, z) standing on z = 0, centered in x and y."""
+    ex, ey, ez = (float(e) for e in extents)
+    corners = np.array([[x, y, z] for z in (0.0, ez) for y in (-ey / 2, ey / 2) for x in (-ex / 2, ex / 2)])
+    faces = np.array(
+        [
+            [0, 2, 1], [1, 2, 3],  # bottom (-z)
+            [4, 5, 6], [5, 7, 6],  # top (+z)
+            [0, 1, 4], [1, 5, 4],  # -y
+            [2, 6, 3], [3, 6, 7],  # +y
+            [0, 4, 2], [2, 4, 6],  # -x
+            [1, 3, 5], [3, 7, 5],  # +x
+        ]
+    )  # fmt: skip
+    return corners, faces
+
+
+def frustum_mesh(r_bottom: float, r_top: float, height: float, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """A closed frustum (a cylinder when the radii agree) standing on z = 0, axis +Z."""
+    a = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    ring = np.column_stack([np.cos(a), np.sin(a)])
+    bottom = np.column_stack([r_bottom * ring, np.zeros(segments)])
+    top = np.column_stack([r_top * ring, np.full(segments, height)])
+    vertices = np.concatenate([bottom, top, [[0.0, 0.0, 0.0], [0.0, 0.0, height]]])
+    i = np.arange(segments)
+    j = (i + 1) % segments
+    cb, ct = 2 * segments, 2 * segments + 1
+    side = np.concatenate([np.column_stack([i, j, segments + j]), np.column_stack([i, segments + j, segments + i])])
+    caps = np.concatenate(
+        [
+            np.column_stack([np.full(segments, cb), j, i]),
+            np.column_stack([np.full(segments, ct), segments + i, segments + j]),
+        ]
+    )
+    return vertices, np.concatenate([side, caps])

@@ -1,0 +1,398 @@
+"""Shapes fitted to masks by render and compare: the silhouette IoU of a mesh against an object's
+masks, and the searches that make it large. What an RGB-only video has instead of depth.
+
+A view is one frame's mask, the pixels to leave out (the interactor and other objects, which may
+hide the object) and its camera, cropped around the mask and downscaled (``crop_view``), so a
+silhouette costs about a millisecond whatever the video's size. The cost of a shape is 1 - IoU
+summed over the views (intersection and union added up before dividing). It is minimized by
+Nelder-Mead from a good start: IoU is flat between pixel steps, but over an object of a hundred
+pixels a simplex of a few pixels' moves finds its way.
+
+- ``fit_standing``: a shape standing on the support plane (z = ``support_z``) at (x, y) turned by
+  yaw, its dimensions (a primitive's) or its scale (a mesh's) free or fixed: what a resting
+  object's silhouettes determine.
+- ``search_free`` and ``fit_free``: a metric mesh anywhere (6-DoF), for an object held in the air:
+  orientations spread over the sphere, each placed where its silhouette's centroid and area match
+  the mask's, the best refined.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import minimize
+
+from rose_usd.core import se3
+from rose_usd.core.pinhole import project, silhouette
+
+
+@dataclass
+class View:
+    """One frame's mask in a crop around it (working resolution)."""
+
+    mask: np.ndarray
+    """Bool (h, w): the object's pixels."""
+    ignore: np.ndarray
+    """Bool (h, w): pixels counted neither way (what may hide the object)."""
+    K: np.ndarray
+    """Intrinsics of the crop (3, 3) [px]."""
+    world_from_cv: np.ndarray
+    frame: int = -1
+    scale: float = 1.0
+    """Crop pixels per video pixel."""
+    offset: tuple[int, int] = (0, 0)
+    """(x0, y0) of the crop in video pixels."""
+    soft: np.ndarray | None = None
+    """Float (h, w) in [0, 1]: how likely each pixel is the object's (a color posterior blended
+    with the mask); when given, the IoU is the soft one against it."""
+
+    def render(
+        self, vertices_world: np.ndarray, faces: np.ndarray, *, closed: bool = True, convex: bool = False
+    ) -> np.ndarray:
+        """The mesh's silhouette in the crop; a ``convex`` mesh's is its projected vertices' hull."""
+        h, w = self.mask.shape
+        if convex:
+            cam = se3.transform_points(se3.invert(self.world_from_cv), vertices_world)
+            if np.all(cam[:, 2] > 1e-3):
+                u, v = project(cam, self.K)
+                hull = cv2.convexHull(np.round(np.column_stack([u, v]) * 16).astype(np.int32))
+                out = np.zeros((h, w), np.uint8)
+                cv2.fillConvexPoly(out, hull, 1, lineType=cv2.LINE_8, shift=4)
+                return out.astype(bool)
+        return silhouette(vertices_world, faces, self.world_from_cv, self.K, w, h, closed=closed)
+
+
+def crop_view(
+    mask: np.ndarray,
+    ignore: np.ndarray | None,
+    K: np.ndarray,
+    world_from_cv: np.ndarray,
+    *,
+    frame: int = -1,
+    grow: float = 0.75,
+    max_side: int = 320,
+    box: tuple[float, float, float, float] | None = None,
+    soft: np.ndarray | None = None,
+) -> View:
+    """The view of ``mask`` (bool, video size) cropped to its bounding box (or ``box``) grown by
+    ``grow`` of its size on every side and downscaled so its long side is at most ``max_side``;
+    ``soft`` (float, video size) is cropped with it."""
+    h, w = mask.shape
+    if box is None:
+        ys, xs = np.nonzero(mask)
+        box = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1) if len(xs) else (0, 0, w, h)
+    x0, y0, x1, y1 = box
+    bw, bh = x1 - x0, y1 - y0
+    x0, x1 = int(max(0, np.floor(x0 - grow * bw))), int(min(w, np.ceil(x1 + grow * bw)))
+    y0, y1 = int(max(0, np.floor(y0 - grow * bh))), int(min(h, np.ceil(y1 + grow * bh)))
+    s = min(1.0, max_side / max(x1 - x0, y1 - y0, 1))
+    cw, ch = max(1, int(round((x1 - x0) * s))), max(1, int(round((y1 - y0) * s)))
+
+    def cut(image):
+        part = image[y0:y1, x0:x1].astype(np.uint8)
+        return cv2.resize(part, (cw, ch), interpolation=cv2.INTER_AREA) >= 128 if s < 1 else part.astype(bool)
+
+    k = np.array(K, dtype=float)
+    kc = np.array(
+        [
+            [k[0, 0] * s, 0.0, (k[0, 2] - x0 + 0.5) * s - 0.5],
+            [0.0, k[1, 1] * s, (k[1, 2] - y0 + 0.5) * s - 0.5],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    mask8 = mask.astype(np.uint8) * 255
+    ignore8 = (np.zeros_like(mask) if ignore is None else ignore).astype(np.uint8) * 255
+    soft_crop = None
+    if soft is not None:
+        part = np.ascontiguousarray(soft[y0:y1, x0:x1], dtype=np.float32)
+        soft_crop = cv2.resize(part, (cw, ch), interpolation=cv2.INTER_AREA) if s < 1 else part
+    return View(cut(mask8), cut(ignore8), kc, np.asarray(world_from_cv, float), frame, s, (x0, y0), soft_crop)
+
+
+def is_convex(vertices: np.ndarray, faces: np.ndarray, tolerance: float = 0.01) -> bool:
+    """Whether a closed mesh's volume is within ``tolerance`` of its convex hull's (its silhouette is
+    then the hull of its projected vertices, a hundred times faster to draw)."""
+    import trimesh
+
+    tm = trimesh.Trimesh(vertices, faces, process=False)
+    return bool(tm.is_watertight and tm.volume >= (1.0 - tolerance) * tm.convex_hull.volume)
+
+
+def iou(
+    views: list[View], vertices_world: np.ndarray, faces: np.ndarray, *, closed: bool = True, convex: bool = False
+) -> float:
+    """Silhouette IoU of the mesh (world coordinates) with the views' masks, outside what they ignore."""
+    inter = union = 0.0
+    for view in views:
+        r = view.render(vertices_world, faces, closed=closed, convex=convex)
+        keep = ~view.ignore
+        if view.soft is not None:  # soft IoU: sum(r S) / sum(r + S - r S)
+            soft = np.where(keep, view.soft, 0.0)
+            rk = r & keep
+            inside = float(soft[rk].sum())
+            inter += inside
+            union += float(np.count_nonzero(rk)) + float(soft.sum()) - inside
+            continue
+        inter += int(np.count_nonzero(r & view.mask & keep))
+        union += int(np.count_nonzero((r | view.mask) & keep))
+    return inter / max(union, 1e-9)
+
+
+def nelder_mead(cost: Callable[[np.ndarray], float], x0: np.ndarray, steps: np.ndarray, *, maxfev: int = 200):
+    """Minimize ``cost`` from ``x0`` with a first simplex ``steps`` wide: (x, cost)."""
+    x0 = np.asarray(x0, float)
+    simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * steps[i] for i in range(len(x0))])
+    res = minimize(
+        cost,
+        x0,
+        method="Nelder-Mead",
+        options={"initial_simplex": simplex, "maxfev": maxfev, "xatol": 1e-4, "fatol": 1e-4},
+    )
+    return np.asarray(res.x, float), float(res.fun)
+
+
+def rot_z(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def standing_pose(x: float, y: float, yaw: float, support_z: float = 0.0) -> np.ndarray:
+    """world_from_object of a shape whose frame's origin is the center of its bottom."""
+    return se3.make_pose(rot_z(yaw), np.array([x, y, support_z]))
+
+
+@dataclass
+class StandingFit:
+    x: float
+    y: float
+    yaw: float
+    size: np.ndarray
+    """A primitive's dimensions, or (rho,) for a mesh's scale."""
+    iou: float
+
+    def pose(self, support_z: float = 0.0) -> np.ndarray:
+        return standing_pose(self.x, self.y, self.yaw, support_z)
+
+
+def fit_standing(
+    shape: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    size0: np.ndarray,
+    views: list[View],
+    xy0: np.ndarray,
+    *,
+    support_z: float = 0.0,
+    yaws: tuple[float, ...] = (0.0,),
+    free_size: np.ndarray | None = None,
+    turn: bool = True,
+    maxfev: int = 300,
+    convex: bool = False,
+) -> StandingFit:
+    """A shape standing on z = ``support_z``: position, yaw and (where ``free_size`` says) its
+    size parameters fitted to the views' silhouettes.
+
+    Args:
+        shape: size parameters -> (vertices, faces) in the object frame (origin at the bottom's
+            center, +Z up).
+        size0: the size parameters to start from (all positive: searched on log scale).
+        xy0: where to start (world x, y) [m].
+        yaws: starting yaws [rad]; each start is refined, the best kept.
+        free_size: bool per size parameter, True = fitted (default all).
+        turn: whether yaw is fitted (not for a shape symmetric about +Z).
+    """
+    size0 = np.asarray(size0, float)
+    free = np.ones(len(size0), bool) if free_size is None else np.asarray(free_size, bool)
+    extent = float(np.max(size0))
+
+    def unpack(p):
+        size = size0.copy()
+        size[free] = size0[free] * np.exp(p[3 : 3 + free.sum()])
+        return p[0], p[1], (p[2] if turn else 0.0), size
+
+    def cost(p):
+        x, y, yaw, size = unpack(p)
+        v, f = shape(size)
+        world = se3.transform_points(standing_pose(x, y, yaw, support_z), v)
+        return 1.0 - iou(views, world, f, convex=convex)
+
+    best = None
+    for yaw in yaws:
+        p0 = np.concatenate([[xy0[0], xy0[1], yaw], np.zeros(free.sum())])
+        steps = np.concatenate([[0.15 * extent, 0.15 * extent, np.radians(20.0)], np.full(free.sum(), 0.15)])
+        p, c = nelder_mead(cost, p0, steps, maxfev=maxfev)
+        p, c = nelder_mead(cost, p, steps / 4, maxfev=maxfev // 2)  # restart: the simplex collapses on plateaus
+        if best is None or c < best[1]:
+            best = (p, c)
+    x, y, yaw, size = unpack(best[0])
+    return StandingFit(float(x), float(y), float(yaw), size, 1.0 - best[1])
+
+
+def footprint_xy(view_mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, support_z: float = 0.0):
+    """Where the mask's lowest pixels' ray meets the plane z = ``support_z`` (world x, y): the
+    front of an object standing there; None when the ray points above the horizon."""
+    ys, xs = np.nonzero(view_mask)
+    if not len(ys):
+        return None
+    low = ys >= np.percentile(ys, 95)
+    u, v = float(np.median(xs[low])), float(np.percentile(ys, 98))
+    ray = world_from_cv[:3, :3] @ np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], 1.0])
+    origin = world_from_cv[:3, 3]
+    if ray[2] > -1e-6:
+        return None
+    s = (support_z - origin[2]) / ray[2]
+    return (origin + s * ray)[:2]
+
+
+# ----------------------------------------------------------------------------- free pose
+
+
+def _fibonacci_sphere(n: int) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    theta = np.pi * (1 + 5**0.5) * i
+    return np.column_stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)])
+
+
+def _look_rotation(direction: np.ndarray, roll: float) -> np.ndarray:
+    """A rotation taking the object's +Z to ``direction`` (camera axes), then turned by ``roll`` about it."""
+    z = direction / np.linalg.norm(direction)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    base = np.column_stack([x, y, z])
+    return base @ rot_z(roll)
+
+
+def _centered(view: View, vertices: np.ndarray, faces: np.ndarray, rot: np.ndarray, z: float):
+    """cam_from_object placing the rotated object's centroid on the mask's centroid ray at depth z."""
+    ys, xs = np.nonzero(view.mask)
+    k = view.K
+    ray = np.array([(xs.mean() - k[0, 2]) / k[0, 0], (ys.mean() - k[1, 2]) / k[1, 1], 1.0])
+    center = vertices.mean(axis=0)
+    return se3.make_pose(rot, z * ray - rot @ center)
+
+
+def search_free(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    view: View,
+    *,
+    directions: int = 150,
+    rolls: int = 12,
+    keep: int = 6,
+) -> list[tuple[float, np.ndarray]]:
+    """The ``keep`` best world_from_object poses of a metric mesh for one view, from orientations
+    spread over the sphere (``directions`` x ``rolls``), each at the depth where its silhouette's
+    area matches the mask's: [(IoU, pose)], best first."""
+    area = float(np.count_nonzero(view.mask))
+    diameter = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    ys, xs = np.nonzero(view.mask)
+    extent_px = float(max(xs.max() - xs.min(), ys.max() - ys.min(), 1))
+    z0 = view.K[0, 0] * diameter / extent_px
+    cv_from_world = se3.invert(view.world_from_cv)
+    found = []
+    for d in _fibonacci_sphere(directions):
+        for roll in np.linspace(0, 2 * np.pi, rolls, endpoint=False):
+            rot = _look_rotation(d, roll)
+            cam = _centered(view, vertices, faces, rot, z0)
+            r = view.render(se3.transform_points(view.world_from_cv @ cam, vertices), faces)
+            a = float(np.count_nonzero(r))
+            if a < 4:
+                continue
+            z = z0 * np.sqrt(a / area)
+            cam = _centered(view, vertices, faces, rot, z)
+            world = view.world_from_cv @ cam
+            found.append((iou([view], se3.transform_points(world, vertices), faces), world))
+    found.sort(key=lambda f: -f[0])
+    del cv_from_world
+    return found[:keep]
+
+
+def perturb(world_from_object: np.ndarray, view: View, p: np.ndarray) -> np.ndarray:
+    """The pose moved by p = (rotation vector (3) [rad], shift (3)) in ``view``'s camera frame:
+    the shift in x, y is in units of the depth (a fraction of the field of view), in z a log depth
+    ratio, all about the object's origin as the camera sees it."""
+    cam = se3.invert(view.world_from_cv) @ world_from_object
+    z = cam[2, 3]
+    rot = cv2.Rodrigues(np.asarray(p[:3], float))[0]
+    t = cam[:3, 3]
+    t_new = np.array([t[0] / t[2] + p[3], t[1] / t[2] + p[4], 1.0]) * z * np.exp(p[5])
+    return view.world_from_cv @ se3.make_pose(rot @ cam[:3, :3], t_new)
+
+
+def fit_free(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    views: list[View],
+    world_from_object: np.ndarray,
+    *,
+    maxfev: int = 300,
+    step_deg: float = 6.0,
+    step_shift: float = 0.01,
+    cost_extra: Callable[[np.ndarray], float] | None = None,
+    convex: bool = False,
+) -> tuple[np.ndarray, float]:
+    """The 6-DoF pose of a mesh (object frame) best fitting the views' silhouettes, from
+    ``world_from_object``: (pose, IoU). ``cost_extra(pose)`` is added to 1 - IoU."""
+    ref = views[0]
+
+    def cost(p):
+        pose = perturb(world_from_object, ref, p)
+        extra = cost_extra(pose) if cost_extra is not None else 0.0
+        return 1.0 - iou(views, se3.transform_points(pose, vertices), faces, convex=convex) + extra
+
+    steps = np.array([np.radians(step_deg)] * 3 + [step_shift, step_shift, 2 * step_shift])
+    p, c = nelder_mead(cost, np.zeros(6), steps, maxfev=maxfev)
+    for scale in (0.5, 0.25, 0.125):  # restarts: a collapsed simplex stalls on IoU's plateaus
+        q, d = nelder_mead(cost, p, steps * scale, maxfev=maxfev // 2)
+        if d < c - 1e-5:
+            p, c = q, d
+        elif scale < 0.25:
+            break
+    pose = perturb(world_from_object, ref, p)
+    return pose, iou(views, se3.transform_points(pose, vertices), faces, convex=convex)
+
+
+# ----------------------------------------------------------------------------- color
+
+
+class ColorPosterior:
+    """How likely each pixel's color is the object's rather than its surroundings': color
+    histograms (``bins`` per RGB channel) of the object's pixels and of a ring around them in one
+    frame, P(object | color) = h_object / (h_object + h_around). A tracker that follows these
+    probabilities (PWP3D's region term, here as a soft IoU) does not need the masks to be right."""
+
+    def __init__(self, rgb: np.ndarray, inside: np.ndarray, around: np.ndarray, *, bins: int = 16):
+        self.bins = bins
+        count = bins**3
+        idx = self._index(rgb)
+        self.h_in = np.bincount(idx[inside], minlength=count).astype(np.float64) + 0.5
+        self.h_out = np.bincount(idx[around], minlength=count).astype(np.float64) + 0.5
+        self.h_in /= self.h_in.sum()
+        self.h_out /= self.h_out.sum()
+
+    def _index(self, rgb: np.ndarray) -> np.ndarray:
+        q = (rgb.astype(np.int32) * self.bins) // 256
+        return (q[..., 0] * self.bins + q[..., 1]) * self.bins + q[..., 2]
+
+    def __call__(self, rgb: np.ndarray) -> np.ndarray:
+        idx = self._index(rgb)
+        p_in, p_out = self.h_in[idx], self.h_out[idx]
+        return (p_in / (p_in + p_out)).astype(np.float32)
+
+    @staticmethod
+    def regions(silhouette_mask: np.ndarray, ignore: np.ndarray | None, *, ring_px: int = 25, gap_px: int = 4):
+        """The object's pixels (its silhouette eroded by ``gap_px``) and a ring ``ring_px`` wide
+        around it, ``gap_px`` off it, both outside ``ignore``."""
+        sil = silhouette_mask.astype(np.uint8)
+        inside = cv2.erode(sil, np.ones((2 * gap_px + 1,) * 2, np.uint8)).astype(bool)
+        outer = cv2.dilate(sil, np.ones((2 * (ring_px + gap_px) + 1,) * 2, np.uint8)).astype(bool)
+        inner = cv2.dilate(sil, np.ones((2 * gap_px + 1,) * 2, np.uint8)).astype(bool)
+        around = outer & ~inner
+        if ignore is not None:
+            inside &= ~ignore
+            around &= ~ignore
+        return inside, around

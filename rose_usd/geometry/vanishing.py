@@ -1,0 +1,240 @@
+"""Gravity from one image: the vertical vanishing point of its straight lines (RGB only).
+
+A static camera measures no 3D, so the up direction must come from the picture itself: man-made
+scenes are full of vertical edges (door frames, monitor sides, a bottle) and of horizontal ones in
+two directions (a table's and a keyboard's edges). Line segments are found by OpenCV's LSD. Each
+segment and the camera center span an interpretation plane, with unit normal ``n = K^T l`` (``l``
+the segment's homogeneous image line); a 3D direction ``d`` the segment may lie along satisfies
+``n . d = 0``, so a vanishing direction is the least-squares null vector of its segments' normals
+(no vanishing point at infinity is special).
+
+1. **Vertical**: RANSAC over pairs of roughly upright segments (within 35 deg of the image's
+   vertical: a camera is held with little roll), each pair's ``d = n1 x n2`` scored by the length
+   of the segments within 1.5 deg of it, among directions within ``max_pitch_deg`` of image-up.
+2. **Horizontal**: the same among the other segments, for directions within 10 deg of
+   perpendicular to the vertical (the table's edges, the keyboard's), twice.
+3. **Manhattan refinement**: the rotation whose axes best fit all three groups' segments (Gauss-
+   Newton on SO(3)); without a second horizontal direction, the vertical and the first; without a
+   vertical group, up is the cross product of two horizontal directions.
+
+The uncertainty is the angle's standard error over the vertical group's segments, at least 1 deg
+(correlated errors: lens distortion, leaning objects), more when no vertical group is found.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+INLIER_DEG = 1.5
+"""A segment lies along a direction when its interpretation plane is this near to containing it [deg]."""
+
+
+@dataclass(frozen=True)
+class UpEstimate:
+    up_cam: np.ndarray
+    """Unit up vector in OpenCV camera axes (x right, y down, z forward)."""
+    uncertainty_deg: float
+    vertical_segments: int
+    horizontal_segments: int
+    how: str
+    """``vertical``, ``vertical+horizontal``, ``horizontal`` (two horizontal directions), ``manhattan``."""
+
+
+def line_segments(gray: np.ndarray, *, min_length_frac: float = 0.03) -> np.ndarray:
+    """LSD segments (N, 4) as x1, y1, x2, y2 [px], at least ``min_length_frac`` of the image diagonal long."""
+    lsd = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD)
+    found = lsd.detect(gray)[0]
+    if found is None:
+        return np.zeros((0, 4))
+    seg = found.reshape(-1, 4).astype(float)
+    length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+    return seg[length >= min_length_frac * np.hypot(*gray.shape)]
+
+
+def plane_normals(segments: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Unit normals (N, 3) of the segments' interpretation planes (camera axes)."""
+    p1 = np.column_stack([segments[:, :2], np.ones(len(segments))])
+    p2 = np.column_stack([segments[:, 2:], np.ones(len(segments))])
+    n = np.cross(p1, p2) @ K  # K^T l, row-wise
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _null_direction(normals: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    m = (normals * weights[:, None]).T @ normals
+    return np.linalg.eigh(m)[1][:, 0]
+
+
+def _ransac(normals, weights, candidates, accept, *, iterations: int = 600, seed: int = 0):
+    """The direction (unit 3-vector) supported by the most segment length among ``candidates``
+    (indices), drawn from pairs of them, that ``accept(d)`` allows; and its inliers (bool over
+    all segments). None when nothing is accepted."""
+    rng = np.random.default_rng(seed)
+    tol = np.sin(np.radians(INLIER_DEG))
+    best, best_score = None, 0.0
+    if len(candidates) < 2:
+        return None, None
+    for _ in range(iterations):
+        i, j = rng.choice(candidates, size=2, replace=False)
+        d = np.cross(normals[i], normals[j])
+        norm = np.linalg.norm(d)
+        if norm < 1e-6:
+            continue
+        d /= norm
+        d = accept(d)
+        if d is None:
+            continue
+        inl = np.abs(normals[candidates] @ d) < tol
+        score = float(weights[candidates][inl].sum())
+        if score > best_score:
+            best, best_score = d, score
+    if best is None:
+        return None, None
+    for _ in range(3):  # refit on the inliers
+        inliers = np.zeros(len(normals), bool)
+        inliers[candidates] = np.abs(normals[candidates] @ best) < tol
+        d = _null_direction(normals[inliers], weights[inliers])
+        best = d if d @ best > 0 else -d
+    inliers = np.zeros(len(normals), bool)
+    inliers[candidates] = np.abs(normals[candidates] @ best) < tol
+    return best, inliers
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(abs(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)), -1, 1))))
+
+
+def _manhattan(axes: list[np.ndarray], groups: list[np.ndarray], normals, weights, iterations: int = 20):
+    """Orthonormal axes (rows) nearest to ``axes`` (2 or 3 directions, the first the vertical) that
+    best fit their segment groups (Gauss-Newton on the rotation)."""
+    a = list(axes)
+    if len(a) == 2:
+        a.append(np.cross(a[0], a[1]))
+    r = np.array(a, dtype=float)
+    u, _, vt = np.linalg.svd(r)
+    r = u @ vt  # nearest rotation (rows: the axes)
+    for _ in range(iterations):
+        jt_j, jt_r = np.zeros((3, 3)), np.zeros(3)
+        for k, group in enumerate(groups):
+            if group is None or not group.any():
+                continue
+            n, w = normals[group], weights[group]
+            axis = r[k]
+            res = n @ axis  # want 0; d(axis) = omega x axis
+            jac = np.cross(axis, n)  # d(n . (omega x axis))/d omega = axis x n
+            jt_j += (jac * w[:, None]).T @ jac
+            jt_r += (jac * (w * res)[:, None]).sum(axis=0)
+        step = -np.linalg.solve(jt_j + 1e-9 * np.eye(3), jt_r)
+        angle = np.linalg.norm(step)
+        if angle < 1e-9:
+            break
+        rot = cv2.Rodrigues(step)[0]
+        r = r @ rot.T
+    return r
+
+
+def up_from_lines(
+    gray: np.ndarray,
+    K: np.ndarray,
+    *,
+    max_pitch_deg: float = 85.0,
+    max_roll_deg: float = 25.0,
+    max_tilt_up_deg: float = 10.0,
+    min_segments: int = 4,
+    directions: int = 6,
+) -> UpEstimate | None:
+    """The up direction of a single view from its line segments, None when its lines give none.
+
+    Up to ``directions`` vanishing directions are found one after the other (RANSAC over pairs of
+    the segments not yet explained). Every one of them, and the cross product of every two near
+    perpendicular ones, is a candidate for up; a candidate is plausible when the camera it implies
+    looks level or down (up to ``max_tilt_up_deg`` up; a table's edges that recede from the
+    camera meet above the image, along +z in camera axes, where up has -z) and is rolled by at
+    most ``max_roll_deg``. The plausible candidate whose Manhattan frame explains the most segment
+    length (directions along it or perpendicular to it, within 5 deg) wins, and is refined with
+    them (``_manhattan``). A camera looking steeply down at a table sees few vertical edges, but
+    two perpendicular sets of horizontal ones (cards, a keyboard) whose cross product is up."""
+    segments = line_segments(gray)
+    if len(segments) < min_segments:
+        return None
+    normals = plane_normals(segments, K)
+    length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+    weights = length / length.max()
+    image_up = np.array([0.0, -1.0, 0.0])
+    found, groups = [], []
+    rest = np.ones(len(segments), bool)
+    for k in range(directions):
+
+        def fresh(d):
+            return None if any(_angle_deg(d, f) < 5.0 for f in found) else d
+
+        d, inl = _ransac(normals, weights, np.flatnonzero(rest), fresh, seed=k)
+        if d is None or inl.sum() < min_segments:
+            break
+        found.append(d)
+        groups.append(inl)
+        rest &= ~inl
+    if not found:
+        return None
+    support = np.array([weights[g].sum() for g in groups])
+
+    def plausible(u):
+        u = u if u @ image_up >= 0 else -u
+        if _angle_deg(u, image_up) > max_pitch_deg or u[2] > np.sin(np.radians(max_tilt_up_deg)):
+            return None
+        if abs(u[0]) > np.sin(np.radians(max_roll_deg)) * np.hypot(u[0], u[1]):
+            return None
+        return u
+
+    candidates = [plausible(f) for f in found]
+    for i in range(len(found)):
+        for j in range(i + 1, len(found)):
+            if _angle_deg(found[i], found[j]) > 80.0:
+                c = np.cross(found[i], found[j])
+                candidates.append(plausible(c / np.linalg.norm(c)))
+    best = None
+    for u in candidates:
+        if u is None:
+            continue
+        along = [i for i, f in enumerate(found) if _angle_deg(f, u) < 5.0]
+        across = [i for i, f in enumerate(found) if abs(90.0 - _angle_deg(f, u)) < 5.0]
+        score = float(support[along].sum() + support[across].sum())
+        if best is None or score > best[0]:
+            best = (score, u, along, across)
+    if best is None:
+        return None
+    _, u, along, across = best
+    chosen = u
+    v_in = np.zeros(len(segments), bool)
+    for i in along:
+        v_in |= groups[i]
+    across = sorted(across, key=lambda i: -support[i])[:2]
+    if along and across:
+        axes = _manhattan([u] + [found[i] for i in across], [v_in] + [groups[i] for i in across], normals, weights)
+        u = axes[0] if axes[0] @ u > 0 else -axes[0]
+        how = "manhattan" if len(across) == 2 else "vertical+horizontal"
+    elif len(across) == 2:
+        axes = _manhattan([u] + [found[i] for i in across], [None] + [groups[i] for i in across], normals, weights)
+        u = axes[0] if axes[0] @ u > 0 else -axes[0]
+        how = "horizontal"
+    else:
+        how = "vertical"
+    u = u / np.linalg.norm(u)
+    if _angle_deg(u, chosen) > 5.0 or plausible(u) is None:  # the refinement ran off: keep the candidate
+        u = chosen
+    if v_in.any():
+        residual = np.degrees(np.arcsin(np.clip(np.abs(normals[v_in] @ u), 0, 1)))
+        sigma = max(1.0, float(np.sqrt(np.mean(residual**2)) / np.sqrt(max(v_in.sum() - 1, 1)) * 3.0))
+    else:
+        sigma = 3.0
+    h_count = int(sum(groups[i].sum() for i in across))
+    return UpEstimate(u, sigma, int(v_in.sum()), h_count, how)
+
+
+def upright_prior(pitch_deg: float = 30.0) -> np.ndarray:
+    """The up vector of a level camera pitched down by ``pitch_deg`` (camera axes): the guess
+    when the image has no usable lines."""
+    p = np.radians(pitch_deg)
+    return np.array([0.0, -np.cos(p), -np.sin(p)])

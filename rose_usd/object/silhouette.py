@@ -1,0 +1,346 @@
+"""The ``silhouette`` object backend: an object's shape and frame-0 pose from its masks alone, for
+videos without depth (capture ``sfm``).
+
+1. **Rest.** The frames in which the object's mask stays where it was in its first clear frame
+   (image IoU at least ``rest_iou`` with it; the camera is static or nearly so) are its rest;
+   up to ``views`` of them, spread over it, are fitted at once. Pixels of the interactor and of
+   other objects are left out of every comparison (they may hide the object).
+2. **Shape.**
+   - With a mesh (rose.toml's ``mesh``, ``perception/<Name>.glb``; read and repaired as the
+     imported backend does, ``object.meshes``): a metric mesh keeps its size; TRELLIS's unit
+     cube (or a mesh in unknown units) is scaled by the silhouettes: the paper's Eq. 1-3, its
+     search over rho done by the simplex with position and yaw, started at rho_0 = the world's
+     object width over the mesh's.
+   - Without: the category's primitive (``geometry.primitives``: a cup's frustum, a mug's or a
+     can's cylinder, a pen's lying cylinder, a box), its dimensions fitted to the silhouettes,
+     marked as a proxy (``RoseShapeAPI``: ``rose:shape:proxy``).
+   The world's metric scale came from the same kind of fit in the capture stage (its size prior,
+   category or mesh), so the sizes agree with it.
+3. **Pose.** Standing on the support (the scene's pad height under it) at (x, y) turned by yaw,
+   fitted by Nelder-Mead on the silhouette IoU (``geometry.silhouette.fit_standing``) from the
+   foot of the mask, from several yaws. A metric mesh is also fitted free (6-DoF,
+   ``search_free`` over 1800 orientations then ``fit_free``): when that fits better by
+   ``held_margin`` IoU, or standing fits poorly, the object is held in the air in its rest frames
+   and keeps the free pose (it is then not rested on the scene).
+4. **Colors.** A mesh's own colors, else each vertex's median color over the rest frames where it
+   faces the camera inside the mask (nearest seen vertex elsewhere).
+
+Mass priors, the collider and its CoACD coverage, and the rest on the scene as for every object
+backend (``object.author``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from rose_usd.core import se3
+from rose_usd.core.color import srgb8_to_linear
+from rose_usd.errors import InputError
+from rose_usd.geometry.mesh import decimate
+from rose_usd.geometry.primitives import PrimitiveKind, largest_dimension, primitive_mesh, typical
+from rose_usd.geometry.silhouette import (
+    View,
+    crop_view,
+    fit_free,
+    fit_standing,
+    footprint_xy,
+    search_free,
+)
+from rose_usd.geometry.texture import transfer_colors
+from rose_usd.layers.masks import read_masks
+from rose_usd.layers.scene import support_heights
+from rose_usd.layers.world import read_cameras, read_scale
+from rose_usd.object.author import ObjectModel, author_objects, physics_for
+from rose_usd.object.meshes import axis_name, read_imported, up_candidates, world_from_up
+from rose_usd.object.rest import level_rotation
+from rose_usd.progress import say
+from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths, schema, tokens
+from rose_usd.usd.geom import MeshData
+
+
+def rest_frames(masks: list, *, min_iou: float, min_px: int = 50) -> list[int]:
+    """The first clear frame and every later one whose mask overlaps its mask by ``min_iou``
+    (image IoU), until one does not (the object moved; a frame where it is hidden by more than
+    half is skipped, not a move)."""
+    area = np.array([0 if m is None else int(m.sum()) for m in masks])
+    clear = np.flatnonzero(
+        area >= max(min_px, 0.5 * np.percentile(area[area >= min_px], 90)) if (area >= min_px).any() else []
+    )
+    if not len(clear):
+        return []
+    first = int(clear[0])
+    ref = masks[first]
+    frames = [first]
+    for t in range(first + 1, len(masks)):
+        m = masks[t]
+        if m is None or area[t] < 0.5 * area[first]:
+            continue
+        inter = np.count_nonzero(m & ref)
+        if inter / max(np.count_nonzero(m | ref), 1) < min_iou:
+            break
+        frames.append(t)
+    return frames
+
+
+def _pick(frames: list[int], count: int) -> list[int]:
+    return [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
+
+
+def vertex_colors(vertices_world, faces, frames, rgb_of, masks, cameras) -> np.ndarray:
+    """Linear RGB per vertex: its median color over the frames where it faces the camera and
+    falls inside the object's mask; vertices never seen take their nearest seen vertex's."""
+    tm = trimesh.Trimesh(vertices_world, faces, process=False)
+    normals = tm.vertex_normals
+    samples = [[] for _ in range(len(vertices_world))]
+    for t in frames:
+        pose, K = cameras.world_from_cv[t], cameras.K[t]
+        cam = se3.transform_points(se3.invert(pose), vertices_world)
+        toward = pose[:3, 3] - vertices_world
+        facing = np.einsum("ij,ij->i", normals, toward) > 0
+        z = np.maximum(cam[:, 2], 1e-6)
+        u = np.round(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(int)
+        v = np.round(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(int)
+        h, w = masks[t].shape
+        ok = facing & (cam[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        idx = np.flatnonzero(ok)
+        idx = idx[masks[t][v[idx], u[idx]]]
+        rgb = rgb_of(t)
+        for i, c in zip(idx, rgb[v[idx], u[idx]]):
+            samples[i].append(c)
+    seen = np.array([len(s) > 0 for s in samples])
+    colors = np.full((len(vertices_world), 3), 0.5)
+    if seen.any():
+        colors[seen] = srgb8_to_linear(
+            np.array([np.median(np.array(s), axis=0) for s in samples if s]).astype(np.uint8)
+        )
+        if not seen.all():
+            nearest = cKDTree(vertices_world[seen]).query(vertices_world[~seen])[1]
+            colors[~seen] = colors[seen][nearest]
+    return colors
+
+
+def _dense(vertices: np.ndarray, faces: np.ndarray, edge_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh subdivided until its edges are at most ``edge_m`` (a primitive's few vertices
+    carry colors too coarse); a mesh whose longest edge is over 64 ``edge_m`` gets 64 pieces of it
+    (marker on openreal2sim-marker-rgb fitted 3 m long: 8 halvings did not reach 8 mm)."""
+    longest = float(np.max(np.linalg.norm(vertices[faces] - vertices[np.roll(faces, 1, axis=1)], axis=2)))
+    v, f = trimesh.remesh.subdivide_to_size(vertices, faces, max_edge=max(edge_m, longest / 64.0), max_iter=8)
+    return np.asarray(v, float), np.asarray(f, np.int64)
+
+
+def run(ctx: StageContext) -> None:
+    case, cfg, n = ctx.case, ctx.config, ctx.time_info.n_frames
+    scfg = cfg.silhouette
+    cameras = read_cameras(ctx.stage, n)
+    layer = read_masks(ctx.stage, n, (case.height, case.width))
+    pads = support_heights(ctx.stage)
+    scale = read_scale(ctx.stage)
+    models, facts, shapes = [], {}, {}
+    for spec in case.config.objects:
+        if not layer.has(spec.name):
+            raise InputError(
+                f"no masks of object {spec.name!r}",
+                path=ctx.stage.GetRootLayer().identifier,
+                hint="run the segment stage",
+            )
+        masks = layer.track(spec.name)
+        frames = rest_frames(masks, min_iou=scfg.rest_iou)
+        if not frames:
+            raise InputError(
+                f"object {spec.name!r} is never clearly seen in its masks",
+                path=layer.where(spec.name),
+                hint="check its prompt (rose-usd run segment ... --prompt)",
+            )
+        picked = _pick(frames, scfg.views)
+        views = [
+            crop_view(
+                masks[t],
+                layer.occluders(spec.name, t, masks[t].shape, grow_px=2),
+                cameras.K[t],
+                cameras.world_from_cv[t],
+                frame=t,
+                max_side=scfg.max_side_px,
+            )
+            for t in picked
+        ]
+        support_z = float(pads.get(spec.name, 0.0))
+        xy = footprint_xy(masks[picked[0]], cameras.K[picked[0]], cameras.world_from_cv[picked[0]], support_z)
+        path = case.mesh_file(spec)
+        say(f"object {spec.name}: fitting {'its mesh' if path else 'a primitive'} to {len(views)} silhouettes")
+        if path is not None:
+            model, fact, shape = _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras)
+        else:
+            model, fact, shape = _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras)
+        fact.update(rest_frames=[frames[0], frames[-1]], fitted_frames=picked, support_height_m=support_z)
+        if fact["silhouette_iou"] < 0.6:
+            ctx.warn(
+                f"object {spec.name!r}: its shape overlaps its masks poorly"
+                f" (silhouette IoU {fact['silhouette_iou']:.2f})"
+            )
+        models.append(model)
+        facts[spec.name] = fact
+        shapes[spec.name] = shape
+    authored = author_objects(ctx, models, cfg.convex_tolerance)
+    for name, values in authored.items():
+        facts[name] |= values
+        prim = ctx.stage.GetPrimAtPath(paths.object_path(name))
+        prim.ApplyAPI(schema.SHAPE_API)
+        source, proxy, kind, iou = shapes[name]
+        prim.GetAttribute(tokens.SHAPE_SOURCE).Set(source)
+        prim.GetAttribute(tokens.SHAPE_PROXY).Set(proxy)
+        prim.GetAttribute(tokens.SHAPE_PRIMITIVE).Set(kind)
+        prim.GetAttribute(tokens.SHAPE_SILHOUETTE_IOU).Set(float(iou))
+    ctx.record(objects=facts, world_scale={"source": scale.source, "uncertainty": round(scale.uncertainty, 4)})
+
+
+def _start(xy, views: list[View], size_m: float):
+    """Where to start a standing fit: a little behind the mask's foot, away from the camera."""
+    if xy is None:
+        cam = views[0].world_from_cv
+        ahead = cam[:3, 2].copy()
+        ahead[2] = 0.0
+        return cam[:2, 3] + ahead[:2] / max(np.linalg.norm(ahead[:2]), 1e-9) * 0.5
+    toward = np.asarray(xy) - views[0].world_from_cv[:2, 3]
+    return np.asarray(xy) + 0.3 * size_m * toward / max(np.linalg.norm(toward), 1e-9)
+
+
+def _object_width_m(view: View, xy) -> float:
+    """The mask's width at its foot's depth [m] (a start for sizes)."""
+    ys, xs = np.nonzero(view.mask)
+    if xy is None or not len(xs):
+        return 0.1
+    foot = se3.invert(view.world_from_cv) @ np.array([xy[0], xy[1], 0.0, 1.0])
+    return float(xs.max() - xs.min()) * foot[2] / view.K[0, 0]
+
+
+def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras):
+    typ, known = typical(spec.category)
+    if not known:
+        ctx.warn(f"object {spec.name!r}: no primitive for category {spec.category!r}: a box stands in for it")
+    width = _object_width_m(views[0], xy)
+    dims0 = np.asarray(typ.dims) * width / max(typ.size_m, 1e-6)
+    turn = typ.kind in (PrimitiveKind.BOX, PrimitiveKind.LYING_CYLINDER)
+    yaws = (
+        tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
+        if typ.kind is PrimitiveKind.LYING_CYLINDER
+        else (tuple(np.radians([0.0, 30.0, 60.0])) if turn else (0.0,))
+    )
+    fit = fit_standing(
+        lambda d: primitive_mesh(typ.kind, d),
+        dims0,
+        views,
+        _start(xy, views, width),
+        support_z=support_z,
+        yaws=yaws,
+        turn=turn,
+        convex=True,
+    )
+    v, f = primitive_mesh(typ.kind, fit.size, segments=48)
+    v, f = _dense(v, f, 0.008)
+    pose = fit.pose(support_z)
+    colors = vertex_colors(se3.transform_points(pose, v), f, picked, ctx.case.rgb, masks, cameras)
+    mesh = MeshData(vertices=v, faces=f, vertex_colors=colors)
+    physics, mass = physics_for(spec, v, f, ctx)
+    size = largest_dimension(typ.kind, fit.size)
+    fact = {
+        "shape": "primitive",
+        "proxy": True,
+        "primitive": typ.kind.value,
+        "dims_m": [round(float(d), 5) for d in fit.size],
+        "size_m": round(size, 5),
+        "size_given_m": spec.overrides.get("size_m"),
+        "typical_size_m": typ.size_m,
+        "silhouette_iou": round(fit.iou, 4),
+        "yaw_deg": round(float(np.degrees(fit.yaw)), 2),
+        "held": False,
+    }
+    return ObjectModel(spec.name, mesh, pose, mass, physics), fact, ("primitive", True, typ.kind.value, fit.iou)
+
+
+def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
+    scfg = ctx.config.silhouette
+    imp = read_imported(path, spec.overrides.get("mesh_up"))
+    for repair in imp.repairs:
+        ctx.warn(f"object {spec.name!r} ({path.name}): {repair}")
+    extent = float(np.max(imp.vertices.max(axis=0) - imp.vertices.min(axis=0)))
+    width = _object_width_m(views[0], xy)
+    metric = not imp.normalized and 0.01 <= extent <= 2.0
+    small = trimesh.Trimesh(imp.vertices, imp.faces, process=False)
+    if len(small.faces) > 1500:
+        small = decimate(small, 1500, check=False)
+    sv, sf = np.asarray(small.vertices, float), np.asarray(small.faces, np.int64)
+    best = None
+    for axis in up_candidates(imp)[: 1 if metric and imp.up_given else 6]:
+        rot = world_from_up(axis)
+        rot = level_rotation(imp.vertices @ rot.T, imp.faces) @ rot
+        up_v = sv @ rot.T
+        base = np.array([*(0.5 * (up_v.min(axis=0) + up_v.max(axis=0)))[:2], up_v[:, 2].min()])
+        rho0 = 1.0 if metric else width / max(float(np.ptp(up_v, axis=0).max()), 1e-9)
+
+        def shape(r, up_v=up_v, base=base):
+            return r[0] * (up_v - base), sf
+
+        fit = fit_standing(
+            shape,
+            np.array([rho0]),
+            views,
+            _start(xy, views, width),
+            support_z=support_z,
+            yaws=tuple(np.radians([0.0, 90.0, 180.0, 270.0])),
+            free_size=np.array([not metric]),
+            maxfev=250,
+        )
+        if best is None or fit.iou > best[0].iou + 0.01:
+            best = (fit, rot, base, axis)
+        if metric and imp.up_given:
+            break
+    fit, rot, base, axis = best
+    rho = float(fit.size[0])
+    # world_from_mesh frame (the file's frame scaled to meters by rho)
+    pose = fit.pose(support_z) @ se3.make_pose(rot, -rho * base)
+    held, free_iou = False, None
+    if metric:
+        found = search_free(sv, sf, views[0], directions=scfg.free_directions, rolls=12)
+        if found:
+            free_pose, free_iou = fit_free(sv, sf, views, found[0][1])
+            for _, start in found[1:3]:
+                p2, i2 = fit_free(sv, sf, views, start)
+                if i2 > free_iou:
+                    free_pose, free_iou = p2, i2
+            if free_iou > fit.iou + scfg.held_margin or fit.iou < 0.6:
+                held = True
+                pose = free_pose
+    iou = free_iou if held else fit.iou
+    vertices = rho * imp.vertices
+    tm = decimate(trimesh.Trimesh(vertices, imp.faces, process=False), ctx.config.max_triangles)
+    v, f = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
+    if imp.colors is not None:
+        colors = transfer_colors(v, vertices, imp.colors)
+    else:
+        colors = vertex_colors(se3.transform_points(pose, v), f, picked, ctx.case.rgb, masks, cameras)
+    mesh = MeshData(vertices=v, faces=f, vertex_colors=colors)
+    physics, mass = physics_for(spec, v, f, ctx)
+    if held:
+        ctx.warn(
+            f"object {spec.name!r} is held in the air in its first frames (free pose IoU {free_iou:.2f} against"
+            f" standing {fit.iou:.2f}): its frame-0 pose is not on the support"
+        )
+    fact = {
+        "shape": "mesh",
+        "mesh_file": str(path),
+        "proxy": False,
+        "metric_mesh": metric,
+        "rho": round(rho, 6),
+        "size_m": round(float(np.ptp(vertices, axis=0).max()), 5),
+        "size_given_m": spec.overrides.get("size_m"),
+        "up_axis": axis_name(axis),
+        "standing_iou": round(fit.iou, 4),
+        "free_iou": None if free_iou is None else round(free_iou, 4),
+        "held": held,
+        "silhouette_iou": round(float(iou), 4),
+        "repairs": imp.repairs,
+    }
+    return ObjectModel(spec.name, mesh, pose, mass, physics), fact, ("imported", False, "", iou)

@@ -1,0 +1,309 @@
+"""The ``silhouette`` trajectory backend: the object stage's mesh tracked against its masks by
+render and compare, for videos without depth (capture ``sfm``).
+
+1. **Start.** Frame 0's pose is the object stage's default pose (fitted to the resting
+   silhouettes and rested on the scene).
+2. **Hold.** An object rests while the mask does not say otherwise: when the last pose's
+   silhouette still overlaps the frame's mask (outside the interactor and other objects, which may
+   hide it) within ``hold_drop`` of the IoU it had when it was set, the pose holds. A hand over a
+   resting object hides part of its mask, not the overlap of the rest.
+3. **Track.** Otherwise the 6-DoF pose is fitted to the mask (Nelder-Mead on the silhouette IoU,
+   ``geometry.silhouette.fit_free``, ``maxfev`` evaluations) from the last pose and from a
+   constant-velocity prediction, the better kept. A frame whose mask is missing or too small, or
+   whose best IoU is under ``min_iou``, is lost: the pose holds (confidence 0), and frames lost
+   between tracked ones are interpolated on SE(3) (confidence 0.5).
+4. **Rest on the support.** When the object holds still again for ``settle_frames`` frames with its
+   lowest point within ``settle_m`` of the support, it is set down: turned onto its nearest stable
+   face (the convex hull's face nearest its center of mass facing down), lowered onto the support,
+   and its position and yaw refitted standing (``fit_standing``), for the rest of the hold.
+
+Confidence is the silhouette IoU of the pose (0 lost, 0.5 interpolated).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull
+
+from rose_usd.core import se3
+from rose_usd.core.pinhole import silhouette
+from rose_usd.errors import InputError
+from rose_usd.geometry.mesh import decimate
+from rose_usd.geometry.silhouette import ColorPosterior, View, crop_view, fit_free, fit_standing, iou, is_convex
+from rose_usd.layers.masks import read_masks
+from rose_usd.layers.objects import default_pose, visual_mesh
+from rose_usd.layers.scene import support_heights
+from rose_usd.layers.world import read_cameras
+from rose_usd.progress import progress
+from rose_usd.stage_api import StageContext
+from rose_usd.trajectory.author import author_trajectory, fill_gaps
+
+
+def stable_down(vertices: np.ndarray, world_from_object: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3, world) that turns the posed object onto the face of its convex hull that
+    faces most nearly down (of the faces near enough its center of mass to stand on)."""
+    world = se3.transform_points(world_from_object, vertices)
+    hull = ConvexHull(world)
+    normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
+    com = world.mean(axis=0)
+    dist = -(normals @ com + offsets)
+    stand = dist <= np.percentile(dist, 50)
+    i = int(np.argmin(np.where(stand, normals[:, 2], np.inf)))
+    n = normals[i]
+    axis = np.cross(n, [0.0, 0.0, -1.0])
+    s, c = np.linalg.norm(axis), float(-n[2])
+    if s < 1e-9:
+        return np.eye(3)
+    k = axis / s
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * kx + (1 - c) * kx @ kx
+
+
+def run(ctx: StageContext) -> None:
+    cfg, case, n = ctx.config.silhouette, ctx.case, ctx.time_info.n_frames
+    cameras = read_cameras(ctx.stage, n)
+    layer = read_masks(ctx.stage, n, (case.height, case.width))
+    pads = support_heights(ctx.stage)
+    facts = {}
+    for spec in case.config.objects:
+        if not layer.has(spec.name):
+            raise InputError(
+                f"no masks of object {spec.name!r}",
+                path=ctx.stage.GetRootLayer().identifier,
+                hint="run the segment stage",
+            )
+        default = default_pose(ctx.stage, spec.name)
+        mesh = visual_mesh(ctx.stage, spec.name)
+        local = se3.transform_points(se3.invert(default), mesh.vertices)
+        convex = is_convex(local, mesh.faces)
+        if convex:  # its silhouette is its projected hull: the hull's vertices are all it takes
+            hull = ConvexHull(local)
+            remap = np.full(len(local), -1)
+            remap[hull.vertices] = np.arange(len(hull.vertices))
+            v, f = local[hull.vertices], remap[hull.simplices]
+        else:
+            tm = trimesh.Trimesh(local, mesh.faces, process=False)
+            if len(tm.faces) > cfg.max_faces:
+                tm = decimate(tm, cfg.max_faces, check=False)
+            v, f = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
+        support_z = float(pads.get(spec.name, 0.0))
+        poses, conf, record = _track(ctx, spec.name, v, f, default, layer, cameras, support_z, cfg, convex)
+        record["convex"] = convex
+        author_trajectory(ctx, spec.name, poses, conf, "silhouette")
+        facts[spec.name] = record
+    ctx.record(objects=facts)
+
+
+def _projected_box(pose: np.ndarray, v: np.ndarray, cameras, t: int, width: int, height: int):
+    """The bounding box (x0, y0, x1, y1) of the posed mesh's projected vertices, clipped to the image."""
+    cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
+    cam = cam[cam[:, 2] > 1e-3]
+    if not len(cam):
+        return None
+    k = cameras.K[t]
+    u, w = k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]
+    box = (max(0.0, u.min()), max(0.0, w.min()), min(float(width), u.max()), min(float(height), w.max()))
+    return box if box[2] > box[0] and box[3] > box[1] else None
+
+
+def _target(mask, posterior, color_weight: float):
+    """What the silhouette is compared with: the mask, or (with a color posterior) a blend of the
+    two: color_weight x (2 P(object | color) - 1, clipped to [0, 1]) + the rest x the mask."""
+    if posterior is None:
+        return mask, None
+    # P(object | color) above even odds, stretched to [0, 1]: the surroundings' colors that the
+    # object shares (a table's speckle) weigh nothing instead of a little everywhere
+    soft = color_weight * np.clip(2.0 * posterior - 1.0, 0.0, 1.0)
+    if mask is not None:
+        soft = soft + (1.0 - color_weight) * mask.astype(np.float32)
+    return soft >= 0.5, soft
+
+
+def _view(layer, name, t, mask, cameras, cfg, *, soft=None, box=None) -> View:
+    ignore = layer.occluders(name, t, mask.shape, grow_px=2)
+    if box is not None and mask.any():
+        ys, xs = np.nonzero(mask)
+        mbox = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+        # the mask joins the crop only where it is near the prediction (not a track run off elsewhere)
+        if mbox[0] < box[2] + (box[2] - box[0]) and mbox[2] > box[0] - (box[2] - box[0]):
+            box = (min(box[0], mbox[0]), min(box[1], mbox[1]), max(box[2], mbox[2]), max(box[3], mbox[3]))
+    return crop_view(
+        mask,
+        ignore,
+        cameras.K[t],
+        cameras.world_from_cv[t],
+        frame=t,
+        max_side=cfg.max_side_px,
+        box=box,
+        soft=soft,
+    )
+
+
+def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
+    n, case = ctx.time_info.n_frames, ctx.case
+    mask_of = functools.partial(layer.mask, name)
+    poses = np.repeat(default[None], n, axis=0)
+    present = np.zeros(n, bool)
+    conf = np.zeros(n)
+    pose, ref_iou, velocity = default.copy(), None, np.eye(4)
+    still, settled = 0, False
+    fitted = held = lost = set_down = searched = 0
+    colors, base = None, None
+    for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
+        mask = mask_of(t)
+        has_mask = mask is not None and mask.sum() >= cfg.min_pixels
+        if colors is None and cfg.color_weight > 0 and has_mask:
+            sil = (
+                silhouette(
+                    se3.transform_points(pose, v),
+                    f,
+                    cameras.world_from_cv[t],
+                    cameras.K[t],
+                    case.width,
+                    case.height,
+                    closed=not convex,
+                )
+                if not convex
+                else _hull_mask(pose, v, cameras, t, case)
+            )
+            inside, around = ColorPosterior.regions(sil & mask, layer.occluders(name, t, mask.shape, grow_px=2))
+            if inside.sum() >= cfg.min_pixels:
+                colors = ColorPosterior(case.rgb(t), inside, around)
+        posterior = colors(case.rgb(t)) if colors is not None else None
+        box = _projected_box(pose, v, cameras, t, case.width, case.height)
+        if not has_mask and (posterior is None or box is None):
+            poses[t], lost = pose, lost + 1
+            continue
+        if mask is None:
+            mask = np.zeros((case.height, case.width), bool)
+        binary, soft = _target(mask if has_mask else None, posterior, cfg.color_weight)
+        view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box if posterior is not None else None)
+        now = iou([view], se3.transform_points(pose, v), f, convex=convex)
+        if ref_iou is None:
+            ref_iou = base = now
+        floor = cfg.min_iou * base
+        if now >= max(floor, ref_iou - cfg.hold_drop * base):
+            poses[t], conf[t], present[t] = pose, min(1.0, now / base), True
+            held, still = held + 1, still + 1
+            velocity = np.eye(4)
+            if not settled and still >= cfg.settle_frames:
+                down = _set_down(view, v, f, pose, support_z, cfg, convex)
+                if down is not None:
+                    pose, ref_iou = down
+                    poses[t] = pose
+                    settled, set_down = True, set_down + 1
+            continue
+        starts = [pose, velocity @ pose, _recentered(view, pose, v)]
+        best = None
+        for start in starts:
+            got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
+            if best is None or score > best[1]:
+                best = (got, score)
+        if best[1] < cfg.turn_search_below * ref_iou:
+            # a fast turn (deepac-cat-rgb: 27 deg in one frame) is out of the simplex's reach:
+            # start again from the best pose turned by +-turn_search_deg about each camera axis
+            for start in _turned(best[0], view, np.radians(cfg.turn_search_deg)):
+                got, score = fit_free(
+                    v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex
+                )
+                if score > best[1]:
+                    best = (got, score)
+            searched += 1
+        if best[1] < floor:
+            poses[t], lost = pose, lost + 1
+            continue
+        velocity = best[0] @ se3.invert(pose)
+        pose, ref_iou = best[0], best[1]
+        poses[t], conf[t], present[t] = pose, min(1.0, best[1] / base), True
+        fitted, still, settled = fitted + 1, 0, False
+    if not present.any():
+        return poses, np.zeros(n), {"tracked": 0}
+    filled, fill_conf = fill_gaps(poses, present)
+    conf = np.where(present, conf, fill_conf)
+    return (
+        filled,
+        conf,
+        {
+            "held": held,
+            "fitted": fitted,
+            "lost": lost,
+            "set_down": set_down,
+            "turn_searches": searched,
+            "color_model": colors is not None,
+            "score_first": None if base is None else round(float(base), 4),
+            "confidence_mean": round(float(conf[present].mean()), 4),
+        },
+    )
+
+
+def _hull_mask(pose, v, cameras, t, case) -> np.ndarray:
+    """A convex mesh's silhouette in the whole frame: its projected vertices' hull."""
+    cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
+    k = cameras.K[t]
+    uv = np.column_stack([k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]])
+    out = np.zeros((case.height, case.width), np.uint8)
+    cv2.fillConvexPoly(out, cv2.convexHull(np.round(uv * 16).astype(np.int32)), 1, shift=4)
+    return out.astype(bool)
+
+
+def _turned(pose: np.ndarray, view: View, angle: float) -> list[np.ndarray]:
+    """The pose turned by +-``angle`` about each of the view's camera axes, about its own origin."""
+    out = []
+    cam_rot = view.world_from_cv[:3, :3]
+    for axis in np.eye(3):
+        for sign in (1.0, -1.0):
+            turn = cam_rot @ cv2.Rodrigues(sign * angle * axis)[0] @ cam_rot.T
+            out.append(se3.make_pose(turn @ pose[:3, :3], pose[:3, 3]))
+    return out
+
+
+def _recentered(view: View, pose: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The pose moved, at its depth, so that its center projects onto the mask's centroid: a
+    start from which the silhouette overlaps the mask again after a fast move."""
+    ys, xs = np.nonzero(view.mask & ~view.ignore)
+    if not len(xs):
+        return pose
+    cam_from_world = se3.invert(view.world_from_cv)
+    center = se3.transform_points(cam_from_world @ pose, v.mean(axis=0)[None])[0]
+    k = view.K
+    target = np.array([(xs.mean() - k[0, 2]) / k[0, 0], (ys.mean() - k[1, 2]) / k[1, 1], 1.0]) * center[2]
+    shift = view.world_from_cv[:3, :3] @ (target - center)
+    moved = pose.copy()
+    moved[:3, 3] += shift
+    return moved
+
+
+def _set_down(view, v, f, pose, support_z, cfg, convex):
+    """The pose turned onto its stable face and standing on the support, position and yaw refitted;
+    (pose, IoU) or None when the object is not near the support or standing fits worse."""
+    world = se3.transform_points(pose, v)
+    if world[:, 2].min() - support_z > cfg.settle_m:
+        return None
+    turn = stable_down(v, pose)
+    rot = turn @ pose[:3, :3]
+    turned = se3.transform_points(se3.make_pose(rot, np.zeros(3)), v)
+    base = np.array([*turned[:, :2].mean(axis=0), turned[:, 2].min()])
+    center = world.mean(axis=0)
+
+    def shape(_size):
+        return turned - base, f
+
+    fit = fit_standing(
+        shape,
+        np.array([1.0]),
+        [view],
+        center[:2],
+        support_z=support_z,
+        free_size=np.array([False]),
+        maxfev=120,
+        convex=convex,
+    )
+    before = iou([view], world, f, convex=convex)
+    if fit.iou < before - 0.03:
+        return None
+    standing = fit.pose(support_z) @ se3.make_pose(rot, -base)
+    return standing, fit.iou
