@@ -242,6 +242,7 @@ def test_the_sample_without_depth_reconstructs_to_a_valid_stage(tmp_path, sample
         "object": "silhouette",
         "trajectory": "silhouette",
         "gate": "mitsuba-newton",
+        "collect": "newton",
     }
     assert result.validation.ok
     assert not has_metric_depth(result.stage)
