@@ -315,13 +315,35 @@ def cmd_bench_real(args) -> int:
     return 0
 
 
+def _frame_counts(text: str) -> list[int]:
+    """--frames N or N,N,... as a list of positive ints."""
+    try:
+        counts = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 2:
+        raise ConfigError(f"--frames {text!r} is not a frame count", hint="e.g. --frames 300 or --frames 75,150,300")
+    return counts
+
+
 def cmd_bench_speed(args) -> int:
-    from rose_usd.bench.speed import measure
+    from rose_usd import registry
+    from rose_usd.bench.speed import ALL, measure, measure_all, table
 
     width, height = _size(args.size)
+    frames = _frame_counts(args.frames)
     backends = _parse_assignments(args.backend, "--backend") or {}
     out = Path(args.output) if args.output else _bench_dir("speed")
-    result = measure(args.stage, backends, frames=args.frames, width=width, height=height, out_dir=out)
+    if args.stage == ALL:
+        until = registry.get(args.until).name if args.until else None
+        result = measure_all(backends, frames=frames, width=width, height=height, out_dir=out, until=until)
+        print(table(result))
+        print(json.dumps({k: v for k, v in result.items() if k != "runs"}, indent=1))
+        return 1 if "error" in result else 0
+    registry.get(args.stage)
+    if len(frames) > 1:
+        raise ConfigError("several --frames are for `bench speed all`", hint=f"time {args.stage} at one length")
+    result = measure(args.stage, backends, frames=frames[0], width=width, height=height, out_dir=out)
     print(json.dumps({k: v for k, v in result.items() if k != "all_stages"}, indent=1))
     return 1 if "error" in result else 0
 
@@ -516,11 +538,19 @@ def _add_bench_commands(bench) -> None:
         help="with --start-from: run this stage even when its layer is current (what depends on it follows)",
     )
     p.set_defaults(func=cmd_bench_run)
-    p = bsub.add_parser("speed", help="time one stage on a long case (default 300 frames at 640x480)")
-    p.add_argument("stage", help="stage to time (its prerequisites run first, untimed)")
+    p = bsub.add_parser(
+        "speed",
+        help="time one stage, or every stage (`all`), on a long generated case (default 300 frames at 640x480)",
+        description="STAGE: time that stage (its prerequisites run first, untimed) and write speed-STAGE.json."
+        " all: run every stage with the auto backends and the gate on every frame, report each stage's wall"
+        " time, the end-to-end time and the peak memory of the process tree, at each of --frames (e.g."
+        " 75,150,300, with a linear fit of time against frames), and write speed-all.json.",
+    )
+    p.add_argument("stage", help="stage to time, or `all` for every stage end to end")
     p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default: each stage's default)")
-    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--frames", default="300", help="frames of the case; with `all` a list too, e.g. 75,150,300")
     p.add_argument("--size", default="640x480")
+    p.add_argument("--until", metavar="STAGE", help="with `all`: only STAGE and what it needs (default: every stage)")
     p.add_argument("-o", "--output", help="output folder (default benchmarks/results/speed)")
     p.set_defaults(func=cmd_bench_speed)
     p = bsub.add_parser(

@@ -17,31 +17,77 @@ from pathlib import Path
 _PAGE = os.sysconf("SC_PAGE_SIZE")
 
 
-def _rss_bytes() -> int:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * _PAGE
+def _rss_bytes(pid: int | str = "self") -> int:
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * _PAGE
+    except (OSError, IndexError, ValueError):  # the process ended meanwhile
+        return 0
+
+
+def _children(pid: int) -> list[int]:
+    """The live child processes of ``pid`` (Linux's /proc/PID/task/TID/children)."""
+    kids = []
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return kids
+    for tid in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/children") as f:
+                kids += [int(k) for k in f.read().split()]
+        except (OSError, ValueError):
+            pass
+    return kids
+
+
+def tree_rss_bytes(pid: int | None = None) -> int:
+    """Resident memory of ``pid`` (default this process) and all its descendants together."""
+    todo, total, seen = [pid or os.getpid()], 0, set()
+    while todo:
+        p = todo.pop()
+        if p in seen:
+            continue
+        seen.add(p)
+        total += _rss_bytes(p)
+        todo += _children(p)
+    return total
 
 
 class RssMonitor:
-    """Samples this process's resident memory every 10 ms; ``peak()`` since the last ``reset()``."""
+    """Samples the resident memory of this process and its child processes together every 10 ms;
+    ``peak_mb()`` since the last ``reset()``, ``overall_peak_mb()`` since the start."""
 
     def __init__(self, interval_s: float = 0.01):
         self._peak = 0
+        self._overall = 0
         self._stop = threading.Event()
         self._interval = interval_s
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
+    def _sample(self) -> int:
+        rss = tree_rss_bytes()
+        self._peak = max(self._peak, rss)
+        self._overall = max(self._overall, rss)
+        return rss
+
     def _run(self) -> None:
         while not self._stop.is_set():
-            self._peak = max(self._peak, _rss_bytes())
+            self._sample()
             time.sleep(self._interval)
 
     def reset(self) -> None:
-        self._peak = _rss_bytes()
+        self._peak = 0
+        self._sample()
 
     def peak_mb(self) -> float:
-        return max(self._peak, _rss_bytes()) / 2**20
+        self._sample()
+        return self._peak / 2**20
+
+    def overall_peak_mb(self) -> float:
+        self._sample()
+        return self._overall / 2**20
 
     def stop(self) -> None:
         self._stop.set()
@@ -49,6 +95,9 @@ class RssMonitor:
 
 DEFAULT_UNTIL = "gate"
 """The last stage a benchmark run reaches unless ``--until`` names another."""
+
+EVERY_STAGE = "all"
+"""``--until all``: every stage, not only what the last one needs (collect does not need the gate)."""
 
 
 def run_case(
@@ -69,11 +118,12 @@ def run_case(
     from rose_usd.usd.stage import layer_file, read_provenance
 
     monitor = RssMonitor()
+    t_start = time.perf_counter()
     pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True))
     stages = {}
     # the benchmark of Tables 2 and 3 ends at the gate; robot demonstrations (collect) run only
     # when asked for with --until collect
-    for stage_def in pipe.plan(until or DEFAULT_UNTIL):
+    for stage_def in pipe.plan(None if until == EVERY_STAGE else until or DEFAULT_UNTIL):
         if reuse and stage_def.name not in rerun and pipe.is_current(stage_def):
             prov = read_provenance(layer_file(out, stage_def.layer))
             stages[stage_def.name] = {
@@ -84,17 +134,27 @@ def run_case(
             }
             continue
         monitor.reset()
-        outcome = pipe.run_stage(stage_def)
+        try:
+            outcome = pipe.run_stage(stage_def)
+        except Exception as exc:  # the stages that finished are still measured
+            exc.finished_stages = stages
+            raise
         stages[stage_def.name] = {
             "backend": outcome.backend,
             "wall_time_s": outcome.wall_time_s,
             "peak_rss_mb": round(monitor.peak_mb(), 1),
         }
     t0 = time.perf_counter()
+    pipeline_wall = t0 - t_start
+    peak_tree = monitor.overall_peak_mb()
     score = evaluate(case, out)
     monitor.stop()
     return {
         "stages": stages,
+        # from the pipeline's construction to its last stage's end (the stages and what runs
+        # between them), and the peak resident memory of this process and its children meanwhile
+        "pipeline_wall_time_s": round(pipeline_wall, 2),
+        "peak_rss_tree_mb": round(peak_tree, 1),
         "stage_results": {
             name: (read_provenance(layer_file(out, registry.get(name).layer)) or {}).get("results") for name in stages
         },
@@ -161,10 +221,11 @@ def main(argv: list[str] | None = None) -> int:
         )
         code = 0
     except RoseError as exc:
-        result = {"error": exc.one_line()}
+        result = {"error": exc.one_line(), "finished_stages": getattr(exc, "finished_stages", None)}
         code = 1
     except Exception as exc:  # a crash in one case must not lose the others: record it
         result = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+        result["finished_stages"] = getattr(exc, "finished_stages", None)
         code = 2
     args.result.parent.mkdir(parents=True, exist_ok=True)
     args.result.write_text(json.dumps(result, indent=1, default=float) + "\n")
