@@ -8,7 +8,7 @@ import pytest
 from rose_usd import registry
 from rose_usd.case.gt import GroundTruth
 from rose_usd.case.layout import load_case
-from rose_usd.errors import StageError
+from rose_usd.errors import InputError, StageError
 from rose_usd.io.images import read_mask
 from rose_usd.layers.gate import read_gate
 from rose_usd.layers.masks import INTERACTOR, read_masks
@@ -32,6 +32,9 @@ def test_readers_on_the_oracle_reconstruction(oracle_out, sample_case):
 
     masks = read_masks(stage, n, (case.height, case.width))
     assert masks.names == ["Box"] and masks.has(INTERACTOR)
+    masks.require("Box")
+    with pytest.raises(InputError, match="no masks of object 'Ghost'"):
+        masks.require("Ghost")  # an object added to rose.toml after the segment stage ran
     # the file is the masks layer's asset, the same mask the segment stage wrote
     assert masks.file("Box", 5) == (oracle_out / "masks" / "Box" / "000005.png").resolve()
     assert np.array_equal(masks.mask("Box", 5), read_mask(oracle_out / "masks" / "Box" / "000005.png"))

@@ -50,6 +50,14 @@ class Masks:
         path = paths.INTERACTOR_MASK if name == INTERACTOR else paths.object_mask(name)
         return bool(self.stage.GetPrimAtPath(path))
 
+    def require(self, name: str) -> None:
+        """An InputError naming the stage when object ``name`` has no mask track (a rose.toml
+        object added after the segment stage ran)."""
+        if not self.has(name):
+            raise InputError(
+                f"no masks of object {name!r}", path=self.stage.GetRootLayer().identifier, hint="run the segment stage"
+            )
+
     def file(self, name: str, t: int) -> Path | None:
         """The mask file of track ``name`` at frame t, None when there is none."""
         asset = self._prim(name).GetAttribute(tokens.MASKS_FILE).Get(Usd.TimeCode(t))

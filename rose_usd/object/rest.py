@@ -104,12 +104,7 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
     hand_of = functools.partial(layer.mask, INTERACTOR) if layer.has(INTERACTOR) else (lambda t: None)
     clouds = {}
     for spec in case.config.objects:
-        if not layer.has(spec.name):
-            raise InputError(
-                f"no masks of object {spec.name!r}",
-                path=ctx.stage.GetRootLayer().identifier,
-                hint="run the segment stage",
-            )
+        layer.require(spec.name)
         folder = ctx.out_dir / "masks" / spec.name  # named in messages only
         masks, per_frame, visible = [], [], np.zeros(n)
         for t in progress(range(n), f"object {spec.name}: masked depth", total=n):

@@ -140,12 +140,7 @@ def run(ctx: StageContext) -> None:
     scale = read_scale(ctx.stage)
     models, facts, shapes = [], {}, {}
     for spec in case.config.objects:
-        if not layer.has(spec.name):
-            raise InputError(
-                f"no masks of object {spec.name!r}",
-                path=ctx.stage.GetRootLayer().identifier,
-                hint="run the segment stage",
-            )
+        layer.require(spec.name)
         masks = layer.track(spec.name)
         frames = rest_frames(masks, min_iou=scfg.rest_iou)
         if not frames:

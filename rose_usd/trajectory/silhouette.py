@@ -31,7 +31,6 @@ from scipy.spatial import ConvexHull
 
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
-from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate
 from rose_usd.geometry.silhouette import ColorPosterior, View, crop_view, fit_free, fit_standing, iou, is_convex
 from rose_usd.layers.masks import read_masks
@@ -70,12 +69,7 @@ def run(ctx: StageContext) -> None:
     pads = support_heights(ctx.stage)
     facts = {}
     for spec in case.config.objects:
-        if not layer.has(spec.name):
-            raise InputError(
-                f"no masks of object {spec.name!r}",
-                path=ctx.stage.GetRootLayer().identifier,
-                hint="run the segment stage",
-            )
+        layer.require(spec.name)
         default = default_pose(ctx.stage, spec.name)
         mesh = visual_mesh(ctx.stage, spec.name)
         local = se3.transform_points(se3.invert(default), mesh.vertices)

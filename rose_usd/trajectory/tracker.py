@@ -333,10 +333,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
     cfg, n = ctx.config.tracker, ctx.time_info.n_frames
     shape = (ctx.case.height, ctx.case.width)
     layer = read_masks(ctx.stage, n, shape)
-    if not layer.has(name):
-        raise InputError(
-            f"no masks of object {name!r}", path=ctx.stage.GetRootLayer().identifier, hint="run the segment stage"
-        )
+    layer.require(name)
     has_hand = layer.has(INTERACTOR)
 
     def occluders(t: int) -> np.ndarray:
