@@ -483,10 +483,16 @@ def _add_stage_commands(sub) -> None:
 
 
 def _add_bench_commands(bench) -> None:
+    bsub = bench.add_subparsers(dest="bench_command", required=True)
+    _add_bench_generate(bsub)
+    _add_bench_run(bsub)
+    _add_bench_tools(bsub)
+
+
+def _add_bench_generate(bsub) -> None:
     from rose_usd.synth.motion import Task
     from rose_usd.synth.shapes import ObjectShape
 
-    bsub = bench.add_subparsers(dest="bench_command", required=True)
     p = bsub.add_parser("generate", help="render one synthetic case with full ground truth")
     p.add_argument("-o", "--output", required=True, help="case folder to create")
     p.add_argument("--task", default="push", choices=[t.value for t in Task])
@@ -498,6 +504,9 @@ def _add_bench_commands(bench) -> None:
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (anti-aliasing)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing case folder")
     p.set_defaults(func=cmd_bench_generate)
+
+
+def _add_bench_run(bsub) -> None:
     p = bsub.add_parser("run", help="run a suite of generated cases in one perception mode and score every stage")
     p.add_argument(
         "--suite",
@@ -538,6 +547,10 @@ def _add_bench_commands(bench) -> None:
         help="with --start-from: run this stage even when its layer is current (what depends on it follows)",
     )
     p.set_defaults(func=cmd_bench_run)
+
+
+def _add_bench_tools(bsub) -> None:
+    """bench speed, real, rescore and report."""
     p = bsub.add_parser(
         "speed",
         help="time one stage, or every stage (`all`), on a long generated case (default 300 frames at 640x480)",
