@@ -71,6 +71,20 @@ def _view(mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> View:
     return crop_view(mask, None, K, world_from_cv, max_side=320)
 
 
+def _standing_start(mask: np.ndarray, K, world_from_cv) -> tuple[float, np.ndarray] | None:
+    """Where a fit of an object standing on z = 0 starts: the mask's width at its foot's depth
+    (world units) and a centre behind its front (the foot), away from the camera; None when the
+    foot is not below the horizon."""
+    xy = footprint_xy(mask, K, world_from_cv)
+    if xy is None:
+        return None
+    ys, xs = np.nonzero(mask)
+    foot = se3.invert(world_from_cv) @ np.array([*xy, 0.0, 1.0])
+    width_units = float(xs.max() - xs.min()) * foot[2] / K[0, 0]
+    toward = np.asarray(xy) - world_from_cv[:3, 3][:2]
+    return width_units, np.asarray(xy) + 0.3 * width_units * toward / max(np.linalg.norm(toward), 1e-9)
+
+
 def fit_primitive(
     spec: ObjectSpec, view: View, mask: np.ndarray, K, world_from_cv, *, maxfev: int = 300
 ) -> dict | None:
@@ -78,19 +92,14 @@ def fit_primitive(
     its dimensions, largest dimension, pose and IoU; None when the object's foot is not below the
     horizon."""
     typ, _ = typical(spec.category)
-    xy = footprint_xy(mask, K, world_from_cv)
-    if xy is None:
+    start = _standing_start(mask, K, world_from_cv)
+    if start is None:
         return None
+    width_units, xy0 = start
     # start from the typical shape scaled to the object's width at its foot's depth
-    ys, xs = np.nonzero(mask)
-    foot = se3.invert(world_from_cv) @ np.array([*xy, 0.0, 1.0])
-    width_units = float(xs.max() - xs.min()) * foot[2] / K[0, 0]
     dims0 = np.asarray(typ.dims) * width_units / max(typ.size_m, 1e-6)
-    yaws = (0.0, np.radians(30.0), np.radians(60.0)) if typ.kind.value in ("box", "lying-cylinder") else (0.0,)
     turn = typ.kind.value in ("box", "lying-cylinder")
-    cam = world_from_cv[:3, 3]
-    toward = np.asarray(xy) - cam[:2]
-    xy0 = np.asarray(xy) + 0.3 * width_units * toward / max(np.linalg.norm(toward), 1e-9)  # center behind the front
+    yaws = (0.0, np.radians(30.0), np.radians(60.0)) if turn else (0.0,)
     fit = fit_standing(
         lambda d: primitive_mesh(typ.kind, d), dims0, [view], xy0, yaws=yaws, turn=turn, convex=True, maxfev=maxfev
     )
@@ -160,18 +169,13 @@ def _tilt(tilt_deg) -> np.ndarray:
 def fit_mesh(vertices: np.ndarray, faces: np.ndarray, view: View, mask, K, world_from_cv) -> dict | None:
     """A metric mesh (its +Z up, its lowest point at z = 0) standing on the support, its scale
     free: the fitted scale (units per meter), pose and IoU."""
-    xy = footprint_xy(mask, K, world_from_cv)
-    if xy is None:
+    start = _standing_start(mask, K, world_from_cv)
+    if start is None:
         return None
-    ys, xs = np.nonzero(mask)
-    foot = se3.invert(world_from_cv) @ np.array([*xy, 0.0, 1.0])
-    width_units = float(xs.max() - xs.min()) * foot[2] / K[0, 0]
+    width_units, xy0 = start
     extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
     rho0 = width_units / max(extent, 1e-9)
     base = vertices - np.array([*(0.5 * (vertices.min(axis=0) + vertices.max(axis=0)))[:2], vertices[:, 2].min()])
-    cam = world_from_cv[:3, 3]
-    toward = np.asarray(xy) - cam[:2]
-    xy0 = np.asarray(xy) + 0.3 * width_units * toward / max(np.linalg.norm(toward), 1e-9)
     fit = fit_standing(
         lambda r: (base * r[0], faces), np.array([rho0]), [view], xy0, yaws=tuple(np.radians([0.0, 45.0, 90.0, 135.0]))
     )
