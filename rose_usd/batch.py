@@ -116,12 +116,6 @@ def _record(out_dir: Path, options_key: str) -> CaseResult | None:
     return result
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def run_case(
     name: str,
     case: str,
@@ -157,8 +151,10 @@ def run_case(
         result.error = f"bug: {type(exc).__name__}: {exc} ({Path(last.filename).name}:{last.lineno})"
     result.wall_time_s = round(time.perf_counter() - t0, 2)
     if result.status == "done":
+        from rose_usd.usd.stage import write_text_atomic
+
         result.layers = _layer_hashes(out)
-        _write_atomic(out / RECORD, json.dumps(asdict(result) | {"options": options_key}, indent=1))
+        write_text_atomic(out / RECORD, json.dumps(asdict(result) | {"options": options_key}, indent=1))
     return asdict(result)
 
 
@@ -259,14 +255,16 @@ def _run_ray(jobs: list[tuple], address: str, cpus: float, gpus: float, finished
 
 def write_summary(out: Path, results: list[CaseResult]) -> None:
     """``summary.csv``, ``summary.json`` and ``index.html`` in ``out``, each written atomically."""
+    from rose_usd.usd.stage import write_text_atomic
+
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(FIELDS))
     writer.writeheader()
     for r in results:
         writer.writerow(r.row())
-    _write_atomic(out / "summary.csv", buf.getvalue())
-    _write_atomic(out / "summary.json", json.dumps([asdict(r) for r in results], indent=1))
-    _write_atomic(out / "index.html", _html(out, results))
+    write_text_atomic(out / "summary.csv", buf.getvalue())
+    write_text_atomic(out / "summary.json", json.dumps([asdict(r) for r in results], indent=1))
+    write_text_atomic(out / "index.html", _html(out, results))
 
 
 def _html(out: Path, results: list[CaseResult]) -> str:

@@ -216,14 +216,20 @@ def _atomic_export(layer: Sdf.Layer, target: Path) -> None:
             tmp.unlink()
 
 
-def _write_json_atomic(path: Path, data: dict) -> None:
+def write_text_atomic(path: Path, text: str) -> None:
+    """``path`` holds ``text`` whole or keeps what it held: written to a temporary file beside it,
+    synced, renamed over it, and the folder synced."""
     tmp = _temp_name(path)
     with open(tmp, "w") as f:
-        json.dump(data, f, sort_keys=True)
+        f.write(text)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
     _fsync_dir(path.parent)
+
+
+def _write_json_atomic(path: Path, data: dict) -> None:
+    write_text_atomic(path, json.dumps(data, sort_keys=True))
 
 
 def _fsync_dir(folder: Path) -> None:
