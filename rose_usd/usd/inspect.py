@@ -137,87 +137,103 @@ def _xform_info(prim: Usd.Prim) -> dict[str, Any] | None:
     return out
 
 
+def _metadata(stage: Usd.Stage) -> dict[str, Any]:
+    """The stage's units, axes and time range."""
+    return {
+        "defaultPrim": stage.GetRootLayer().defaultPrim,
+        "upAxis": UsdGeom.GetStageUpAxis(stage),
+        "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
+        "kilogramsPerUnit": UsdPhysics.GetStageKilogramsPerUnit(stage),
+        "timeCodesPerSecond": stage.GetTimeCodesPerSecond(),
+        "framesPerSecond": stage.GetFramesPerSecond(),
+        "startTimeCode": stage.GetStartTimeCode(),
+        "endTimeCode": stage.GetEndTimeCode(),
+    }
+
+
+def _layer_entry(root_dir: Path, sub: str) -> dict[str, Any]:
+    """One sublayer: its spec count and the provenance its stage recorded."""
+    layer = Sdf.Layer.FindOrOpen(str((root_dir / sub).resolve()) if not os.path.isabs(sub) else sub)
+    entry: dict[str, Any] = {"name": Path(sub).stem, "file": sub}
+    if layer is not None:
+        prov = stage_mod.read_provenance(Path(layer.realPath)) or {}
+        specs: list[Sdf.Path] = []
+        layer.Traverse(Sdf.Path.absoluteRootPath, specs.append)
+        entry.update(
+            specs=len(specs),
+            stage=prov.get("stage"),
+            backend=prov.get("backend"),
+            wall_time_s=prov.get("wall_time_s"),
+            config=prov.get("config"),
+            results=prov.get("results"),
+            warnings=prov.get("warnings", []),
+            versions=prov.get("versions"),
+        )
+    return entry
+
+
+def _camera_info(stage: Usd.Stage, prim: Usd.Prim) -> dict[str, Any]:
+    """A camera's resolution, first intrinsics and path over the stage's frames."""
+    from rose_usd.usd.camera import read_camera
+
+    n = int(stage.GetEndTimeCode()) + 1
+    track = read_camera(stage, prim.GetPath(), n)
+    centers = track.world_from_cv[:, :3, 3]
+    return {
+        "resolution": [track.width, track.height],
+        "K_frame0": np.round(track.K[0], 6).tolist(),
+        "frames": n,
+        "first_position_m": centers[0].tolist(),
+        "path_length_m": float(np.linalg.norm(np.diff(centers, axis=0), axis=1).sum()),
+    }
+
+
+def _prim_entry(stage: Usd.Stage, prim: Usd.Prim) -> dict[str, Any]:
+    """One prim: type, schemas, transform, geometry, physics, camera, light and rose: attributes."""
+    p: dict[str, Any] = {"type": prim.GetTypeName()}
+    schemas = list(prim.GetAppliedSchemas())
+    if schemas:
+        p["apiSchemas"] = sorted(schemas)
+    if prim.IsA(UsdGeom.Imageable):
+        purpose = UsdGeom.Imageable(prim).ComputePurpose()
+        if purpose != UsdGeom.Tokens.default_:
+            p["purpose"] = str(purpose)
+    if prim.IsA(UsdGeom.Xformable) and not prim.IsA(UsdGeom.Camera):
+        xf = _xform_info(prim)
+        if xf:
+            p["xform"] = xf
+    if prim.IsA(UsdGeom.Mesh):
+        p["mesh"] = _mesh_info(prim)
+    phys = _physics_info(prim)
+    if phys:
+        p["physics"] = phys
+    if prim.IsA(UsdGeom.Camera):
+        p["camera"] = _camera_info(stage, prim)
+    if prim.IsA(UsdLux.BoundableLightBase) or prim.IsA(UsdLux.NonboundableLightBase):
+        light = UsdLux.LightAPI(prim)
+        p["light"] = {"intensity": light.GetIntensityAttr().Get(), "color": _jsonable(light.GetColorAttr().Get())}
+    rose = _attributes(prim, "rose:")
+    if rose:
+        p["rose"] = rose
+    return p
+
+
 def dump(path: str | os.PathLike) -> dict[str, Any]:
     """Everything worth seeing in a stage, as JSON-compatible data."""
     path = Path(path)
     stage = stage_mod.open_stage(path)
-    root = stage.GetRootLayer()
     out: dict[str, Any] = {
         "file": str(path),
-        "metadata": {
-            "defaultPrim": root.defaultPrim,
-            "upAxis": UsdGeom.GetStageUpAxis(stage),
-            "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
-            "kilogramsPerUnit": UsdPhysics.GetStageKilogramsPerUnit(stage),
-            "timeCodesPerSecond": stage.GetTimeCodesPerSecond(),
-            "framesPerSecond": stage.GetFramesPerSecond(),
-            "startTimeCode": stage.GetStartTimeCode(),
-            "endTimeCode": stage.GetEndTimeCode(),
-        },
-        "layers": [],
+        "metadata": _metadata(stage),
+        "layers": [_layer_entry(path.parent, sub) for sub in stage.GetRootLayer().subLayerPaths],
         "prims": {},
     }
-    for sub in root.subLayerPaths:
-        layer = Sdf.Layer.FindOrOpen(str((path.parent / sub).resolve()) if not os.path.isabs(sub) else sub)
-        name = Path(sub).stem
-        entry: dict[str, Any] = {"name": name, "file": sub}
-        if layer is not None:
-            prov = stage_mod.read_provenance(Path(layer.realPath)) or {}
-            specs: list[Sdf.Path] = []
-            layer.Traverse(Sdf.Path.absoluteRootPath, specs.append)
-            entry.update(
-                specs=len(specs),
-                stage=prov.get("stage"),
-                backend=prov.get("backend"),
-                wall_time_s=prov.get("wall_time_s"),
-                config=prov.get("config"),
-                results=prov.get("results"),
-                warnings=prov.get("warnings", []),
-                versions=prov.get("versions"),
-            )
-        out["layers"].append(entry)
     if path.name == paths.ROOT_FILE:
         problems = stage_mod.consistency_problems(path.parent)
         if problems:  # absent when the layers agree (the normalized reference dumps stay as they are)
             out["problems"] = problems
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
-        p: dict[str, Any] = {"type": prim.GetTypeName()}
-        schemas = list(prim.GetAppliedSchemas())
-        if schemas:
-            p["apiSchemas"] = sorted(schemas)
-        if prim.IsA(UsdGeom.Imageable):
-            purpose = UsdGeom.Imageable(prim).ComputePurpose()
-            if purpose != UsdGeom.Tokens.default_:
-                p["purpose"] = str(purpose)
-        if prim.IsA(UsdGeom.Xformable) and not prim.IsA(UsdGeom.Camera):
-            xf = _xform_info(prim)
-            if xf:
-                p["xform"] = xf
-        if prim.IsA(UsdGeom.Mesh):
-            p["mesh"] = _mesh_info(prim)
-        phys = _physics_info(prim)
-        if phys:
-            p["physics"] = phys
-        if prim.IsA(UsdGeom.Camera):
-            from rose_usd.usd.camera import read_camera
-
-            n = int(stage.GetEndTimeCode()) + 1
-            track = read_camera(stage, prim.GetPath(), n)
-            centers = track.world_from_cv[:, :3, 3]
-            p["camera"] = {
-                "resolution": [track.width, track.height],
-                "K_frame0": np.round(track.K[0], 6).tolist(),
-                "frames": n,
-                "first_position_m": centers[0].tolist(),
-                "path_length_m": float(np.linalg.norm(np.diff(centers, axis=0), axis=1).sum()),
-            }
-        if prim.IsA(UsdLux.BoundableLightBase) or prim.IsA(UsdLux.NonboundableLightBase):
-            light = UsdLux.LightAPI(prim)
-            p["light"] = {"intensity": light.GetIntensityAttr().Get(), "color": _jsonable(light.GetColorAttr().Get())}
-        rose = _attributes(prim, "rose:")
-        if rose:
-            p["rose"] = rose
-        out["prims"][str(prim.GetPath())] = p
+        out["prims"][str(prim.GetPath())] = _prim_entry(stage, prim)
     gate = stage.GetPrimAtPath(paths.GATE)
     if gate:
         out["gate"] = _attributes(gate, "rose:gate:")
