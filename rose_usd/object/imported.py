@@ -418,92 +418,110 @@ def _choose_up(imp: ImportedMesh, observed, support: float, views, rho0: float, 
     return chosen[1], chosen[2], costs
 
 
-def run(ctx: StageContext) -> None:
-    case, cfg, n = ctx.case, ctx.config, ctx.time_info.n_frames
-    cameras = read_cameras(ctx.stage, n)
-    depth_of = metric_depth_reader(ctx.stage, case, cache=8)
-    specs = case.config.objects
+def _read_meshes(ctx: StageContext) -> dict[str, tuple]:
+    """Every object's imported mesh file, read and repaired (repairs become warnings)."""
     meshes = {}
-    for spec in specs:  # every file read and repaired before any depth work: bad files fail fast
-        path = find_mesh(case, spec)
+    for spec in ctx.case.config.objects:
+        path = find_mesh(ctx.case, spec)
         meshes[spec.name] = (path, read_imported(path, spec.overrides.get("mesh_up")))
         for repair in meshes[spec.name][1].repairs:
             ctx.warn(f"object {spec.name!r} ({path.name}): {repair}")
+    return meshes
+
+
+def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, cameras) -> tuple[ObjectModel, dict]:
+    """Scale and pose of one imported mesh fitted to its resting points and silhouettes."""
+    cfg = ctx.config
+    cloud = clouds[spec.name]
+    support = support_height(
+        cloud.points, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground
+    )
+    observed = cloud.points[cloud.points[:, 2] > support + cfg.support_gap_m]
+    d_image, d_mesh = diameter(observed), diameter(imp.vertices)
+    rho0, search, how = _initial_scale(ctx, spec.name, path, imp.normalized, d_image, d_mesh)
+    views = _views(layer, spec.name, cloud.frames, cloud.masks, cameras)
+    up_rot, level, up_costs = _choose_up(
+        imp,
+        observed,
+        support,
+        views,
+        rho0,
+        cfg.imported.scale_depth_weight,
+        partial(_foundationpose_start, ctx, spec.name, cloud.frames[0], cameras),
+    )
+    vertices_up = imp.vertices @ up_rot.T
+    fp = _foundationpose_start(ctx, spec.name, cloud.frames[0], cameras, up_rot)
+    say(f"object {spec.name}: fitting scale and pose to {len(observed)} points and {len(views)} silhouettes")
+    best, tried = fit_scale_and_pose(
+        vertices_up,
+        imp.faces,
+        observed,
+        support,
+        views,
+        rho0=rho0,
+        alpha=cfg.imported.scale_search_alpha,
+        steps=cfg.imported.scale_search_steps,
+        search=search,
+        depth_weight=cfg.imported.scale_depth_weight,
+        extra_starts=() if fp is None else (fp,),
+    )
+    if best.iou < 0.5:
+        ctx.warn(
+            f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); "
+            f"check that {path.name} is this object"
+        )
+    model = _scaled_model(ctx, spec, imp, best, up_rot)
+    facts = {
+        "mesh_file": str(path),
+        "scale": how,
+        "rho0": round(float(rho0 if search else d_image / d_mesh), 6),
+        "rho": round(float(best.rho), 6),
+        "silhouette_iou": round(float(best.iou), 4),
+        "icp_rms_m": round(float(best.rms_m), 5),
+        "cost": round(float(best.cost), 4),
+        "search": [
+            [round(f.rho, 6), round(f.iou, 4), round(1e3 * f.rms_m, 2), round(f.cost, 4)]
+            for f in sorted(tried, key=lambda f: f.rho)
+        ],
+        "rest_frames": [cloud.frames[0], cloud.frames[-1]],
+        "support_height_m": round(float(support), 4),
+        "foundationpose_start": fp is not None,
+        "levelled_deg": round(float(se3.rotation_angle_deg(level)), 2),
+        "up_axis": axis_name(np.linalg.inv(up_rot) @ np.array([0.0, 0.0, 1.0])),
+        "up_costs": up_costs,
+        "repairs": imp.repairs,
+        "triangles": int(len(model.mesh.faces)),
+    }
+    return model, facts
+
+
+def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray) -> ObjectModel:
+    """The imported mesh at the fitted scale, decimated, coloured, with its physics and pose."""
+    local = best.rho * imp.vertices
+    tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), ctx.config.max_triangles)
+    vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
+    colors = transfer_colors(vertices, local, imp.colors) if imp.colors is not None else None
+    mesh = MeshData(
+        vertices=vertices, faces=faces, vertex_colors=colors, color=None if colors is not None else (0.5, 0.5, 0.5)
+    )
+    physics, mass = physics_for(spec, vertices, faces, ctx)
+    pose = best.world_from_up_frame() @ se3.make_pose(up_rot, np.zeros(3))
+    return ObjectModel(spec.name, mesh, pose, mass, physics)
+
+
+def run(ctx: StageContext) -> None:
+    n = ctx.time_info.n_frames
+    cameras = read_cameras(ctx.stage, n)
+    depth_of = metric_depth_reader(ctx.stage, ctx.case, cache=8)
+    meshes = _read_meshes(ctx)  # every file read and repaired before any depth work: bad files fail fast
     clouds = resting_clouds(ctx, cameras, depth_of)
     layer = read_masks(ctx.stage, n)
     models, facts = [], {}
-    for spec in specs:
+    for spec in ctx.case.config.objects:
         path, imp = meshes[spec.name]
-        cloud = clouds[spec.name]
-        support = support_height(
-            cloud.points, [c.points for name, c in clouds.items() if name != spec.name], ground=cloud.ground
-        )
-        observed = cloud.points[cloud.points[:, 2] > support + cfg.support_gap_m]
-        d_image, d_mesh = diameter(observed), diameter(imp.vertices)
-        rho0, search, how = _initial_scale(ctx, spec.name, path, imp.normalized, d_image, d_mesh)
-        views = _views(layer, spec.name, cloud.frames, cloud.masks, cameras)
-        up_rot, level, up_costs = _choose_up(
-            imp,
-            observed,
-            support,
-            views,
-            rho0,
-            cfg.imported.scale_depth_weight,
-            partial(_foundationpose_start, ctx, spec.name, cloud.frames[0], cameras),
-        )
-        vertices_up = imp.vertices @ up_rot.T
-        fp = _foundationpose_start(ctx, spec.name, cloud.frames[0], cameras, up_rot)
-        say(f"object {spec.name}: fitting scale and pose to {len(observed)} points and {len(views)} silhouettes")
-        best, tried = fit_scale_and_pose(
-            vertices_up,
-            imp.faces,
-            observed,
-            support,
-            views,
-            rho0=rho0,
-            alpha=cfg.imported.scale_search_alpha,
-            steps=cfg.imported.scale_search_steps,
-            search=search,
-            depth_weight=cfg.imported.scale_depth_weight,
-            extra_starts=() if fp is None else (fp,),
-        )
-        if best.iou < 0.5:
-            ctx.warn(
-                f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); "
-                f"check that {path.name} is this object"
-            )
-        local = best.rho * imp.vertices
-        tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), cfg.max_triangles)
-        vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
-        colors = transfer_colors(vertices, local, imp.colors) if imp.colors is not None else None
-        mesh = MeshData(
-            vertices=vertices, faces=faces, vertex_colors=colors, color=None if colors is not None else (0.5, 0.5, 0.5)
-        )
-        physics, mass = physics_for(spec, vertices, faces, ctx)
-        pose = best.world_from_up_frame() @ se3.make_pose(up_rot, np.zeros(3))
-        models.append(ObjectModel(spec.name, mesh, pose, mass, physics))
-        facts[spec.name] = {
-            "mesh_file": str(path),
-            "scale": how,
-            "rho0": round(float(rho0 if search else d_image / d_mesh), 6),
-            "rho": round(float(best.rho), 6),
-            "silhouette_iou": round(float(best.iou), 4),
-            "icp_rms_m": round(float(best.rms_m), 5),
-            "cost": round(float(best.cost), 4),
-            "search": [
-                [round(f.rho, 6), round(f.iou, 4), round(1e3 * f.rms_m, 2), round(f.cost, 4)]
-                for f in sorted(tried, key=lambda f: f.rho)
-            ],
-            "rest_frames": [cloud.frames[0], cloud.frames[-1]],
-            "support_height_m": round(float(support), 4),
-            "foundationpose_start": fp is not None,
-            "levelled_deg": round(float(se3.rotation_angle_deg(level)), 2),
-            "up_axis": axis_name(np.linalg.inv(up_rot) @ np.array([0.0, 0.0, 1.0])),
-            "up_costs": up_costs,
-            "repairs": imp.repairs,
-            "triangles": int(len(faces)),
-        }
-    authored = author_objects(ctx, models, cfg.convex_tolerance)  # everything built and checked: now author
+        model, facts[spec.name] = _fit_object(ctx, spec, path, imp, clouds, layer, cameras)
+        models.append(model)
+    authored = author_objects(ctx, models, ctx.config.convex_tolerance)  # everything built and checked: now author
     for name, values in authored.items():
         facts[name] |= values
     ctx.record(objects=facts)

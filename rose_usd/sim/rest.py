@@ -26,6 +26,47 @@ RIGID_CONTACT_MAX = 16384
 """Contacts the rest simulation has room for (objects of a few dozen convex parts on a scene mesh)."""
 
 
+def _load(newton, stage: Usd.Stage, object_paths: dict[str, str]):
+    """The stage as a Newton model, and the body index of each object's rigid-body prim."""
+    import warp as wp
+
+    builder = newton.ModelBuilder()
+    result = builder.add_usd(stage)
+    body_of = dict(result.get("path_body_map", {}))
+    missing = [name for name, path in object_paths.items() if path not in body_of]
+    if missing:
+        raise ValidationError(
+            f"Newton built no body for object(s) {missing}",
+            path=stage.GetRootLayer().identifier,
+            hint="check RigidBodyAPI on the object prims",
+        )
+    return builder.finalize(device=wp.get_preferred_device()), body_of
+
+
+def _body_corners(stage: Usd.Stage, object_paths: dict[str, str]) -> dict[str, np.ndarray]:
+    """Each object's bounding-box corners in its body frame (the prim frame: Newton bodies are the
+    rigid-body prims)."""
+    corners = {}
+    for name, path in object_paths.items():
+        bbox = UsdGeom.BBoxCache(
+            Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.guide]
+        )
+        box = bbox.ComputeUntransformedBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
+        lo, hi = np.asarray(box.GetMin()), np.asarray(box.GetMax())
+        corners[name] = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    return corners
+
+
+def _body_poses(state, body_of: dict[str, int], object_paths: dict[str, str]) -> dict[str, np.ndarray]:
+    """Each object's world pose in a Newton state."""
+    q = state.body_q.numpy()
+    out = {}
+    for name, path in object_paths.items():
+        p, quat_xyzw = q[body_of[path], :3], q[body_of[path], 3:]
+        out[name] = se3.make_pose(se3.matrix_from_quat_xyzw(quat_xyzw), p)
+    return out
+
+
 def simulate_rest(
     stage: Usd.Stage,
     object_paths: dict[str, str],
@@ -39,22 +80,10 @@ def simulate_rest(
     Args:
         object_paths: object name -> prim path of its rigid body.
     """
-    import warp as wp
-
     from rose_usd.sim.engine import newton as load_newton
 
     newton = load_newton()
-    builder = newton.ModelBuilder()
-    result = builder.add_usd(stage)
-    body_of = dict(result.get("path_body_map", {}))
-    missing = [name for name, path in object_paths.items() if path not in body_of]
-    if missing:
-        raise ValidationError(
-            f"Newton built no body for object(s) {missing}",
-            path=stage.GetRootLayer().identifier,
-            hint="check RigidBodyAPI on the object prims",
-        )
-    model = builder.finalize(device=wp.get_preferred_device())
+    model, body_of = _load(newton, stage, object_paths)
     solver = newton.solvers.SolverXPBD(model, iterations=iterations)
     state_0, state_1 = model.state(), model.state()
     control = model.control()
@@ -62,25 +91,8 @@ def simulate_rest(
     # (they can make nearly twice that) and drops the rest, with a warning per step
     pipeline = newton.CollisionPipeline(model, rigid_contact_max=RIGID_CONTACT_MAX)
     contacts = pipeline.contacts()
-    # object corners in the body frame (the prim frame: Newton bodies are the rigid-body prims)
-    corners = {}
-    for name, path in object_paths.items():
-        bbox = UsdGeom.BBoxCache(
-            Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.guide]
-        )
-        box = bbox.ComputeUntransformedBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
-        lo, hi = np.asarray(box.GetMin()), np.asarray(box.GetMax())
-        corners[name] = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-
-    def poses() -> dict[str, np.ndarray]:
-        q = state_0.body_q.numpy()
-        out = {}
-        for name, path in object_paths.items():
-            p, quat_xyzw = q[body_of[path], :3], q[body_of[path], 3:]
-            out[name] = se3.make_pose(se3.matrix_from_quat_xyzw(quat_xyzw), p)
-        return out
-
-    start = poses()
+    corners = _body_corners(stage, object_paths)
+    start = _body_poses(state_0, body_of, object_paths)
     start_pts = {n: se3.transform_points(start[n], corners[n]) for n in object_paths}
     max_disp = {n: 0.0 for n in object_paths}
     max_rot = {n: 0.0 for n in object_paths}
@@ -91,13 +103,13 @@ def simulate_rest(
         solver.step(state_0, state_1, control, contacts, dt_s)
         state_0, state_1 = state_1, state_0
         if step % check_every == 0 or step == steps - 1:
-            now = poses()
+            now = _body_poses(state_0, body_of, object_paths)
             for n in object_paths:
                 disp = np.linalg.norm(se3.transform_points(now[n], corners[n]) - start_pts[n], axis=1).max()
                 max_disp[n] = max(max_disp[n], float(disp))
                 rot = float(se3.rotation_angle_deg(start[n][:3, :3].T @ now[n][:3, :3]))
                 max_rot[n] = max(max_rot[n], rot)
-    final = poses()
+    final = _body_poses(state_0, body_of, object_paths)
     return [
         RestResult(
             name=n,
