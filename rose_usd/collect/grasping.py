@@ -72,6 +72,85 @@ def _along_path(path: np.ndarray, count: int) -> np.ndarray:
     return path[np.unique(np.linspace(0, len(path) - 1, count).round().astype(int))]
 
 
+def _antipodal_pairs(
+    object_vertices: np.ndarray,
+    object_faces: np.ndarray,
+    *,
+    friction: float,
+    max_width_m: float,
+    surface_points: int,
+    max_pairs: int,
+    rng: np.random.Generator,
+) -> tuple[antipodal.Antipodal, int]:
+    """Antipodal pairs on the mesh that fit the gripper, at most ``max_pairs`` of them, and how many were found."""
+    points, normals = antipodal.sample_surface(object_vertices, object_faces, surface_points, rng)
+    pairs = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=max_width_m)
+    if len(pairs) == 0:
+        wide = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=10.0)
+        narrowest = f"{100 * wide.width.min():.1f} cm" if len(wide) else "none found"
+        raise NoGrasp(
+            f"the object is too large for the gripper: its narrowest antipodal grasp is {narrowest}, "
+            f"the Panda takes at most {100 * max_width_m:.1f} cm"
+        )
+    found = len(pairs)
+    if len(pairs) > max_pairs:  # the best aligned, and a random share of the rest
+        best = np.argsort(-pairs.alignment, kind="stable")[: max_pairs // 2]
+        rest = np.setdiff1d(np.arange(len(pairs)), best)
+        keep = np.concatenate([best, rng.choice(rest, max_pairs - len(best), replace=False)])
+        pairs = antipodal.Antipodal(pairs.p1[keep], pairs.p2[keep], pairs.alignment[keep])
+    return pairs, found
+
+
+def _frames_from_above(
+    pairs: antipodal.Antipodal, approach_turns: int, start_pose: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tool frames (G, 4, 4) of the pairs whose approach is not from below at ``start_pose`` (4, 4),
+    their pair indices (G,) and the approach's world z (G,)."""
+    frames, which = antipodal.grasp_frames(pairs, approach_turns)
+    world0 = np.einsum("ij,gjk->gik", start_pose, frames)
+    approach_up = world0[:, 2, 2]
+    frames, which, approach_up = frames[approach_up < 0.3], which[approach_up < 0.3], approach_up[approach_up < 0.3]
+    if len(frames) == 0:
+        raise NoGrasp("every antipodal grasp of the object must come from below the support")
+    return frames, which, approach_up
+
+
+def _collision_free(
+    frames: np.ndarray,
+    gripper: tuple[np.ndarray, np.ndarray],
+    object_cloud: np.ndarray,
+    scene_points: np.ndarray,
+    path: np.ndarray,
+    lift_m: float,
+) -> np.ndarray:
+    """(G,) whether the gripper boxes ``gripper`` (centres, half sizes) at each tool frame (G, 4, 4)
+    stay clear of the object's points and of the scene points [m] at the grasp, on the way in and
+    along the lifted path (N, 4, 4)."""
+    centres, halves = gripper
+    hit = antipodal.boxes_hit(frames, centres, halves, object_cloud)
+    # on the way in: the hand and fingers backed off along the approach
+    for back in (0.03, 0.06, motion.PREGRASP_M):
+        shifted = frames.copy()
+        shifted[:, :3, 3] -= back * frames[:, :3, 2]
+        hit |= antipodal.boxes_hit(shifted, centres, halves, object_cloud)
+    free = ~hit
+    if len(scene_points):
+        # the scene at the grasp and on the way in (world frame at frame 0), and along the path
+        local_scene = se3.transform_points(se3.invert(path[0]), scene_points)
+        for back in (0.0, 0.05, motion.PREGRASP_M):
+            shifted = frames[free].copy()
+            shifted[:, :3, 3] -= back * shifted[:, :3, 2]
+            idx = np.flatnonzero(free)
+            free[idx[antipodal.boxes_hit(shifted, centres, halves, local_scene)]] = False
+        for pose in _along_path(motion.lifted(path, lift_m), 8)[1:]:
+            idx = np.flatnonzero(free)
+            if len(idx) == 0:
+                break
+            moved = np.einsum("ij,gjk->gik", pose, frames[idx])
+            free[idx[antipodal.boxes_hit(moved, centres, halves, scene_points)]] = False
+    return free
+
+
 def candidates(
     object_vertices: np.ndarray,
     object_faces: np.ndarray,
@@ -98,29 +177,18 @@ def candidates(
     Raises:
         NoGrasp: none fits the gripper or none is free of the scene and the object.
     """
-    points, normals = antipodal.sample_surface(object_vertices, object_faces, surface_points, rng)
-    pairs = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=max_width_m)
-    if len(pairs) == 0:
-        wide = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=10.0)
-        narrowest = f"{100 * wide.width.min():.1f} cm" if len(wide) else "none found"
-        raise NoGrasp(
-            f"the object is too large for the gripper: its narrowest antipodal grasp is {narrowest}, "
-            f"the Panda takes at most {100 * max_width_m:.1f} cm"
-        )
-    found = len(pairs)
-    if len(pairs) > max_pairs:  # the best aligned, and a random share of the rest
-        best = np.argsort(-pairs.alignment, kind="stable")[: max_pairs // 2]
-        rest = np.setdiff1d(np.arange(len(pairs)), best)
-        keep = np.concatenate([best, rng.choice(rest, max_pairs - len(best), replace=False)])
-        pairs = antipodal.Antipodal(pairs.p1[keep], pairs.p2[keep], pairs.alignment[keep])
-    frames, which = antipodal.grasp_frames(pairs, approach_turns)
-    world0 = np.einsum("ij,gjk->gik", path[0], frames)
-    approach_up = world0[:, 2, 2]
-    frames, which, approach_up = frames[approach_up < 0.3], which[approach_up < 0.3], approach_up[approach_up < 0.3]
-    if len(frames) == 0:
-        raise NoGrasp("every antipodal grasp of the object must come from below the support")
+    pairs, found = _antipodal_pairs(
+        object_vertices,
+        object_faces,
+        friction=friction,
+        max_width_m=max_width_m,
+        surface_points=surface_points,
+        max_pairs=max_pairs,
+        rng=rng,
+    )
+    frames, which, approach_up = _frames_from_above(pairs, approach_turns, path[0])
 
-    centres, halves = panda.gripper_boxes(panda.MAX_OPENING_M)
+    gripper = panda.gripper_boxes(panda.MAX_OPENING_M)
     object_cloud, _ = antipodal.sample_surface(object_vertices, object_faces, 1500, rng)
     # flat pads open as wide as the object is across them, which may exceed the pair's chord
     extent = antipodal.closing_extent(frames, object_cloud, panda.PAD_HALF_X, panda.PAD_Z)
@@ -131,27 +199,7 @@ def candidates(
             f"{100 * extent.min():.1f} cm wide, the Panda takes at most {100 * max_width_m:.1f} cm"
         )
     frames, which, approach_up, extent = frames[fits], which[fits], approach_up[fits], extent[fits]
-    hit = antipodal.boxes_hit(frames, centres, halves, object_cloud)
-    # on the way in: the hand and fingers backed off along the approach
-    for back in (0.03, 0.06, motion.PREGRASP_M):
-        shifted = frames.copy()
-        shifted[:, :3, 3] -= back * frames[:, :3, 2]
-        hit |= antipodal.boxes_hit(shifted, centres, halves, object_cloud)
-    free = ~hit
-    if len(scene_points):
-        # the scene at the grasp and on the way in (world frame at frame 0), and along the path
-        local_scene = se3.transform_points(se3.invert(path[0]), scene_points)
-        for back in (0.0, 0.05, motion.PREGRASP_M):
-            shifted = frames[free].copy()
-            shifted[:, :3, 3] -= back * shifted[:, :3, 2]
-            idx = np.flatnonzero(free)
-            free[idx[antipodal.boxes_hit(shifted, centres, halves, local_scene)]] = False
-        for pose in _along_path(motion.lifted(path, lift_m), 8)[1:]:
-            idx = np.flatnonzero(free)
-            if len(idx) == 0:
-                break
-            moved = np.einsum("ij,gjk->gik", pose, frames[idx])
-            free[idx[antipodal.boxes_hit(moved, centres, halves, scene_points)]] = False
+    free = _collision_free(frames, gripper, object_cloud, scene_points, path, lift_m)
     if not free.any():
         raise NoGrasp(f"all {found} antipodal grasps of the object would put the gripper into the scene or the object")
     frames, which, approach_up, extent = frames[free], which[free], approach_up[free], extent[free]
