@@ -95,22 +95,32 @@ def _column(values: np.ndarray, dtype: str, width: int | None):
     return pa.FixedSizeListArray.from_arrays(flat, width)
 
 
-def write_dataset(
-    root: Path, episodes: list[Episode], features: dict[str, Feature], *, fps: int, robot_type: str
-) -> Path:
-    """Write a LeRobot v3.0 dataset of ``episodes`` into ``root`` (one data and one episodes file).
+def _episode_row(e: int, task: str, start: int, n: int, columns: dict[str, list]) -> dict:
+    """The episodes-table row of episode ``e`` (frames ``start`` to ``start + n``), with the stats of
+    each column's last part (that episode's frames)."""
+    stats = {name: _stats(parts[-1]) for name, parts in columns.items()}
+    row = {
+        "episode_index": e,
+        "tasks": [task],
+        "length": n,
+        "data/chunk_index": 0,
+        "data/file_index": 0,
+        "dataset_from_index": start,
+        "dataset_to_index": start + n,
+    }
+    for name, st in stats.items():
+        for key, value in st.items():
+            row[f"stats/{name}/{key}"] = value
+    row["meta/episodes/chunk_index"] = 0
+    row["meta/episodes/file_index"] = 0
+    return row
 
-    Returns:
-        The path of meta/info.json.
-    """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
 
-    root = Path(root)
-    tasks: list[str] = []
-    for ep in episodes:
-        if ep.task not in tasks:
-            tasks.append(ep.task)
+def _episode_columns(
+    episodes: list[Episode], features: dict[str, Feature], tasks: list[str], fps: int
+) -> tuple[dict[str, list], list[dict], int]:
+    """The frame columns as one (T, n) array per episode and column, the episodes-table rows, and the
+    number of frames."""
     columns: dict[str, list] = {name: [] for name in list(features) + list(DEFAULT_FEATURES)}
     episode_rows: list[dict] = []
     start = 0
@@ -132,23 +142,47 @@ def write_dataset(
         }
         for name, values in extra.items():
             columns[name].append(values[:, None])
-        stats = {name: _stats(parts[-1]) for name, parts in columns.items()}
-        row = {
-            "episode_index": e,
-            "tasks": [ep.task],
-            "length": n,
-            "data/chunk_index": 0,
-            "data/file_index": 0,
-            "dataset_from_index": start,
-            "dataset_to_index": start + n,
-        }
-        for name, st in stats.items():
-            for key, value in st.items():
-                row[f"stats/{name}/{key}"] = value
-        row["meta/episodes/chunk_index"] = 0
-        row["meta/episodes/file_index"] = 0
-        episode_rows.append(row)
+        episode_rows.append(_episode_row(e, ep.task, start, n, columns))
         start += n
+    return columns, episode_rows, start
+
+
+def _info(robot_type: str, episodes: int, frames: int, tasks: int, fps: int, features: dict) -> dict:
+    """meta/info.json's content."""
+    return {
+        "codebase_version": CODEBASE_VERSION,
+        "robot_type": robot_type,
+        "total_episodes": episodes,
+        "total_frames": frames,
+        "total_tasks": tasks,
+        "chunks_size": CHUNKS_SIZE,
+        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
+        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
+        "fps": int(fps),
+        "splits": {"train": f"0:{episodes}"},
+        "data_path": DATA_PATH,
+        "video_path": None,
+        "features": features,
+    }
+
+
+def write_dataset(
+    root: Path, episodes: list[Episode], features: dict[str, Feature], *, fps: int, robot_type: str
+) -> Path:
+    """Write a LeRobot v3.0 dataset of ``episodes`` into ``root`` (one data and one episodes file).
+
+    Returns:
+        The path of meta/info.json.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    root = Path(root)
+    tasks: list[str] = []
+    for ep in episodes:
+        if ep.task not in tasks:
+            tasks.append(ep.task)
+    columns, episode_rows, start = _episode_columns(episodes, features, tasks, fps)
 
     merged = {name: np.concatenate(parts) for name, parts in columns.items()}
     all_features = {name: {"dtype": f.dtype, "shape": f.shape, "names": list(f.names)} for name, f in features.items()}
@@ -168,21 +202,7 @@ def write_dataset(
     _write_tasks(root / TASKS_PATH, tasks)
 
     total = int(start)
-    info = {
-        "codebase_version": CODEBASE_VERSION,
-        "robot_type": robot_type,
-        "total_episodes": len(episodes),
-        "total_frames": total,
-        "total_tasks": len(tasks),
-        "chunks_size": CHUNKS_SIZE,
-        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
-        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
-        "fps": int(fps),
-        "splits": {"train": f"0:{len(episodes)}"},
-        "data_path": DATA_PATH,
-        "video_path": None,
-        "features": all_features,
-    }
+    info = _info(robot_type, len(episodes), total, len(tasks), fps, all_features)
     info_file = root / "meta" / "info.json"
     info_file.write_text(json.dumps(info, indent=4) + "\n")
     stats = {name: _stats(values) for name, values in merged.items()}
