@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from pxr import Usd
@@ -108,35 +109,22 @@ def crop_to_box(vertices: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.
     return (v, f) if len(f) else None
 
 
-def build_world(
-    stage: Usd.Stage,
-    object_path: str,
-    base_pose: np.ndarray,
-    workspace: tuple[np.ndarray, np.ndarray],
-    cfg: NewtonConfig,
-) -> World:
-    """Load the stage and the Panda into one Newton model.
+class _Robot(NamedTuple):
+    """Where the Panda landed in the model builder."""
 
-    Args:
-        stage: the composed stage (scene collider, objects, at their default poses).
-        object_path: prim path of the object the robot moves.
-        base_pose: world pose of the robot base (4, 4).
-        workspace: (lo, hi) corners [m] of the box the scene collider is cut to.
-    """
-    import time
+    q0: int
+    """First joint coordinate."""
+    d0: int
+    """First joint DOF."""
+    bodies: dict[str, int]
+    """Link name -> body index."""
+    shapes: list[int]
+    pads: list[int]
+    """The two finger pads' shapes."""
 
-    import warp as wp
-    from newton.solvers import SolverMuJoCo
 
-    from rose_usd.sim.engine import newton as load_newton
-
-    newton = load_newton()
-    newton.config.cache_dir_meshes = str(mesh_cache_dir())
-    timings = {}
-    t0 = time.perf_counter()
-    b = newton.ModelBuilder()
-    SolverMuJoCo.register_custom_attributes(b)
-    b.rigid_gap = RIGID_GAP_M
+def _add_stage(b, stage: Usd.Stage, object_path: str) -> int:
+    """Load the stage into the builder ``b`` (no visual shapes); the object's body index."""
     result = b.add_usd(stage, load_visual_shapes=False, load_static_visual_shapes=False, verbose=False)
     body_of = {str(k): int(v) for k, v in dict(result.get("path_body_map", {})).items()}
     if object_path not in body_of:
@@ -145,12 +133,14 @@ def build_world(
             path=stage.GetRootLayer().identifier,
             hint="check RigidBodyAPI on the object prim (re-run the object stage)",
         )
-    obj = body_of[object_path]
-    object_shapes = [s for s in range(b.shape_count) if b.shape_body[s] == obj]
-    timings["load_s"] = time.perf_counter() - t0
+    return body_of[object_path]
 
-    # the scene collider: cut to the workspace, then convex parts (MuJoCo sees a mesh as its hull)
-    t0 = time.perf_counter()
+
+def _scene_collider(b, newton, workspace: tuple[np.ndarray, np.ndarray], cfg: NewtonConfig) -> list[int]:
+    """Cut the builder's static meshes to the workspace box (lo, hi) [m] and split them into convex
+    parts (MuJoCo sees a mesh as its hull); the scene's shape indices."""
+    import warp as wp
+
     statics = [s for s in range(b.shape_count) if b.shape_body[s] == -1 and b.shape_type[s] == newton.GeoType.MESH]
     lo, hi = workspace
     for s in statics:
@@ -175,15 +165,14 @@ def build_world(
             threshold=cfg.coacd_threshold,
             cache_dir=mesh_cache_dir(),
         )
-    scene_shapes = statics + list(range(n_before, b.shape_count))
-    timings["scene_decomposition_s"] = time.perf_counter() - t0
+    return statics + list(range(n_before, b.shape_count))
 
-    friction = float(b.shape_material_mu[object_shapes[0]]) if object_shapes else 0.5
-    _grip_contacts(b, object_shapes, cfg, friction)
-    for s in scene_shapes:
-        b.shape_material_mu[s] = friction
 
-    # the robot
+def _add_panda(b, newton, base_pose: np.ndarray, cfg: NewtonConfig) -> _Robot:
+    """Add the Panda at ``base_pose`` (4, 4) to the builder: home pose, drives, gravity compensation
+    and gripping finger pads."""
+    import warp as wp
+
     b0, s0, q0, d0 = b.body_count, b.shape_count, b.joint_coord_count, b.joint_dof_count
     base = wp.transform(base_pose[:3, 3].tolist(), se3.quat_xyzw_from_matrix(base_pose[:3, :3]).tolist())
     b.add_urdf(str(panda.panda_urdf()), xform=base, floating=False, enable_self_collisions=False, hide_visuals=True)
@@ -214,6 +203,52 @@ def build_world(
     if len(pads) != 2:
         raise StageError(f"found {len(pads)} finger pads in the Panda's URDF, not 2")
     _grip_contacts(b, pads, cfg, float(cfg.pad_friction))
+    return _Robot(q0, d0, bodies, robot_shapes, pads)
+
+
+def build_world(
+    stage: Usd.Stage,
+    object_path: str,
+    base_pose: np.ndarray,
+    workspace: tuple[np.ndarray, np.ndarray],
+    cfg: NewtonConfig,
+) -> World:
+    """Load the stage and the Panda into one Newton model.
+
+    Args:
+        stage: the composed stage (scene collider, objects, at their default poses).
+        object_path: prim path of the object the robot moves.
+        base_pose: world pose of the robot base (4, 4).
+        workspace: (lo, hi) corners [m] of the box the scene collider is cut to.
+    """
+    import time
+
+    from newton.solvers import SolverMuJoCo
+
+    from rose_usd.sim.engine import newton as load_newton
+
+    newton = load_newton()
+    newton.config.cache_dir_meshes = str(mesh_cache_dir())
+    timings = {}
+    t0 = time.perf_counter()
+    b = newton.ModelBuilder()
+    SolverMuJoCo.register_custom_attributes(b)
+    b.rigid_gap = RIGID_GAP_M
+    obj = _add_stage(b, stage, object_path)
+    object_shapes = [s for s in range(b.shape_count) if b.shape_body[s] == obj]
+    timings["load_s"] = time.perf_counter() - t0
+
+    # the scene collider: cut to the workspace, then convex parts (MuJoCo sees a mesh as its hull)
+    t0 = time.perf_counter()
+    scene_shapes = _scene_collider(b, newton, workspace, cfg)
+    timings["scene_decomposition_s"] = time.perf_counter() - t0
+
+    friction = float(b.shape_material_mu[object_shapes[0]]) if object_shapes else 0.5
+    _grip_contacts(b, object_shapes, cfg, friction)
+    for s in scene_shapes:
+        b.shape_material_mu[s] = friction
+
+    robot = _add_panda(b, newton, base_pose, cfg)
     j = b.joint_child.index(obj)
     object_q0 = int(b.joint_q_start[j])
     mass = float(b.body_mass[obj])
@@ -223,11 +258,11 @@ def build_world(
         object_body=obj,
         object_shapes=object_shapes,
         scene_shapes=scene_shapes,
-        robot_q0=q0,
-        robot_d0=d0,
-        robot_bodies=bodies,
-        pad_shapes=pads,
-        robot_shapes=robot_shapes,
+        robot_q0=robot.q0,
+        robot_d0=robot.d0,
+        robot_bodies=robot.bodies,
+        pad_shapes=robot.pads,
+        robot_shapes=robot.shapes,
         object_q0=object_q0,
         base_pose=np.asarray(base_pose, dtype=float),
         object_mass_kg=mass,
