@@ -146,6 +146,87 @@ def _pose7_to_matrix(q7: np.ndarray) -> np.ndarray:
     return se3.make_pose(se3.matrix_from_quat_xyzw(q7[..., 3:7]), q7[..., :3])
 
 
+def _perturbed_joint_q(joint_q: np.ndarray, object_q0: int, perturbation: Perturbation) -> np.ndarray:
+    """The joint coordinates ``joint_q`` with the object's free joint (from ``object_q0``) turned by
+    the perturbation's yaw and shifted by its offset [m] (changed in place and returned)."""
+    start = _pose7_to_matrix(joint_q[object_q0 : object_q0 + 7])
+    turn = se3.make_pose(se3.rotation_about([0.0, 0.0, 1.0], np.radians(perturbation.yaw_deg)), np.zeros(3))
+    moved = start.copy()
+    moved[:3, :3] = turn[:3, :3] @ start[:3, :3]
+    moved[:3, 3] = start[:3, 3] + perturbation.offset_m
+    joint_q[object_q0 : object_q0 + 3] = moved[:3, 3]
+    joint_q[object_q0 + 3 : object_q0 + 7] = se3.quat_xyzw_from_matrix(moved[:3, :3])
+    return joint_q
+
+
+class _Ticks:
+    """Executes a plan's ticks in the simulator (joint targets interpolated over ``substeps`` steps
+    of ``dt`` [s], arm velocity feed-forward) and logs the robot and the object after each tick."""
+
+    def __init__(self, sim: Simulator, plan: motion.Plan, state, nxt, control, substeps: int, dt: float):
+        w, model = sim.world, sim.world.model
+        self.sim, self.plan, self.substeps, self.dt = sim, plan, substeps, dt
+        self.state, self.nxt, self.control = state, nxt, control
+        self.target_q = model.joint_q.numpy().copy()
+        self.target_qd = np.zeros(model.joint_dof_count, dtype=np.float32)
+        self.link_bodies = [w.robot_bodies[name] for name in panda.chain().links]
+        self.log_q, self.log_qd, self.log_tcp, self.log_obj, self.log_links, self.log_act = [], [], [], [], [], []
+        self.deepest = 0.0
+        self.q_prev = plan.q[0]
+        self.tick = 0
+
+    def execute(self, upto: int) -> bool:
+        """Run the plan's ticks up to ``upto`` (exclusive); False once a body pose is not finite."""
+        w, plan, rate, substeps = self.sim.world, self.plan, self.plan.rate_hz, self.substeps
+        q0, d0, n = w.robot_q0, w.robot_d0, len(panda.JOINTS)
+        while self.tick < upto:
+            q_next = plan.q[self.tick]
+            qd_ff = (q_next - self.q_prev) * rate
+            for i in range(substeps):
+                a = (i + 1) / substeps
+                self.target_q[q0 : q0 + n] = self.q_prev + a * (q_next - self.q_prev)
+                self.target_qd[d0 : d0 + 7] = qd_ff[:7]
+                self.control.joint_target_q.assign(self.target_q.astype(np.float32))
+                self.control.joint_target_qd.assign(self.target_qd)
+                self.sim.solver.step(self.state, self.nxt, self.control, None, self.dt)
+                self.state, self.nxt = self.nxt, self.state
+            self.q_prev = q_next
+            if not self._log(q_next):
+                return False
+            self.tick += 1
+        return True
+
+    def _log(self, q_next: np.ndarray) -> bool:
+        """Log the state after a tick whose joint targets were ``q_next`` (9,); False if it is not finite."""
+        w, state = self.sim.world, self.state
+        q0, d0, n = w.robot_q0, w.robot_d0, len(panda.JOINTS)
+        body_q = state.body_q.numpy().astype(float)
+        jq = state.joint_q.numpy().astype(float)
+        if not np.all(np.isfinite(body_q)):
+            return False
+        self.log_q.append(jq[q0 : q0 + n])
+        self.log_qd.append(state.joint_qd.numpy().astype(float)[d0 : d0 + n])
+        self.log_tcp.append(_pose7_to_matrix(body_q[w.robot_bodies[panda.TCP_LINK]]))
+        self.log_obj.append(_pose7_to_matrix(body_q[w.object_body]))
+        self.log_links.append(_pose7_to_matrix(body_q[self.link_bodies]))
+        self.log_act.append(q_next)
+        self.deepest = max(self.deepest, self.sim.penetration())
+        return True
+
+    def fill(self, result: Rollout) -> None:
+        """Copy the log (T ticks) and the plan's commands and IK errors into ``result``."""
+        plan, t = self.plan, len(self.log_q)
+        result.q, result.qd = np.array(self.log_q), np.array(self.log_qd)
+        result.tcp, result.object_pose = np.array(self.log_tcp), np.array(self.log_obj)
+        result.links = np.array(self.log_links)
+        result.action_q = np.array(self.log_act)
+        result.action_tcp = np.array(plan.tcp[:t])
+        result.phase = list(plan.phase[:t])
+        result.penetration_m = self.deepest
+        result.ik_error_m, result.ik_error_deg = plan.ik_error_m, plan.ik_error_deg
+        result.sim_s = t * self.substeps * self.dt
+
+
 def run_rollout(
     sim: Simulator,
     plan: motion.Plan,
@@ -165,14 +246,7 @@ def run_rollout(
     sim.set_object(perturbation.mass_kg, perturbation.friction)
     state, nxt, control = model.state(), model.state(), model.control()
     sim.solver.reset(state)
-    joint_q = model.joint_q.numpy().copy()
-    start = _pose7_to_matrix(joint_q[w.object_q0 : w.object_q0 + 7])
-    turn = se3.make_pose(se3.rotation_about([0.0, 0.0, 1.0], np.radians(perturbation.yaw_deg)), np.zeros(3))
-    moved = start.copy()
-    moved[:3, :3] = turn[:3, :3] @ start[:3, :3]
-    moved[:3, 3] = start[:3, 3] + perturbation.offset_m
-    joint_q[w.object_q0 : w.object_q0 + 3] = moved[:3, 3]
-    joint_q[w.object_q0 + 3 : w.object_q0 + 7] = se3.quat_xyzw_from_matrix(moved[:3, :3])
+    joint_q = _perturbed_joint_q(model.joint_q.numpy().copy(), w.object_q0, perturbation)
     state.joint_q.assign(joint_q.astype(np.float32))
     state.joint_qd.zero_()
     newton.eval_fk(model, state.joint_q, state.joint_qd, state)
@@ -180,62 +254,20 @@ def run_rollout(
     rate = plan.rate_hz
     substeps = max(1, int(round(1.0 / (rate * sim.dt_s))))
     dt = 1.0 / (rate * substeps)
-    q0, d0, n = w.robot_q0, w.robot_d0, len(panda.JOINTS)
-    target_q = model.joint_q.numpy().copy()
-    target_qd = np.zeros(model.joint_dof_count, dtype=np.float32)
-    link_bodies = [w.robot_bodies[name] for name in panda.chain().links]
-    log_q, log_qd, log_tcp, log_obj, log_links, log_act = [], [], [], [], [], []
+    ticks = _Ticks(sim, plan, state, nxt, control, substeps, dt)
     result = Rollout(grasp=grasp, perturbation=perturbation, rate_hz=rate)
-    deepest = 0.0
-    q_prev = plan.q[0]
-    tick = 0
 
-    def execute(upto: int) -> bool:
-        nonlocal state, nxt, q_prev, tick, deepest
-        while tick < upto:
-            q_next = plan.q[tick]
-            qd_ff = (q_next - q_prev) * rate
-            for i in range(substeps):
-                a = (i + 1) / substeps
-                target_q[q0 : q0 + n] = q_prev + a * (q_next - q_prev)
-                target_qd[d0 : d0 + 7] = qd_ff[:7]
-                control.joint_target_q.assign(target_q.astype(np.float32))
-                control.joint_target_qd.assign(target_qd)
-                sim.solver.step(state, nxt, control, None, dt)
-                state, nxt = nxt, state
-            q_prev = q_next
-            body_q = state.body_q.numpy().astype(float)
-            jq = state.joint_q.numpy().astype(float)
-            if not np.all(np.isfinite(body_q)):
-                return False
-            log_q.append(jq[q0 : q0 + n])
-            log_qd.append(state.joint_qd.numpy().astype(float)[d0 : d0 + n])
-            log_tcp.append(_pose7_to_matrix(body_q[w.robot_bodies[panda.TCP_LINK]]))
-            log_obj.append(_pose7_to_matrix(body_q[w.object_body]))
-            log_links.append(_pose7_to_matrix(body_q[link_bodies]))
-            log_act.append(q_next)
-            deepest = max(deepest, sim.penetration())
-            tick += 1
-        return True
-
-    finite = execute(len(plan))
+    finite = ticks.execute(len(plan))
     carry_from = len(plan)
     if finite:
         # the follow, from where the object and the hand actually are once it is grasped
-        tcp_grasp, obj_grasp = log_tcp[-1], log_obj[-1]
+        tcp_grasp, obj_grasp = ticks.log_tcp[-1], ticks.log_obj[-1]
         follow = motion.lifted(motion.follow_poses(path, obj_grasp, tcp_grasp), cfg.lift_m)
         motion.carry_plan(plan, w.base_pose, follow, cfg.lift_m)
-        finite = execute(len(plan))
-    result.q, result.qd = np.array(log_q), np.array(log_qd)
-    result.tcp, result.object_pose, result.links = np.array(log_tcp), np.array(log_obj), np.array(log_links)
-    result.action_q = np.array(log_act)
-    result.action_tcp = np.array(plan.tcp[: len(log_q)])
-    result.phase = list(plan.phase[: len(log_q)])
-    result.penetration_m = deepest
-    result.ik_error_m, result.ik_error_deg = plan.ik_error_m, plan.ik_error_deg
-    result.sim_s = len(log_q) * substeps * dt
+        finite = ticks.execute(len(plan))
+    ticks.fill(result)
     if not finite:
-        result.reason = f"the simulation diverged (NaN) in phase {plan.phase[min(tick, len(plan) - 1)]!r}"
+        result.reason = f"the simulation diverged (NaN) in phase {plan.phase[min(ticks.tick, len(plan) - 1)]!r}"
     else:
         judge(result, path, carry_from, cfg)
     result.wall_s = time.perf_counter() - t_wall
