@@ -9,6 +9,7 @@ message say so, and a warning; they are not errors of the pipeline.
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from rose_usd.collect.author import Outcome, author_robot
 from rose_usd.collect.config import CollectConfig
 from rose_usd.collect.dataset import write_dataset
 from rose_usd.collect.rollout import Perturbation, Rollout, Simulator, run_rollout
-from rose_usd.collect.world import build_world, crop_to_box
+from rose_usd.collect.world import World, build_world, crop_to_box
 from rose_usd.core import se3
 from rose_usd.errors import ConfigError
 from rose_usd.geometry.grasps import sample_surface
@@ -26,6 +27,7 @@ from rose_usd.layers.scene import scene_collider
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.progress import progress, say
 from rose_usd.stage_api import StageContext
+from rose_usd.usd.geom import MeshData
 
 
 def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray] | None:
@@ -83,7 +85,133 @@ def _perturbations(cfg: CollectConfig, prior: object_layer.PhysicsPrior, mass_kg
     return out
 
 
+class _Target(NamedTuple):
+    """The object to move, in its own frame, and what stands around it."""
+
+    visual: MeshData
+    """Its visual mesh in the world at the default pose."""
+    vertices: np.ndarray
+    """(V, 3) the visual mesh's vertices in the object frame [m]."""
+    prior: object_layer.PhysicsPrior
+    support_z: float
+    """Height [m] of the support the robot stands on."""
+    radius: float
+    """Largest distance [m] of a vertex from the vertices' mean."""
+    scene_points: np.ndarray
+    """(P, 3) points [m] on the scene collider near the path and on the other objects."""
+
+
+def _target(ctx: StageContext, name: str, path: np.ndarray, rng: np.random.Generator) -> _Target:
+    """The object ``name`` with its path (N, 4, 4): its mesh and prior, the support and the obstacles."""
+    default = object_layer.default_pose(ctx.stage, name)
+    visual = object_layer.visual_mesh(ctx.stage, name)
+    object_vertices = se3.transform_points(se3.invert(default), visual.vertices)
+    prior = object_layer.physics_prior(ctx.stage, name)
+    others = [object_layer.visual_mesh(ctx.stage, o) for o in object_layer.object_paths(ctx.stage) if o != name]
+    # the robot stands on the support under the lowest object (a stacked object's bottom is on another)
+    support_z = float(min(m.vertices[:, 2].min() for m in [visual, *others]))
+    radius = float(np.linalg.norm(object_vertices - object_vertices.mean(axis=0), axis=1).max())
+    positions = path[:, :3, 3]
+    near_lo = positions.min(axis=0) - radius - 0.15
+    near_hi = positions.max(axis=0) + radius + 0.15
+    scene_points = _scene_points(ctx.stage, near_lo, near_hi, rng)
+    for other in others:  # the other objects, where they stand at frame 0, are obstacles too
+        scene_points = np.concatenate([scene_points, _surface_points(other.vertices, other.faces, 0.004, rng)])
+    return _Target(visual, object_vertices, prior, support_z, radius, scene_points)
+
+
+def _grasps_and_base(
+    cfg: CollectConfig, target: _Target, path: np.ndarray, outcome: Outcome, rng: np.random.Generator
+) -> tuple[grasping.Candidates, grasping.Candidates]:
+    """The grasp candidates and the ranked few to roll out; the base pose goes into ``outcome``.
+
+    Raises:
+        grasping.NoGrasp: no grasp fits, is free of the scene or reaches the path.
+    """
+    cands = grasping.candidates(
+        target.vertices,
+        target.visual.faces,
+        target.prior.center_of_mass_m,
+        path,
+        target.scene_points,
+        friction=cfg.grasp_friction,
+        max_width_m=cfg.max_width_m,
+        surface_points=cfg.surface_points,
+        approach_turns=cfg.approach_turns,
+        lift_m=cfg.lift_m,
+        rng=rng,
+    )
+    say(f"collect: {cands.sampled_pairs} antipodal pairs, {len(cands)} collision-free grasp frames")
+    if cfg.base:
+        x, y, *yaw = cfg.base
+        base = se3.make_pose(
+            se3.rotation_about([0.0, 0.0, 1.0], np.radians(yaw[0] if yaw else 0.0)), [x, y, target.support_z]
+        )
+        outcome.base_source = "user"
+    else:
+        base = grasping.place_base(path, cands, target.support_z, target.scene_points)
+    outcome.base_pose = base
+    ranked = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
+    return cands, ranked
+
+
+def _world(ctx: StageContext, name: str, target: _Target, path: np.ndarray, base_pose: np.ndarray) -> World:
+    """The simulated world: the stage with the scene cut around the path (N, 4, 4) and the base
+    (4, 4), and the robot."""
+    cfg: CollectConfig = ctx.config
+    positions, radius, support_z = path[:, :3, 3], target.radius, target.support_z
+    base_xyz, margin = base_pose[:3, 3], cfg.newton.crop_margin_m
+    lo = np.minimum(positions.min(axis=0) - radius, base_xyz) - margin
+    hi = np.maximum(positions.max(axis=0) + radius, base_xyz) + margin
+    lo[2], hi[2] = support_z - 0.1, max(hi[2], support_z + 1.0)
+    object_path = object_layer.object_paths(ctx.stage)[name]
+    return build_world(ctx.stage, object_path, base_pose, (lo, hi), cfg.newton)
+
+
+def _roll_out(
+    sim: Simulator,
+    ranked: grasping.Candidates,
+    perturbations: list[Perturbation],
+    path: np.ndarray,
+    base_pose: np.ndarray,
+    rate: float,
+    cfg: CollectConfig,
+) -> list[Rollout]:
+    """One rollout per ranked grasp and perturbation, each grasp's approach planned once; ``rate`` [Hz]."""
+    jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
+    rollouts: list[Rollout] = []
+    plans: dict[int, motion.Plan] = {}
+    for g, pert in progress(jobs, "collect rollouts", total=len(jobs), unit="rollout"):
+        if g not in plans:
+            grasp_tcp = path[0] @ ranked.object_from_tcp[g]
+            plans[g] = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s)
+        rollouts.append(run_rollout(sim, plans[g], path, pert, g, cfg))
+    return rollouts
+
+
+def _judge_all(ctx: StageContext, outcome: Outcome, name: str, path: np.ndarray) -> list[int]:
+    """Pick the best rollout of ``outcome`` and write the dataset of the successful ones (or say
+    why none succeeded); their indices."""
+    cfg: CollectConfig = ctx.config
+    rollouts = outcome.rollouts
+    successes = [i for i, r in enumerate(rollouts) if r.success]
+    reached = [i for i, r in enumerate(rollouts) if r.follow_start >= 0]
+    pool = successes or reached
+    outcome.best = min(pool, key=lambda i: rollouts[i].mean_error_m) if pool else -1
+    if not successes:
+        outcome.status = "no-success"
+        reasons = sorted({r.reason for r in rollouts})
+        outcome.message = f"no rollout succeeded: {reasons[0]}" + (
+            f" (+{len(reasons) - 1} other reasons)" if len(reasons) > 1 else ""
+        )
+    else:
+        info = write_dataset(ctx, [rollouts[i] for i in successes], name, path, outcome.base_pose, cfg)
+        outcome.dataset_info = info
+    return successes
+
+
 def run(ctx: StageContext) -> None:
+    """Collect: grasp candidates, base, world, rollouts, then the robot layer and the dataset."""
     cfg: CollectConfig = ctx.config
     if cfg.render:
         raise ConfigError(
@@ -100,47 +228,11 @@ def run(ctx: StageContext) -> None:
     if object_layer.collision_approximation(ctx.stage, name) is None:
         _finish(ctx, Outcome("no-collider", f"object {name!r} has no collision mesh", object_name=name))
         return
-    default = object_layer.default_pose(ctx.stage, name)
-    visual = object_layer.visual_mesh(ctx.stage, name)
-    object_vertices = se3.transform_points(se3.invert(default), visual.vertices)
-    prior = object_layer.physics_prior(ctx.stage, name)
-    others = [object_layer.visual_mesh(ctx.stage, o) for o in object_layer.object_paths(ctx.stage) if o != name]
-    # the robot stands on the support under the lowest object (a stacked object's bottom is on another)
-    support_z = float(min(m.vertices[:, 2].min() for m in [visual, *others]))
-    radius = float(np.linalg.norm(object_vertices - object_vertices.mean(axis=0), axis=1).max())
-    positions = path[:, :3, 3]
-    near_lo = positions.min(axis=0) - radius - 0.15
-    near_hi = positions.max(axis=0) + radius + 0.15
-    scene_points = _scene_points(ctx.stage, near_lo, near_hi, rng)
-    for other in others:  # the other objects, where they stand at frame 0, are obstacles too
-        scene_points = np.concatenate([scene_points, _surface_points(other.vertices, other.faces, 0.004, rng)])
+    target = _target(ctx, name, path, rng)
 
     outcome = Outcome("ok", object_name=name)
     try:
-        cands = grasping.candidates(
-            object_vertices,
-            visual.faces,
-            prior.center_of_mass_m,
-            path,
-            scene_points,
-            friction=cfg.grasp_friction,
-            max_width_m=cfg.max_width_m,
-            surface_points=cfg.surface_points,
-            approach_turns=cfg.approach_turns,
-            lift_m=cfg.lift_m,
-            rng=rng,
-        )
-        say(f"collect: {cands.sampled_pairs} antipodal pairs, {len(cands)} collision-free grasp frames")
-        if cfg.base:
-            x, y, *yaw = cfg.base
-            base = se3.make_pose(
-                se3.rotation_about([0.0, 0.0, 1.0], np.radians(yaw[0] if yaw else 0.0)), [x, y, support_z]
-            )
-            outcome.base_source = "user"
-        else:
-            base = grasping.place_base(path, cands, support_z, scene_points)
-        outcome.base_pose = base
-        ranked = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
+        cands, ranked = _grasps_and_base(cfg, target, path, outcome, rng)
     except grasping.NoGrasp as why:
         status = "unreachable" if "reach" in str(why) else "no-grasp"
         outcome.status, outcome.message = status, str(why)
@@ -150,39 +242,15 @@ def run(ctx: StageContext) -> None:
 
     # the world: the stage, the scene cut around the path and the base, and the robot
     t0 = time.perf_counter()
-    base_xyz, margin = outcome.base_pose[:3, 3], cfg.newton.crop_margin_m
-    lo = np.minimum(positions.min(axis=0) - radius, base_xyz) - margin
-    hi = np.maximum(positions.max(axis=0) + radius, base_xyz) + margin
-    lo[2], hi[2] = support_z - 0.1, max(hi[2], support_z + 1.0)
-    object_path = object_layer.object_paths(ctx.stage)[name]
-    world = build_world(ctx.stage, object_path, outcome.base_pose, (lo, hi), cfg.newton)
+    world = _world(ctx, name, target, path, outcome.base_pose)
     sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
     t_build = time.perf_counter() - t0
 
     rate = float(ctx.time_info.fps)
-    perturbations = _perturbations(cfg, prior, world.object_mass_kg, rng)
-    jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
-    rollouts: list[Rollout] = []
-    plans: dict[int, motion.Plan] = {}
-    for g, pert in progress(jobs, "collect rollouts", total=len(jobs), unit="rollout"):
-        if g not in plans:
-            grasp_tcp = path[0] @ ranked.object_from_tcp[g]
-            plans[g] = motion.approach_plan(outcome.base_pose, grasp_tcp, rate, cfg.approach_s)
-        rollouts.append(run_rollout(sim, plans[g], path, pert, g, cfg))
+    perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
+    rollouts = _roll_out(sim, ranked, perturbations, path, outcome.base_pose, rate, cfg)
     outcome.rollouts = rollouts
-    successes = [i for i, r in enumerate(rollouts) if r.success]
-    reached = [i for i, r in enumerate(rollouts) if r.follow_start >= 0]
-    pool = successes or reached
-    outcome.best = min(pool, key=lambda i: rollouts[i].mean_error_m) if pool else -1
-    if not successes:
-        outcome.status = "no-success"
-        reasons = sorted({r.reason for r in rollouts})
-        outcome.message = f"no rollout succeeded: {reasons[0]}" + (
-            f" (+{len(reasons) - 1} other reasons)" if len(reasons) > 1 else ""
-        )
-    else:
-        info = write_dataset(ctx, [rollouts[i] for i in successes], name, path, outcome.base_pose, cfg)
-        outcome.dataset_info = info
+    successes = _judge_all(ctx, outcome, name, path)
     _finish(ctx, outcome)
     wall = [r.wall_s for r in rollouts]
     ctx.record(
