@@ -183,6 +183,21 @@ def test_plane_gravity_with_an_upside_down_camera(check):
         assert error_deg > 45.0  # the wall: what an upright camera's test picks
 
 
+def test_a_small_plane_behind_a_stack_does_not_turn_an_upright_camera_over():
+    """An upright camera over a large table, the anchor on top of a 15 cm stack and a small board
+    standing 8 cm behind it, facing the camera: seen by an upside-down camera the board would be a
+    support nearer under the anchor than the table, but it holds a tenth of the table's points, so
+    up stays the table's normal."""
+    rng = np.random.default_rng(4)
+    table = np.c_[rng.uniform(-0.6, 0.6, 14000), rng.uniform(-0.5, 0.5, 14000), np.zeros(14000)]
+    board = np.c_[rng.uniform(-0.2, 0.2, 1500), np.full(1500, 0.08), rng.uniform(0.0, 0.3, 1500)]
+    cams = np.array([se3.look_at([x, -0.6, 0.6], [0, 0.1, 0]) for x in np.linspace(-0.1, 0.1, 5)])
+    anchor = np.array([0.0, 0.0, 0.15])
+    est = gravity_from_planes(np.concatenate([table, board]), cams, anchor=anchor, upside_down_check=True)
+    assert np.degrees(np.arccos(est.up @ [0, 0, 1.0])) < 0.5
+    assert abs(est.support.offset) < 0.003
+
+
 def test_with_no_object_an_upside_down_camera_is_found_by_its_table():
     """No prompted object (the view's center is the anchor): an upside-down camera over a table
     with a small wall behind it takes the table, whose support along its image-down is over

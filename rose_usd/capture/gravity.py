@@ -124,6 +124,7 @@ def gravity_from_planes(
     max_pitch_deg: float = 80.0,
     upside_down_check: bool = False,
     upside_down_margin: float = 2.0,
+    upside_down_support: float = 0.3,
     min_points: int = 500,
     distance_m: float = 0.01,
 ) -> GravityEstimate:
@@ -142,9 +143,13 @@ def gravity_from_planes(
     A camera mounted upside down (rolled 180 deg, as on some rigs) sees the table's normal along
     its image-down, so the candidates are also chosen with the prior reversed. With
     ``upside_down_check`` (the anchor is on a prompted object) the camera is taken to be upside
-    down when that finds a plane under the anchor more than 1 cm nearer to it (or the upright
-    choice finds none): the object stands on the plane right under it, a far wall that passes the
-    upright test lies farther below. (Where a view merely centers, on a cupboard's front say,
+    down when that finds a plane under the anchor more than 1 cm nearer to it, holding at least
+    ``upside_down_support`` times the points of the upright choice's plane under it (or the
+    upright choice finds none): the object stands on the plane right under it, a far wall that
+    passes the upright test lies farther below. (A small board standing behind a stack of two cans
+    faces an upright camera as a table faces one upside down, nearer to the top can than its
+    table: 1,578 points against the table's 14,432 on a synthetic clip, where it tipped the world
+    by 66 deg.) (Where a view merely centers, on a cupboard's front say,
     nothing stands on it.) Without it, when the reversed choice's group has ``upside_down_margin``
     times the weighted support of the upright one: on an upside-down clip with no prompt the
     table held 2.8 times the support of a plane facing the image-up (and was not chosen).
@@ -157,7 +162,14 @@ def gravity_from_planes(
     flipped = _horizontal_group(planes, -prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
     if anchor is not None and upside_down_check:
         if flipped is not None and flipped[1] is not None:
-            if choice is None or choice[1] is None or _height(flipped[1], anchor) < _height(choice[1], anchor) - 0.01:
+            if (
+                choice is None
+                or choice[1] is None
+                or (
+                    _height(flipped[1], anchor) < _height(choice[1], anchor) - 0.01
+                    and flipped[1].inliers >= upside_down_support * choice[1].inliers
+                )
+            ):
                 choice = flipped
     elif flipped is not None and (choice is None or _score(flipped[0]) > upside_down_margin * _score(choice[0])):
         # no object to stand on the support: a camera upside down sees its table's plane along
