@@ -72,59 +72,12 @@ def run_sfm(
     with tempfile.TemporaryDirectory(prefix="rose-sfm-") as tmp:
         root = Path(tmp)
         images, mask_dir = root / "images", root / "masks"
-        images.mkdir()
-        names = []
-        for i, rgb in enumerate(frames):
-            name = f"{i:05d}.jpg"
-            small = cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA) if s < 1 else rgb
-            cv2.imwrite(str(images / name), cv2.cvtColor(small, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
-            names.append(name)
-            if masks is not None and masks[i] is not None:
-                mask_dir.mkdir(exist_ok=True)
-                keep = ~cv2.resize(masks[i].astype(np.uint8), (sw, sh), interpolation=cv2.INTER_NEAREST).astype(bool)
-                cv2.imwrite(str(mask_dir / f"{name}.png"), keep.astype(np.uint8) * 255)
+        names = _write_frames(frames, masks, images, mask_dir, (sw, sh), s)
         k = np.array(K_guess, dtype=float)
-        fx, fy = k[0, 0] * sx, k[1, 1] * sy
-        cx, cy = (k[0, 2] + 0.5) * sx - 0.5, (k[1, 2] + 0.5) * sy - 0.5
-        reader = pycolmap.ImageReaderOptions()
-        if fix_K:
-            reader.camera_model = "PINHOLE"
-            reader.camera_params = f"{fx},{fy},{cx},{cy}"
-        else:
-            reader.camera_model = "SIMPLE_RADIAL"
-            reader.camera_params = f"{0.5 * (fx + fy)},{cx},{cy},0"
-        if mask_dir.is_dir():
-            reader.mask_path = str(mask_dir)
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = num_threads
-        extraction.sift.max_num_features = max_features
+        reader = _reader_options(k, sx, sy, fix_K, mask_dir)
         database = root / "database.db"
-        pycolmap.extract_features(
-            database,
-            images,
-            image_names=names,
-            camera_mode=pycolmap.CameraMode.SINGLE,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = num_threads
-        pairing = pycolmap.SequentialPairingOptions()
-        pairing.overlap = overlap
-        pairing.quadratic_overlap = True
-        pycolmap.match_sequential(
-            database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
-        )
-        options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = num_threads
-        options.random_seed = 0
-        options.mapper.random_seed = 0
-        options.triangulation.random_seed = 0
-        options.max_runtime_seconds = int(max_runtime_s)
-        options.ba_refine_focal_length = not fix_K
-        options.ba_refine_extra_params = not fix_K
-        options.ba_refine_principal_point = False
+        _extract_and_match(database, images, names, reader, num_threads, max_features, overlap)
+        options = _mapping_options(num_threads, max_runtime_s, fix_K)
         out = root / "sparse"
         out.mkdir()
         models = pycolmap.incremental_mapping(database, images, out, options=options)
@@ -133,6 +86,91 @@ def run_sfm(
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     if rec.num_reg_images() < 3:
         return None
+    return _result(rec, len(models), k, fix_K, sx, sy, s, t0)
+
+
+def _write_frames(frames, masks, images: Path, mask_dir: Path, size: tuple[int, int], s: float) -> list[str]:
+    """The frames as JPEG files in ``images`` (and their kept pixels as PNG files in ``mask_dir``),
+    downscaled by ``s`` to ``size`` (w, h) [px]; their file names."""
+    sw, sh = size
+    images.mkdir()
+    names = []
+    for i, rgb in enumerate(frames):
+        name = f"{i:05d}.jpg"
+        small = cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA) if s < 1 else rgb
+        cv2.imwrite(str(images / name), cv2.cvtColor(small, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
+        names.append(name)
+        if masks is not None and masks[i] is not None:
+            mask_dir.mkdir(exist_ok=True)
+            keep = ~cv2.resize(masks[i].astype(np.uint8), (sw, sh), interpolation=cv2.INTER_NEAREST).astype(bool)
+            cv2.imwrite(str(mask_dir / f"{name}.png"), keep.astype(np.uint8) * 255)
+    return names
+
+
+def _reader_options(k: np.ndarray, sx: float, sy: float, fix_K: bool, mask_dir: Path):
+    """COLMAP's image reader options: the camera model and its starting parameters (``k`` scaled by
+    ``sx``, ``sy`` to the written images), and the masks when there are any."""
+    import pycolmap
+
+    fx, fy = k[0, 0] * sx, k[1, 1] * sy
+    cx, cy = (k[0, 2] + 0.5) * sx - 0.5, (k[1, 2] + 0.5) * sy - 0.5
+    reader = pycolmap.ImageReaderOptions()
+    if fix_K:
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = f"{fx},{fy},{cx},{cy}"
+    else:
+        reader.camera_model = "SIMPLE_RADIAL"
+        reader.camera_params = f"{0.5 * (fx + fy)},{cx},{cy},0"
+    if mask_dir.is_dir():
+        reader.mask_path = str(mask_dir)
+    return reader
+
+
+def _extract_and_match(
+    database: Path, images: Path, names: list[str], reader, num_threads: int, max_features: int, overlap: int
+) -> None:
+    """SIFT features of the images into ``database`` (one camera, CPU), matched sequentially."""
+    import pycolmap
+
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = num_threads
+    extraction.sift.max_num_features = max_features
+    pycolmap.extract_features(
+        database,
+        images,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    pairing = pycolmap.SequentialPairingOptions()
+    pairing.overlap = overlap
+    pairing.quadratic_overlap = True
+    pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+
+
+def _mapping_options(num_threads: int, max_runtime_s: float, fix_K: bool):
+    """The incremental mapper's options: seeded, time-limited, refining the intrinsics unless fixed."""
+    import pycolmap
+
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = num_threads
+    options.random_seed = 0
+    options.mapper.random_seed = 0
+    options.triangulation.random_seed = 0
+    options.max_runtime_seconds = int(max_runtime_s)
+    options.ba_refine_focal_length = not fix_K
+    options.ba_refine_extra_params = not fix_K
+    options.ba_refine_principal_point = False
+    return options
+
+
+def _result(rec, models: int, k: np.ndarray, fix_K: bool, sx: float, sy: float, s: float, t0: float) -> SfmResult:
+    """The reconstruction ``rec`` at the video's resolution (undoing ``sx``, ``sy``): K, map points,
+    keyframe poses and observations; its wall time since ``t0`` [s]."""
     camera = next(iter(rec.cameras.values()))
     params = np.asarray(camera.params, dtype=float)
     if fix_K:
@@ -145,6 +183,23 @@ def run_sfm(
     index = {pid: i for i, pid in enumerate(point_ids)}
     points = np.array([rec.point3D(pid).xyz for pid in point_ids]).reshape(-1, 3)
     colors = np.array([rec.point3D(pid).color for pid in point_ids]).reshape(-1, 3).astype(np.uint8)
+    poses, observations = _poses_and_observations(rec, index, sx, sy)
+    return SfmResult(
+        poses=poses,
+        K=K,
+        distortion=float(k1),
+        points=points,
+        colors=colors,
+        observations=observations,
+        reprojection_px=float(rec.compute_mean_reprojection_error()) / s,
+        wall_s=time.perf_counter() - t0,
+        models=models,
+    )
+
+
+def _poses_and_observations(rec, index: dict, sx: float, sy: float) -> tuple[dict, dict]:
+    """Each registered keyframe's world_from_camera (4, 4) and its observations: pixel positions
+    (M, 2) at the video's resolution and indices (M,) of the map points (``index``: point id -> index)."""
     poses, observations = {}, {}
     for image in rec.images.values():
         if not image.has_pose:
@@ -160,14 +215,4 @@ def run_sfm(
         uv = np.array(uv, dtype=float).reshape(-1, 2)
         uv = np.column_stack([(uv[:, 0] + 0.5) / sx - 0.5, (uv[:, 1] + 0.5) / sy - 0.5]) if len(uv) else uv
         observations[i] = (uv, np.array(ids, dtype=int))
-    return SfmResult(
-        poses=poses,
-        K=K,
-        distortion=float(k1),
-        points=points,
-        colors=colors,
-        observations=observations,
-        reprojection_px=float(rec.compute_mean_reprojection_error()) / s,
-        wall_s=time.perf_counter() - t0,
-        models=len(models),
-    )
+    return poses, observations

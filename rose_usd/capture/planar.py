@@ -13,6 +13,7 @@ hand) are outliers, or agree anyway when the camera only turns.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -32,6 +33,111 @@ def plane_points(
     pts = rays * s[:, None]
     ok &= np.linalg.norm(pts, axis=1) < 20 * height
     return pts, ok
+
+
+@dataclass(frozen=True)
+class _Frames:
+    """The video as the tracker sees it: grey frames scaled by ``s`` to ``size`` (w, h) [px], corners
+    sought where ``keep`` (uint8 at ``size``, or None) is set, put on the plane by ``K`` and ``up_cam``."""
+
+    rgb_of: Callable[[int], np.ndarray]
+    s: float
+    size: tuple[int, int]
+    keep: np.ndarray | None
+    K: np.ndarray
+    up_cam: np.ndarray
+
+    def gray(self, t: int) -> np.ndarray:
+        """Frame ``t`` grey (uint8), at the tracking size."""
+        g = cv2.cvtColor(self.rgb_of(t), cv2.COLOR_RGB2GRAY)
+        return cv2.resize(g, self.size, interpolation=cv2.INTER_AREA) if self.s < 1 else g
+
+    def seed(self, g: np.ndarray, world_from_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Corners of a frame (M, 2) [px at the tracking size] and their points on the plane (M, 3)
+        (reference camera axes)."""
+        corners = cv2.goodFeaturesToTrack(g, maxCorners=1200, qualityLevel=0.005, minDistance=8, mask=self.keep)
+        if corners is None:
+            return np.zeros((0, 2), np.float32), np.zeros((0, 3))
+        uv = corners.reshape(-1, 2).astype(np.float32)
+        full = (uv.astype(float) + 0.5) / self.s - 0.5
+        up_here = world_from_cam[:3, :3].T @ self.up_cam
+        height = 1.0 + float(self.up_cam @ world_from_cam[:3, 3])  # this camera's height over the plane
+        pts, on = plane_points(full, self.K, up_here, height)
+        return uv[on], (pts[on] @ world_from_cam[:3, :3].T) + world_from_cam[:3, 3]
+
+
+def _flow(g_prev: np.ndarray, g: np.ndarray, uv: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The corners ``uv`` (M, 2) moved into ``g`` by Lucas-Kanade, those that come back within 0.5 px
+    kept with their plane points ``pts`` (M, 3)."""
+    moved, st, _ = cv2.calcOpticalFlowPyrLK(g_prev, g, uv, None, winSize=(21, 21), maxLevel=3)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(g, g_prev, moved, None, winSize=(21, 21), maxLevel=3)
+    ok = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(back - uv, axis=1) < 0.5)
+    return moved[ok], pts[ok]
+
+
+def _pnp(uv, pts, K: np.ndarray, s: float, t: int, rvec, tvec, last_pose: np.ndarray):
+    """Frame ``t``'s pose from its corners ``uv`` (tracking size) and their plane points ``pts``,
+    RANSAC PnP from the last pose (``rvec``, ``tvec``, ``last_pose``), refined on the inliers:
+    (inlier indices, rvec, tvec, pose (4, 4), median reprojection error [px]), or None with fewer
+    than 12 inliers."""
+    img = (uv.astype(float) + 0.5) / s - 0.5
+    cv2.setRNGSeed(t)  # RANSAC's samples: the same run to run
+    found, r, tv, inl = cv2.solvePnPRansac(
+        pts, img, K, None, rvec.copy(), tvec.copy(), useExtrinsicGuess=True,
+        reprojectionError=2.0 / s, iterationsCount=200, flags=cv2.SOLVEPNP_ITERATIVE,
+    )  # fmt: skip
+    if found and inl is not None and len(inl) >= 12:
+        jump = se3.invert(last_pose) @ se3.invert(se3.make_pose(cv2.Rodrigues(r)[0], tv.ravel()))
+        # a hand-held camera moves a fraction of its height and a few degrees per frame:
+        # more is RANSAC settling on a wrong minimal solution
+        found = np.linalg.norm(jump[:3, 3]) < 0.15 and se3.rotation_angle_deg(jump[:3, :3]) < 8.0
+    if not (found and inl is not None and len(inl) >= 12):
+        # the last pose's reprojection picks the inliers instead
+        proj = cv2.projectPoints(pts, rvec, tvec, K, None)[0].reshape(-1, 2)
+        inl = np.flatnonzero(np.linalg.norm(proj - img, axis=1) < 4.0 / s)[:, None]
+        r, tv = rvec, tvec
+    if len(inl) < 12:
+        return None
+    idx = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(pts[idx], img[idx], K, None, r.copy(), tv.copy())
+    pose = se3.invert(se3.make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+    proj = cv2.projectPoints(pts[idx], rvec, tvec, K, None)[0].reshape(-1, 2)
+    return idx, rvec, tvec, pose, float(np.median(np.linalg.norm(proj - img[idx], axis=1)))
+
+
+def _reseed(frames: _Frames, g: np.ndarray, pose: np.ndarray, uv: np.ndarray, pts: np.ndarray):
+    """The corners ``uv`` and plane points ``pts`` with the frame's new corners (posed by ``pose``)
+    more than 8 px from them added."""
+    new_uv, new_pts = frames.seed(g, pose)
+    if len(uv):
+        near = np.min(np.linalg.norm(new_uv[:, None] - uv[None], axis=2), axis=1) > 8 if len(new_uv) else []
+        new_uv, new_pts = new_uv[near], new_pts[near]
+    return np.concatenate([uv, new_uv]), np.concatenate([pts, new_pts])
+
+
+def _track_one_way(frames: _Frames, order, ref: int, first, g_ref, poses, inliers, errors, min_points: int) -> int:
+    """Poses of the frames in ``order`` (forward or backward from ``ref``), written into ``poses``
+    (n, 4, 4) with each frame's ``inliers`` and ``errors`` (n,); the corners start from ``first``
+    (uv, pts) in ``g_ref``. Returns how many times corners were added."""
+    uv, pts, g_prev = first[0].copy(), first[1].copy(), g_ref
+    rvec, tvec = np.zeros((3, 1)), np.zeros((3, 1))
+    last, reseeded = ref, 0
+    for t in order:
+        g = frames.gray(t)
+        if len(uv) >= 12:
+            uv, pts = _flow(g_prev, g, uv, pts)
+        poses[t] = poses[last]
+        if len(uv) >= 12:
+            got = _pnp(uv, pts, frames.K, frames.s, t, rvec, tvec, poses[last])
+            if got is not None:
+                idx, rvec, tvec, poses[t], errors[t] = got
+                inliers[t] = len(idx)
+                uv, pts = uv[idx], pts[idx]  # outliers (the hand, what moves) are dropped
+        if len(uv) < min_points:
+            uv, pts = _reseed(frames, g, poses[t], uv, pts)
+            reseeded += 1
+        g_prev, last = g, t
+    return reseeded
 
 
 def track_planar(
@@ -55,80 +161,20 @@ def track_planar(
     h, w = rgb_of(ref).shape[:2]
     s = min(1.0, max_side / max(w, h))
     size = (int(round(w * s)), int(round(h * s)))
-
-    def gray(t):
-        g = cv2.cvtColor(rgb_of(t), cv2.COLOR_RGB2GRAY)
-        return cv2.resize(g, size, interpolation=cv2.INTER_AREA) if s < 1 else g
-
     keep = None
     if exclude is not None:
         keep = (~cv2.resize(exclude.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)).astype(
             np.uint8
         )
-
-    def seed(g, world_from_cam):
-        """Corners of a frame and their points on the plane (reference camera axes)."""
-        corners = cv2.goodFeaturesToTrack(g, maxCorners=1200, qualityLevel=0.005, minDistance=8, mask=keep)
-        if corners is None:
-            return np.zeros((0, 2), np.float32), np.zeros((0, 3))
-        uv = corners.reshape(-1, 2).astype(np.float32)
-        full = (uv.astype(float) + 0.5) / s - 0.5
-        up_here = world_from_cam[:3, :3].T @ up_cam
-        height = 1.0 + float(up_cam @ world_from_cam[:3, 3])  # this camera's height over the plane
-        pts, on = plane_points(full, K, up_here, height)
-        return uv[on], (pts[on] @ world_from_cam[:3, :3].T) + world_from_cam[:3, 3]
-
+    frames = _Frames(rgb_of, s, size, keep, K, up_cam)
     poses = np.repeat(np.eye(4)[None], n, axis=0)
     inliers, errors = np.zeros(n), np.zeros(n)
-    g_ref = gray(ref)
-    first_uv, first_pts = seed(g_ref, poses[ref])
+    g_ref = frames.gray(ref)
+    first_uv, first_pts = frames.seed(g_ref, poses[ref])
     inliers[ref] = len(first_uv)
     reseeded = 0
     for order in (range(ref + 1, n), range(ref - 1, -1, -1)):
-        uv, pts, g_prev = first_uv.copy(), first_pts.copy(), g_ref
-        rvec, tvec = np.zeros((3, 1)), np.zeros((3, 1))
-        last = ref
-        for t in order:
-            g = gray(t)
-            if len(uv) >= 12:
-                moved, st, _ = cv2.calcOpticalFlowPyrLK(g_prev, g, uv, None, winSize=(21, 21), maxLevel=3)
-                back, st2, _ = cv2.calcOpticalFlowPyrLK(g, g_prev, moved, None, winSize=(21, 21), maxLevel=3)
-                ok = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(back - uv, axis=1) < 0.5)
-                uv, pts = moved[ok], pts[ok]
-            poses[t] = poses[last]
-            if len(uv) >= 12:
-                img = (uv.astype(float) + 0.5) / s - 0.5
-                cv2.setRNGSeed(t)  # RANSAC's samples: the same run to run
-                found, r, tv, inl = cv2.solvePnPRansac(
-                    pts, img, K, None, rvec.copy(), tvec.copy(), useExtrinsicGuess=True,
-                    reprojectionError=2.0 / s, iterationsCount=200, flags=cv2.SOLVEPNP_ITERATIVE,
-                )  # fmt: skip
-                if found and inl is not None and len(inl) >= 12:
-                    jump = se3.invert(poses[last]) @ se3.invert(se3.make_pose(cv2.Rodrigues(r)[0], tv.ravel()))
-                    # a hand-held camera moves a fraction of its height and a few degrees per frame:
-                    # more is RANSAC settling on a wrong minimal solution
-                    found = np.linalg.norm(jump[:3, 3]) < 0.15 and se3.rotation_angle_deg(jump[:3, :3]) < 8.0
-                if not (found and inl is not None and len(inl) >= 12):
-                    # the last pose's reprojection picks the inliers instead
-                    proj = cv2.projectPoints(pts, rvec, tvec, K, None)[0].reshape(-1, 2)
-                    inl = np.flatnonzero(np.linalg.norm(proj - img, axis=1) < 4.0 / s)[:, None]
-                    r, tv = rvec, tvec
-                if len(inl) >= 12:
-                    idx = inl.ravel()
-                    rvec, tvec = cv2.solvePnPRefineLM(pts[idx], img[idx], K, None, r.copy(), tv.copy())
-                    poses[t] = se3.invert(se3.make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel()))
-                    proj = cv2.projectPoints(pts[idx], rvec, tvec, K, None)[0].reshape(-1, 2)
-                    errors[t] = float(np.median(np.linalg.norm(proj - img[idx], axis=1)))
-                    inliers[t] = len(idx)
-                    uv, pts = uv[idx], pts[idx]  # outliers (the hand, what moves) are dropped
-            if len(uv) < min_points:
-                new_uv, new_pts = seed(g, poses[t])
-                if len(uv):
-                    near = np.min(np.linalg.norm(new_uv[:, None] - uv[None], axis=2), axis=1) > 8 if len(new_uv) else []
-                    new_uv, new_pts = new_uv[near], new_pts[near]
-                uv, pts = np.concatenate([uv, new_uv]), np.concatenate([pts, new_pts])
-                reseeded += 1
-            g_prev, last = g, t
+        reseeded += _track_one_way(frames, order, ref, (first_uv, first_pts), g_ref, poses, inliers, errors, min_points)
     return poses, {
         "planar_corners": int(len(first_uv)),
         "planar_inliers_min": int(inliers.min()),

@@ -147,16 +147,60 @@ def _file_gravity(ctx: StageContext, poses: np.ndarray) -> GravityEstimate | Non
 
 def run(ctx: StageContext) -> None:
     case, cfg = ctx.case, ctx.config
-    n = case.n_frames
     K, k_source, warning = resolve_K(case, fov_guess_deg=cfg.fov_guess_deg)
     spec = _prompted(ctx)
     ref = spec.prompt.frame if spec is not None else 0
     record: dict = {}
 
     # ---------------------------------------------------------------- cameras (reference frame = tracking frame)
+    motion, poses, points, K, k_source = _cameras(ctx, K, k_source, ref, record)
+    if warning and k_source == "fov-guess":
+        ctx.warn(warning)
+    record["camera_motion"] = motion
+
+    # ---------------------------------------------------------------- gravity and the support plane
+    gravity, support, poses = _gravity_and_support(ctx, motion, poses, points, K, spec, ref, record)
+    up = gravity.up / np.linalg.norm(gravity.up)
+
+    # ---------------------------------------------------------------- world frame (units) and scale
+    anchor_pt, mask = _anchor_on_plane(ctx, spec, poses[ref], K, support)
+    world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
+    world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+    if cfg.sfm.level_by_object and mask is not None and mask.sum() >= 30 and gravity.source in _IMAGE_GRAVITY:
+        world_from_track, world_units, gravity = _level(
+            spec, mask, K, gravity, world_from_track, world_units, poses, ref, record
+        )
+    cues, chosen, agreement = _scale(ctx, spec, mask, K, world_units[ref], record)
+    world_from_camera = _author(ctx, world_units, world_from_track, K, k_source, gravity, chosen, cues)
+    height = float(world_from_camera[ref, 2, 3])
+    say(
+        f"capture: {motion} camera, gravity from {gravity.source} (+-{gravity.uncertainty_deg:.1f} deg), "
+        f"scale from {chosen.name} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
+    )
+    ctx.record(
+        **record,
+        gravity=gravity.source,
+        gravity_uncertainty_deg=round(float(gravity.uncertainty_deg), 3),
+        scale_source=chosen.name,
+        meters_per_unit=chosen.meters_per_unit,
+        scale_uncertainty=chosen.sigma,
+        scale_cues={c.name: {"meters_per_unit": c.meters_per_unit, "sigma": c.sigma, **c.detail} for c in cues},
+        scale_agreement=agreement,
+        camera_height_m=round(height, 4),
+        origin="prompt" if spec is not None else "view-center",
+        metric_depth=False,
+    )
+
+
+def _cameras(ctx: StageContext, K: np.ndarray, k_source: str, ref: int, record: dict):
+    """How the camera moves and its poses (n, 4, 4; None when near-static, tracked with gravity),
+    with the map's points (P, 3) when moving (else None), and K (3, 3) [px] and its source:
+    (motion, poses, points, K, k_source)."""
+    case, cfg = ctx.case, ctx.config
+    n = case.n_frames
     still = still_fraction(case.rgb, n)
     record["still_corners"] = round(still, 3)
-    points = None
+    poses = points = None
     if still >= cfg.sfm.static_fraction:
         motion, poses = "static", np.repeat(np.eye(4)[None], n, axis=0)
     else:
@@ -169,62 +213,62 @@ def run(ctx: StageContext) -> None:
         if poses is None:
             ctx.warn("structure from motion made no model: the camera is tracked against its support plane instead")
             motion = "near-static"
-    if warning and k_source == "fov-guess":
-        ctx.warn(warning)
-    record["camera_motion"] = motion
+    return motion, poses, points, K, k_source
 
-    # ---------------------------------------------------------------- gravity and the support plane
+
+def _gravity_and_support(ctx: StageContext, motion: str, poses, points, K: np.ndarray, spec, ref: int, record: dict):
+    """Gravity, the support plane (in the tracking frame) and the poses (n, 4, 4; a near-static
+    camera's tracked against that plane): (gravity, support, poses)."""
+    n = ctx.case.n_frames
     gravity = _file_gravity(ctx, np.repeat(np.eye(4)[None], n, axis=0) if motion != "moving" else poses)
     if motion == "moving":
-        ref_pose = poses[ref]
-        anchor = _map_anchor(points, ref_pose, K, spec, case.width, case.height)
-        support = None
-        if gravity is None:
-            try:
-                est = gravity_from_planes(points, poses, anchor=anchor, min_points=max(30, len(points) // 50))
-                gravity, support = est, est.support
-            except InputError as exc:
-                record["plane_gravity"] = exc.message
-        if gravity is None:
-            up_cam, sigma, source, more = _up_from_image(ctx, K, ref)
-            record.update(more)
-            gravity = GravityEstimate(ref_pose[:3, :3] @ up_cam, source, None, [], sigma)
-        if support is None:
-            support = _plane_along(gravity.up, points, anchor)
-    else:
-        if gravity is None:
-            up_cam, sigma, source, more = _up_from_image(ctx, K, ref)
-            record.update(more)
-            gravity = GravityEstimate(up_cam, source, None, [], sigma)
-        # the reference camera 1 unit above the plane: the scale step sets the unit
-        support = Plane(gravity.up, -1.0, 0, 0.0)
-        if motion == "near-static":
-            exclude = None
-            if spec is not None:
-                exclude = np.zeros((case.height, case.width), bool)
-                x0, y0, x1, y1 = (int(v) for v in _box(spec.prompt, case.width, case.height))
-                exclude[y0:y1, x0:x1] = True
-            poses, planar = track_planar(case.rgb, n, ref, K, gravity.up, exclude=exclude)
-            record.update(planar)
-    up = gravity.up / np.linalg.norm(gravity.up)
+        gravity, support = _map_gravity(ctx, gravity, poses, points, K, spec, ref, record)
+        return gravity, support, poses
+    if gravity is None:
+        up_cam, sigma, source, more = _up_from_image(ctx, K, ref)
+        record.update(more)
+        gravity = GravityEstimate(up_cam, source, None, [], sigma)
+    # the reference camera 1 unit above the plane: the scale step sets the unit
+    support = Plane(gravity.up, -1.0, 0, 0.0)
+    if motion == "near-static":
+        poses = _track_near_static(ctx, K, spec, ref, gravity.up, record)
+    return gravity, support, poses
 
-    # ---------------------------------------------------------------- world frame (units) and scale
-    anchor_pt, mask = _anchor_on_plane(ctx, spec, poses[ref], K, support)
-    world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
-    world_units = np.einsum("ij,njk->nik", world_from_track, poses)
-    if cfg.sfm.level_by_object and mask is not None and mask.sum() >= 30 and gravity.source in _IMAGE_GRAVITY:
-        # gravity from one image's lines (or a guess) is refined by the prompted object standing on
-        # the support: the tilt that lets its primitive fit its silhouette best
-        tilt, record["level_by_object"] = level_by_object(spec, mask, K, world_units[ref], gravity.uncertainty_deg)
-        if not np.allclose(tilt, np.eye(4)):
-            world_from_track = tilt @ world_from_track
-            world_units = np.einsum("ij,njk->nik", world_from_track, poses)
-            angle = float(np.degrees(np.arccos(np.clip(tilt[2, 2], -1, 1))))
-            # the refined up keeps its source; its sigma is not measured: no more than the source's,
-            # no less than 2 deg, and the tilt applied when that is smaller
-            sigma = float(min(gravity.uncertainty_deg, max(2.0, angle)))
-            gravity = GravityEstimate(world_from_track[2, :3], gravity.source, None, [], sigma)
-    cues, fit_record = _scale_cues(ctx, spec, mask, K, world_units[ref])
+
+def _track_near_static(ctx: StageContext, K: np.ndarray, spec, ref: int, up_cam: np.ndarray, record: dict):
+    """A near-static camera's poses (n, 4, 4) tracked against the support plane, the prompted
+    object's box left out."""
+    case = ctx.case
+    exclude = None
+    if spec is not None:
+        exclude = np.zeros((case.height, case.width), bool)
+        x0, y0, x1, y1 = (int(v) for v in _box(spec.prompt, case.width, case.height))
+        exclude[y0:y1, x0:x1] = True
+    poses, planar = track_planar(case.rgb, case.n_frames, ref, K, up_cam, exclude=exclude)
+    record.update(planar)
+    return poses
+
+
+def _level(spec, mask, K, gravity, world_from_track, world_units, poses, ref: int, record: dict):
+    """Gravity from one image's lines (or a guess) refined by the prompted object standing on the
+    support: the tilt that lets its primitive fit its silhouette best. (world_from_track (4, 4),
+    world_units (n, 4, 4), gravity), unchanged when there is no tilt."""
+    tilt, record["level_by_object"] = level_by_object(spec, mask, K, world_units[ref], gravity.uncertainty_deg)
+    if not np.allclose(tilt, np.eye(4)):
+        world_from_track = tilt @ world_from_track
+        world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+        angle = float(np.degrees(np.arccos(np.clip(tilt[2, 2], -1, 1))))
+        # the refined up keeps its source; its sigma is not measured: no more than the source's,
+        # no less than 2 deg, and the tilt applied when that is smaller
+        sigma = float(min(gravity.uncertainty_deg, max(2.0, angle)))
+        gravity = GravityEstimate(world_from_track[2, :3], gravity.source, None, [], sigma)
+    return world_from_track, world_units, gravity
+
+
+def _scale(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np.ndarray, record: dict):
+    """The scale cues, the most certain of them and their agreement: (cues, chosen, agreement);
+    a warning when the chosen one is a prior."""
+    cues, fit_record = _scale_cues(ctx, spec, mask, K, world_from_cv_units)
     record["scale_fit"] = fit_record
     chosen, agreement = choose(cues)
     if chosen.name == "camera-height":
@@ -237,6 +281,11 @@ def run(ctx: StageContext) -> None:
             f"metric scale from the typical size of a {spec.category!r} (+-{100 * chosen.sigma:.0f} %):"
             " give size_m in rose.toml for a better one"
         )
+    return cues, chosen, agreement
+
+
+def _author(ctx: StageContext, world_units, world_from_track, K, k_source: str, gravity, chosen, cues) -> np.ndarray:
+    """The world layer, the cameras scaled to meters by the chosen cue; world_from_camera (n, 4, 4) [m]."""
     scale = chosen.meters_per_unit
     world_from_camera = world_units.copy()
     world_from_camera[:, :3, 3] *= scale
@@ -255,24 +304,7 @@ def run(ctx: StageContext) -> None:
         scale_uncertainty=chosen.sigma,
         scale_cues=[(c.name, c.meters_per_unit, c.sigma) for c in cues],
     )
-    height = float(world_from_camera[ref, 2, 3])
-    say(
-        f"capture: {motion} camera, gravity from {gravity.source} (+-{gravity.uncertainty_deg:.1f} deg), "
-        f"scale from {chosen.name} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
-    )
-    ctx.record(
-        **record,
-        gravity=gravity.source,
-        gravity_uncertainty_deg=round(float(gravity.uncertainty_deg), 3),
-        scale_source=chosen.name,
-        meters_per_unit=scale,
-        scale_uncertainty=chosen.sigma,
-        scale_cues={c.name: {"meters_per_unit": c.meters_per_unit, "sigma": c.sigma, **c.detail} for c in cues},
-        scale_agreement=agreement,
-        camera_height_m=round(height, 4),
-        origin="prompt" if spec is not None else "view-center",
-        metric_depth=False,
-    )
+    return world_from_camera
 
 
 # ---------------------------------------------------------------------------- moving camera
@@ -312,6 +344,27 @@ def _structure_from_motion(ctx: StageContext, K: np.ndarray, k_source: str, ref:
     unit = float(np.median(np.linalg.norm(points, axis=1))) or 1.0
     all_poses[:, :3, 3] /= unit
     return all_poses, points / unit, K, k_source, record
+
+
+def _map_gravity(ctx: StageContext, gravity, poses, points, K: np.ndarray, spec, ref: int, record: dict):
+    """A moving camera's gravity (the file's, else the map's support plane under the prompted object,
+    else the reference frame's lines) and the support plane among the map's points: (gravity, support)."""
+    ref_pose = poses[ref]
+    anchor = _map_anchor(points, ref_pose, K, spec, ctx.case.width, ctx.case.height)
+    support = None
+    if gravity is None:
+        try:
+            est = gravity_from_planes(points, poses, anchor=anchor, min_points=max(30, len(points) // 50))
+            gravity, support = est, est.support
+        except InputError as exc:
+            record["plane_gravity"] = exc.message
+    if gravity is None:
+        up_cam, sigma, source, more = _up_from_image(ctx, K, ref)
+        record.update(more)
+        gravity = GravityEstimate(ref_pose[:3, :3] @ up_cam, source, None, [], sigma)
+    if support is None:
+        support = _plane_along(gravity.up, points, anchor)
+    return gravity, support
 
 
 def _map_anchor(points, ref_pose, K, spec, width, height) -> np.ndarray | None:

@@ -24,6 +24,7 @@ The uncertainty is the angle's standard error over the vertical group's segments
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import cv2
 import numpy as np
@@ -135,6 +136,84 @@ def _manhattan(axes: list[np.ndarray], groups: list[np.ndarray], normals, weight
     return r
 
 
+def _directions(normals, weights, min_segments: int, directions: int) -> tuple[list, list]:
+    """Up to ``directions`` vanishing directions (unit 3-vectors), each found by RANSAC among the
+    segments not yet explained, and their inlier groups (bool over all segments)."""
+    found, groups = [], []
+    rest = np.ones(len(normals), bool)
+    for k in range(directions):
+
+        def fresh(d):
+            return None if any(_angle_deg(d, f) < 5.0 for f in found) else d
+
+        d, inl = _ransac(normals, weights, np.flatnonzero(rest), fresh, seed=k)
+        if d is None or inl.sum() < min_segments:
+            break
+        found.append(d)
+        groups.append(inl)
+        rest &= ~inl
+    return found, groups
+
+
+def _plausible(u, *, max_pitch_deg: float, max_roll_deg: float, max_tilt_up_deg: float):
+    """``u`` turned toward image-up when the camera it implies looks level or down and is rolled
+    little enough; else None."""
+    image_up = np.array([0.0, -1.0, 0.0])
+    u = u if u @ image_up >= 0 else -u
+    if _angle_deg(u, image_up) > max_pitch_deg or u[2] > np.sin(np.radians(max_tilt_up_deg)):
+        return None
+    if abs(u[0]) > np.sin(np.radians(max_roll_deg)) * np.hypot(u[0], u[1]):
+        return None
+    return u
+
+
+def _best_candidate(found: list, support: np.ndarray, plausible):
+    """The plausible up candidate (each direction, each cross product of two near perpendicular
+    ones) whose Manhattan frame explains the most segment length: (score, up, along, across)
+    with the indices of the directions along and across it; None when none is plausible."""
+    candidates = [plausible(f) for f in found]
+    for i in range(len(found)):
+        for j in range(i + 1, len(found)):
+            if _angle_deg(found[i], found[j]) > 80.0:
+                c = np.cross(found[i], found[j])
+                candidates.append(plausible(c / np.linalg.norm(c)))
+    best = None
+    for u in candidates:
+        if u is None:
+            continue
+        along = [i for i, f in enumerate(found) if _angle_deg(f, u) < 5.0]
+        across = [i for i, f in enumerate(found) if abs(90.0 - _angle_deg(f, u)) < 5.0]
+        score = float(support[along].sum() + support[across].sum())
+        if best is None or score > best[0]:
+            best = (score, u, along, across)
+    return best
+
+
+def _refined(u, along, v_in, across, found, groups, normals, weights) -> tuple[np.ndarray, str]:
+    """Up refined with the Manhattan frame of the directions ``along`` it (their segments ``v_in``,
+    bool over all segments) and ``across`` it: (unit up, how)."""
+    if along and across:
+        axes = _manhattan([u] + [found[i] for i in across], [v_in] + [groups[i] for i in across], normals, weights)
+        u = axes[0] if axes[0] @ u > 0 else -axes[0]
+        how = "manhattan" if len(across) == 2 else "vertical+horizontal"
+    elif len(across) == 2:
+        axes = _manhattan([u] + [found[i] for i in across], [None] + [groups[i] for i in across], normals, weights)
+        u = axes[0] if axes[0] @ u > 0 else -axes[0]
+        how = "horizontal"
+    else:
+        how = "vertical"
+    return u / np.linalg.norm(u), how
+
+
+def _sigma_deg(normals: np.ndarray, v_in: np.ndarray, u: np.ndarray) -> float:
+    """Up's uncertainty [deg]: the standard error over the vertical group's segments (``v_in``), at
+    least 1 deg; 3 deg without a vertical group."""
+    if v_in.any():
+        residual = np.degrees(np.arcsin(np.clip(np.abs(normals[v_in] @ u), 0, 1)))
+        return max(1.0, float(np.sqrt(np.mean(residual**2)) / np.sqrt(max(v_in.sum() - 1, 1)) * 3.0))
+    return 3.0
+
+
 def up_from_lines(
     gray: np.ndarray,
     K: np.ndarray,
@@ -162,75 +241,26 @@ def up_from_lines(
     normals = plane_normals(segments, K)
     length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
     weights = length / length.max()
-    image_up = np.array([0.0, -1.0, 0.0])
-    found, groups = [], []
-    rest = np.ones(len(segments), bool)
-    for k in range(directions):
-
-        def fresh(d):
-            return None if any(_angle_deg(d, f) < 5.0 for f in found) else d
-
-        d, inl = _ransac(normals, weights, np.flatnonzero(rest), fresh, seed=k)
-        if d is None or inl.sum() < min_segments:
-            break
-        found.append(d)
-        groups.append(inl)
-        rest &= ~inl
+    found, groups = _directions(normals, weights, min_segments, directions)
     if not found:
         return None
     support = np.array([weights[g].sum() for g in groups])
-
-    def plausible(u):
-        u = u if u @ image_up >= 0 else -u
-        if _angle_deg(u, image_up) > max_pitch_deg or u[2] > np.sin(np.radians(max_tilt_up_deg)):
-            return None
-        if abs(u[0]) > np.sin(np.radians(max_roll_deg)) * np.hypot(u[0], u[1]):
-            return None
-        return u
-
-    candidates = [plausible(f) for f in found]
-    for i in range(len(found)):
-        for j in range(i + 1, len(found)):
-            if _angle_deg(found[i], found[j]) > 80.0:
-                c = np.cross(found[i], found[j])
-                candidates.append(plausible(c / np.linalg.norm(c)))
-    best = None
-    for u in candidates:
-        if u is None:
-            continue
-        along = [i for i, f in enumerate(found) if _angle_deg(f, u) < 5.0]
-        across = [i for i, f in enumerate(found) if abs(90.0 - _angle_deg(f, u)) < 5.0]
-        score = float(support[along].sum() + support[across].sum())
-        if best is None or score > best[0]:
-            best = (score, u, along, across)
+    plausible = partial(
+        _plausible, max_pitch_deg=max_pitch_deg, max_roll_deg=max_roll_deg, max_tilt_up_deg=max_tilt_up_deg
+    )
+    best = _best_candidate(found, support, plausible)
     if best is None:
         return None
-    _, u, along, across = best
-    chosen = u
+    _, chosen, along, across = best
     v_in = np.zeros(len(segments), bool)
     for i in along:
         v_in |= groups[i]
     across = sorted(across, key=lambda i: -support[i])[:2]
-    if along and across:
-        axes = _manhattan([u] + [found[i] for i in across], [v_in] + [groups[i] for i in across], normals, weights)
-        u = axes[0] if axes[0] @ u > 0 else -axes[0]
-        how = "manhattan" if len(across) == 2 else "vertical+horizontal"
-    elif len(across) == 2:
-        axes = _manhattan([u] + [found[i] for i in across], [None] + [groups[i] for i in across], normals, weights)
-        u = axes[0] if axes[0] @ u > 0 else -axes[0]
-        how = "horizontal"
-    else:
-        how = "vertical"
-    u = u / np.linalg.norm(u)
+    u, how = _refined(chosen, along, v_in, across, found, groups, normals, weights)
     if _angle_deg(u, chosen) > 5.0 or plausible(u) is None:  # the refinement ran off: keep the candidate
         u = chosen
-    if v_in.any():
-        residual = np.degrees(np.arcsin(np.clip(np.abs(normals[v_in] @ u), 0, 1)))
-        sigma = max(1.0, float(np.sqrt(np.mean(residual**2)) / np.sqrt(max(v_in.sum() - 1, 1)) * 3.0))
-    else:
-        sigma = 3.0
     h_count = int(sum(groups[i].sum() for i in across))
-    return UpEstimate(u, sigma, int(v_in.sum()), h_count, how)
+    return UpEstimate(u, _sigma_deg(normals, v_in, u), int(v_in.sum()), h_count, how)
 
 
 def upright_prior(pitch_deg: float = 30.0) -> np.ndarray:

@@ -256,6 +256,8 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras):
 
 
 def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
+    """The object's mesh file fitted to its silhouettes, standing (and free when metric: held in
+    the air when that fits better), scaled, decimated and colored: (model, fact, shape)."""
     scfg = ctx.config.silhouette
     imp = read_imported(path, spec.overrides.get("mesh_up"))
     for repair in imp.repairs:
@@ -267,47 +269,16 @@ def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
     if len(small.faces) > 1500:
         small = decimate(small, 1500, check=False)
     sv, sf = np.asarray(small.vertices, float), np.asarray(small.faces, np.int64)
-    best = None
-    for axis in up_candidates(imp)[: 1 if metric and imp.up_given else 6]:
-        rot = world_from_up(axis)
-        rot = level_rotation(imp.vertices @ rot.T, imp.faces) @ rot
-        up_v = sv @ rot.T
-        base = np.array([*(0.5 * (up_v.min(axis=0) + up_v.max(axis=0)))[:2], up_v[:, 2].min()])
-        rho0 = 1.0 if metric else width / max(float(np.ptp(up_v, axis=0).max()), 1e-9)
-
-        def shape(r, up_v=up_v, base=base):
-            return r[0] * (up_v - base), sf
-
-        fit = fit_standing(
-            shape,
-            np.array([rho0]),
-            views,
-            _start(xy, views, width),
-            support_z=support_z,
-            yaws=tuple(np.radians([0.0, 90.0, 180.0, 270.0])),
-            free_size=np.array([not metric]),
-            maxfev=250,
-        )
-        if best is None or fit.iou > best[0].iou + 0.01:
-            best = (fit, rot, base, axis)
-        if metric and imp.up_given:
-            break
-    fit, rot, base, axis = best
+    fit, rot, base, axis = _fit_mesh_standing(imp, sv, sf, metric, width, views, xy, support_z)
     rho = float(fit.size[0])
     # world_from_mesh frame (the file's frame scaled to meters by rho)
     pose = fit.pose(support_z) @ se3.make_pose(rot, -rho * base)
     held, free_iou = False, None
     if metric:
-        found = search_free(sv, sf, views[0], directions=scfg.free_directions, rolls=12)
-        if found:
-            free_pose, free_iou = fit_free(sv, sf, views, found[0][1])
-            for _, start in found[1:3]:
-                p2, i2 = fit_free(sv, sf, views, start)
-                if i2 > free_iou:
-                    free_pose, free_iou = p2, i2
-            if free_iou > fit.iou + scfg.held_margin or fit.iou < 0.6:
-                held = True
-                pose = free_pose
+        free_pose, free_iou = _fit_mesh_free(sv, sf, views, scfg.free_directions)
+        if free_pose is not None and (free_iou > fit.iou + scfg.held_margin or fit.iou < 0.6):
+            held = True
+            pose = free_pose
     iou = free_iou if held else fit.iou
     vertices = rho * imp.vertices
     tm = decimate(trimesh.Trimesh(vertices, imp.faces, process=False), ctx.config.max_triangles)
@@ -339,3 +310,49 @@ def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
         "repairs": imp.repairs,
     }
     return ObjectModel(spec.name, mesh, pose, mass, physics), fact, ("imported", False, "", iou)
+
+
+def _fit_mesh_standing(imp, sv, sf, metric: bool, width: float, views, xy, support_z: float):
+    """The mesh (decimated: ``sv``, ``sf``) standing on the support, fitted for each candidate up
+    axis (only the given one for a metric mesh with mesh_up): the best (fit, rotation (3, 3) from
+    the file's frame to up, base point (3,) of the upright mesh, up axis)."""
+    best = None
+    for axis in up_candidates(imp)[: 1 if metric and imp.up_given else 6]:
+        rot = world_from_up(axis)
+        rot = level_rotation(imp.vertices @ rot.T, imp.faces) @ rot
+        up_v = sv @ rot.T
+        base = np.array([*(0.5 * (up_v.min(axis=0) + up_v.max(axis=0)))[:2], up_v[:, 2].min()])
+        rho0 = 1.0 if metric else width / max(float(np.ptp(up_v, axis=0).max()), 1e-9)
+
+        def shape(r, up_v=up_v, base=base):
+            return r[0] * (up_v - base), sf
+
+        fit = fit_standing(
+            shape,
+            np.array([rho0]),
+            views,
+            _start(xy, views, width),
+            support_z=support_z,
+            yaws=tuple(np.radians([0.0, 90.0, 180.0, 270.0])),
+            free_size=np.array([not metric]),
+            maxfev=250,
+        )
+        if best is None or fit.iou > best[0].iou + 0.01:
+            best = (fit, rot, base, axis)
+        if metric and imp.up_given:
+            break
+    return best
+
+
+def _fit_mesh_free(sv, sf, views, directions: int):
+    """The metric mesh (decimated: ``sv``, ``sf``) fitted free (6-DoF) from the best three of
+    ``directions`` orientations searched in the first view: (pose (4, 4), IoU), or (None, None)."""
+    found = search_free(sv, sf, views[0], directions=directions, rolls=12)
+    if not found:
+        return None, None
+    free_pose, free_iou = fit_free(sv, sf, views, found[0][1])
+    for _, start in found[1:3]:
+        p2, i2 = fit_free(sv, sf, views, start)
+        if i2 > free_iou:
+            free_pose, free_iou = p2, i2
+    return free_pose, free_iou

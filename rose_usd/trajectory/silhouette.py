@@ -138,6 +138,8 @@ def _view(layer, name, t, mask, cameras, cfg, *, soft=None, box=None) -> View:
 
 
 def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
+    """The object's poses (n, 4, 4, world), their confidence (n,) and what to record, frame by
+    frame from ``default``: held, refitted, set down or lost (see the module's steps)."""
     n, case = ctx.time_info.n_frames, ctx.case
     mask_of = functools.partial(layer.mask, name)
     poses = np.repeat(default[None], n, axis=0)
@@ -151,22 +153,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         mask = mask_of(t)
         has_mask = mask is not None and mask.sum() >= cfg.min_pixels
         if colors is None and cfg.color_weight > 0 and has_mask:
-            sil = (
-                silhouette(
-                    se3.transform_points(pose, v),
-                    f,
-                    cameras.world_from_cv[t],
-                    cameras.K[t],
-                    case.width,
-                    case.height,
-                    closed=not convex,
-                )
-                if not convex
-                else _hull_mask(pose, v, cameras, t, case)
-            )
-            inside, around = ColorPosterior.regions(sil & mask, layer.occluders(name, t, mask.shape, grow_px=2))
-            if inside.sum() >= cfg.min_pixels:
-                colors = ColorPosterior(case.rgb(t), inside, around)
+            colors = _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex)
         posterior = colors(case.rgb(t)) if colors is not None else None
         box = _projected_box(pose, v, cameras, t, case.width, case.height)
         if not has_mask and (posterior is None or box is None):
@@ -191,22 +178,8 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
                     poses[t] = pose
                     settled, set_down = True, set_down + 1
             continue
-        starts = [pose, velocity @ pose, _recentered(view, pose, v)]
-        best = None
-        for start in starts:
-            got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
-            if best is None or score > best[1]:
-                best = (got, score)
-        if best[1] < cfg.turn_search_below * ref_iou:
-            # a fast turn (deepac-cat-rgb: 27 deg in one frame) is out of the simplex's reach:
-            # start again from the best pose turned by +-turn_search_deg about each camera axis
-            for start in _turned(best[0], view, np.radians(cfg.turn_search_deg)):
-                got, score = fit_free(
-                    v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex
-                )
-                if score > best[1]:
-                    best = (got, score)
-            searched += 1
+        best, turned = _refit(v, f, view, pose, velocity, ref_iou, cfg, convex)
+        searched += turned
         if best[1] < floor:
             poses[t], lost = pose, lost + 1
             continue
@@ -214,6 +187,57 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         pose, ref_iou = best[0], best[1]
         poses[t], conf[t], present[t] = pose, min(1.0, best[1] / base), True
         fitted, still, settled = fitted + 1, 0, False
+    counts = {"held": held, "fitted": fitted, "lost": lost, "set_down": set_down, "turn_searches": searched}
+    return _finish(poses, present, conf, counts, colors is not None, base)
+
+
+def _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> ColorPosterior | None:
+    """The object's color posterior learned in frame ``t`` where the posed silhouette meets its
+    mask (against the pixels around it), or None when too few pixels are inside."""
+    sil = (
+        silhouette(
+            se3.transform_points(pose, v),
+            f,
+            cameras.world_from_cv[t],
+            cameras.K[t],
+            case.width,
+            case.height,
+            closed=not convex,
+        )
+        if not convex
+        else _hull_mask(pose, v, cameras, t, case)
+    )
+    inside, around = ColorPosterior.regions(sil & mask, layer.occluders(name, t, mask.shape, grow_px=2))
+    if inside.sum() >= cfg.min_pixels:
+        return ColorPosterior(case.rgb(t), inside, around)
+    return None
+
+
+def _refit(v, f, view: View, pose, velocity, ref_iou: float, cfg, convex: bool) -> tuple[tuple, int]:
+    """The best 6-DoF fit (pose, IoU) to the view from the last pose, its constant-velocity
+    prediction and the pose recentered on the mask, and whether (1) or not (0) it searched turned
+    starts because that fit fell under ``turn_search_below`` of ``ref_iou``."""
+    starts = [pose, velocity @ pose, _recentered(view, pose, v)]
+    best = None
+    for start in starts:
+        got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
+        if best is None or score > best[1]:
+            best = (got, score)
+    if best[1] >= cfg.turn_search_below * ref_iou:
+        return best, 0
+    # a fast turn (deepac-cat-rgb: 27 deg in one frame) is out of the simplex's reach:
+    # start again from the best pose turned by +-turn_search_deg about each camera axis
+    for start in _turned(best[0], view, np.radians(cfg.turn_search_deg)):
+        got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
+        if score > best[1]:
+            best = (got, score)
+    return best, 1
+
+
+def _finish(poses, present, conf, counts: dict, color_model: bool, base):
+    """The tracked poses with the lost frames between tracked ones interpolated (confidence 0.5),
+    their confidence and the record; all held at the start (confidence 0) when none was tracked."""
+    n = len(poses)
     if not present.any():
         return poses, np.zeros(n), {"tracked": 0}
     filled, fill_conf = fill_gaps(poses, present)
@@ -222,12 +246,8 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         filled,
         conf,
         {
-            "held": held,
-            "fitted": fitted,
-            "lost": lost,
-            "set_down": set_down,
-            "turn_searches": searched,
-            "color_model": colors is not None,
+            **counts,
+            "color_model": color_model,
             "score_first": None if base is None else round(float(base), 4),
             "confidence_mean": round(float(conf[present].mean()), 4),
         },
