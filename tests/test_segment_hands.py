@@ -1,0 +1,77 @@
+"""Fingers on an object and blobs apart from it are not the object: the depth segmenter's skin
+peel and its main-part filter, on masks whose answer is drawn by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rose_usd.segment.regions import main_part, peel_skin
+from rose_usd.segment.segmenter import color_index, histogram
+
+W, H = 120, 90
+SKIN = (224, 168, 140)
+WHITE = (240, 238, 232)
+BROWN = (90, 55, 30)
+
+
+def _object_image():
+    """A 40 x 40 object of white and brown 3-px stripes (rows 20-60, cols 30-70) on a grey table."""
+    rgb = np.full((H, W, 3), 128, np.uint8)
+    obj = np.zeros((H, W), bool)
+    obj[20:60, 30:70] = True
+    stripes = (np.arange(W)[None, :] // 3) % 2 == 0
+    rgb[obj & stripes] = WHITE
+    rgb[obj & ~stripes] = BROWN
+    return rgb, obj
+
+
+def test_a_finger_on_the_object_is_peeled_and_the_object_stays():
+    """A skin-coloured finger inside the object's mask that runs on into the hand outside it is
+    taken off; the object's own pixels stay, and so does a skin-coloured patch at its other side
+    that touches only the table."""
+    rgb, obj = _object_image()
+    color = histogram(color_index(rgb)[obj])
+    finger = np.zeros_like(obj)
+    finger[35:42, 58:70] = True  # on the object's right edge
+    patch = np.zeros_like(obj)
+    patch[30:36, 30:36] = True  # on its left edge, nothing in front of the table there
+    hand = np.zeros_like(obj)
+    hand[30:48, 70:95] = True  # the hand the finger belongs to, outside the object
+    rgb[finger | patch | hand] = SKIN
+    skin = histogram(color_index(rgb)[hand])
+    peeled = peel_skin(obj | finger, color_index(rgb), color, skin, hand, 2.0)
+    assert peeled[finger].mean() < 0.2, peeled[finger].mean()
+    assert peeled[obj & ~finger & ~patch].mean() > 0.97
+    assert peeled[patch].all()
+
+
+def test_a_print_of_skin_like_colours_mixed_with_others_stays():
+    """An object printed with skin-like and brown stripes (a paper cup's print) that touches the
+    hand keeps its stripes: averaged over 2 px, its colours are the object's."""
+    rgb, obj = _object_image()
+    stripes = (np.arange(W)[None, :] // 2) % 2 == 0
+    rgb[obj & stripes] = SKIN
+    hand = np.zeros_like(obj)
+    hand[30:48, 70:95] = True
+    rgb[hand] = SKIN
+    skin = histogram(color_index(rgb)[hand])
+    color = histogram(color_index(rgb)[obj])
+    peeled = peel_skin(obj, color_index(rgb), color, skin, hand, 2.0)
+    assert peeled[obj].mean() > 0.97
+
+
+def test_small_blobs_apart_from_the_object_are_dropped():
+    """A blob far from the object's largest part is dropped, one a finger's width away (the object
+    seen past a finger) is kept, and a mask in pieces (a held object between fingers) stays whole."""
+    mask = np.zeros((H, W), bool)
+    mask[20:60, 20:60] = True  # 1600 px
+    far = np.zeros_like(mask)
+    far[5:12, 100:110] = True
+    beside = np.zeros_like(mask)
+    beside[30:40, 63:68] = True  # 3 px past the main part's edge
+    kept = main_part(mask | far | beside, area_px=1600.0)
+    assert np.array_equal(kept, mask | beside)
+    pieces = np.zeros_like(mask)
+    for c in range(10, 110, 20):
+        pieces[40:50, c : c + 8] = True  # 80 px each, < 1/4 of the start area
+    assert np.array_equal(main_part(pieces, area_px=1600.0), pieces)
