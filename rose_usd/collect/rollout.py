@@ -77,6 +77,11 @@ class Rollout:
         return len(self.q)
 
 
+IMPRATIO = 100.0
+"""MuJoCo's ratio of frictional to normal constraint impedance, with an elliptic friction cone
+(``collect/world.py`` says why)."""
+
+
 class Simulator:
     """SolverMuJoCo on one world, reused for every rollout (state reset, mass and friction set)."""
 
@@ -91,8 +96,8 @@ class Simulator:
             use_mujoco_cpu=True,
             solver="newton",
             integrator="implicitfast",
-            cone="pyramidal",
-            impratio=10.0,
+            cone="elliptic",
+            impratio=IMPRATIO,
             iterations=iterations,
             ls_iterations=50,
             enable_multiccd=True,
