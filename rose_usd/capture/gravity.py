@@ -225,7 +225,7 @@ def _horizontal_group(planes, prior, right, anchor, anchor_min_height_m, max_rol
 
 def _score(group: list[Plane]) -> float:
     """A group of parallel planes' support, weighted toward the prior (its first plane's angle to it)."""
-    return sum(p.inliers for p in group) * max(float(np.cos(np.radians(group[0].angle_to_prior_deg))), 0.0)
+    return sum(p.inliers for p in group) * max(float(np.cos(np.radians(group[0].angle_to_prior_deg))), 0.0) ** 2
 
 
 def refine_with_planes(
