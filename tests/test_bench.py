@@ -154,3 +154,38 @@ def test_start_from_refuses_another_mode(small_results, tmp_path):
             cases_dir=earlier_dir.parent / "cases",
             start_from=earlier_dir,
         )
+
+
+def test_table4_counts_rollouts_per_task_and_no_grasp_apart():
+    """Table 4 sums each task's rollouts and successes from the collect stage's results, averages
+    the successful rollouts' path errors, and counts a case with no grasp apart from the rate."""
+    from rose_usd.bench.report import _table4
+
+    def collect(status, success, mean_m=(), final_m=()):
+        return {
+            "stage_results": {
+                "collect": {
+                    "status": status,
+                    "rollouts": len(success),
+                    "successes": sum(success),
+                    "rollout_success": list(success),
+                    "rollout_mean_error_m": list(mean_m),
+                    "rollout_final_error_m": list(final_m),
+                    "rollouts_per_minute": 20.0 if success else None,
+                }
+            }
+        }
+
+    cases = [
+        {"task": "lift", **collect("ok", [True, False], [0.01, 0.05], [0.02, 0.06])},
+        {"task": "lift", **collect("no-success", [False, False], [0.04, 0.05], [0.05, 0.05])},
+        {"task": "rotate", **collect("ok", [True, True], [0.004, 0.006], [0.01, 0.01])},
+        {"task": "rotate", **collect("no-grasp", [])},
+    ]
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in _table4(cases, ["lift", "rotate"])[7:]}
+    assert rows["Lift"][1:5] == ["2", "4", "1", "0.25"] and rows["Lift"][5] == "1.00" and rows["Lift"][-1] == "– |"
+    assert (
+        rows["Rotate"][1:5] == ["2", "2", "2", "1.00"] and rows["Rotate"][5] == "0.50" and rows["Rotate"][-1] == "1 |"
+    )
+    assert rows["**All**"][2:5] == ["6", "3", "0.50"]
+    assert _table4([{"task": "lift", "stage_results": {}}], ["lift"]) == []

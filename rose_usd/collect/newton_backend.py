@@ -266,7 +266,16 @@ def run(ctx: StageContext) -> None:
         rollout_sim_s=[round(r.sim_s, 2) for r in rollouts],
         rollouts_per_minute=round(60.0 * len(rollouts) / max(sum(wall), 1e-9), 2),
         successes=len(successes),
+        rollout_success=[bool(r.success) for r in rollouts],
+        rollout_mean_error_m=[_rounded(r.mean_error_m) for r in rollouts],
+        rollout_final_error_m=[_rounded(r.final_error_m) for r in rollouts],
+        rollout_drift_m=[_rounded(r.drift_m) for r in rollouts],
     )
+
+
+def _rounded(value: float) -> float | None:
+    """A rollout's error [m] to 0.1 mm for the provenance record, None where it is not finite."""
+    return round(float(value), 4) if np.isfinite(value) else None
 
 
 def _finish(ctx: StageContext, outcome: Outcome) -> None:
