@@ -30,6 +30,11 @@ def _solver(n_problems: int, n_seeds: int):
     from newton import ik
 
     model, tcp = _robot_model()
+    with wp.ScopedDevice("cpu"):  # the model is on the CPU, whatever Warp's default device is
+        return _objectives(ik, wp, model, tcp, n_problems, n_seeds)
+
+
+def _objectives(ik, wp, model, tcp, n_problems: int, n_seeds: int):
     pos = ik.IKObjectivePosition(tcp, wp.vec3(0.0, 0.0, 0.0), wp.zeros(n_problems, dtype=wp.vec3))
     rot = ik.IKObjectiveRotation(tcp, wp.quat_identity(), wp.array([[0.0, 0.0, 0.0, 1.0]] * n_problems, dtype=wp.vec4))
     limits = ik.IKObjectiveJointLimit(model.joint_limit_lower, model.joint_limit_upper, weight=1.0)
@@ -69,13 +74,15 @@ def solve(
     size = _bucket(n)
     solver, pos, rot = _solver(size, n_seeds)
     padded = np.concatenate([targets, np.broadcast_to(targets[-1], (size - n, 4, 4))])
-    pos.set_target_positions(wp.array(padded[:, :3, 3].astype(np.float32), dtype=wp.vec3))
-    rot.set_target_rotations(wp.array(se3.quat_xyzw_from_matrix(padded[:, :3, :3]).astype(np.float32), dtype=wp.vec4))
     start = np.broadcast_to(np.asarray(seeds, dtype=float), (n, 9))
     start = np.concatenate([start, np.broadcast_to(start[-1], (size - n, 9))]).astype(np.float32)
-    q = wp.array(start, dtype=wp.float32)
-    solver.reset()
-    solver.step(q, q, iterations=iterations)
+    with wp.ScopedDevice("cpu"):  # the solver is on the CPU, whatever Warp's default device is
+        pos.set_target_positions(wp.array(padded[:, :3, 3].astype(np.float32), dtype=wp.vec3))
+        quats = se3.quat_xyzw_from_matrix(padded[:, :3, :3]).astype(np.float32)
+        rot.set_target_rotations(wp.array(quats, dtype=wp.vec4))
+        q = wp.array(start, dtype=wp.float32)
+        solver.reset()
+        solver.step(q, q, iterations=iterations)
     out = q.numpy().astype(float)[:n]
     out[:, :7] = np.clip(out[:, :7], panda.chain().lower[:7], panda.chain().upper[:7])
     out[:, 7:] = start[:n, 7:]

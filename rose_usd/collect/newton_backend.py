@@ -13,9 +13,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rose_usd.collect import grasping, motion
+from rose_usd.collect import batch, grasping, motion
 from rose_usd.collect.author import Outcome, author_robot
-from rose_usd.collect.config import CollectConfig
+from rose_usd.collect.config import CollectConfig, SimDevice
 from rose_usd.collect.dataset import write_dataset
 from rose_usd.collect.rollout import Perturbation, Rollout, Simulator, run_rollout
 from rose_usd.collect.world import World, build_world, crop_to_box
@@ -155,9 +155,18 @@ def _grasps_and_base(
     return cands, ranked
 
 
-def _world(ctx: StageContext, name: str, target: _Target, path: np.ndarray, base_pose: np.ndarray) -> World:
+def _world(
+    ctx: StageContext,
+    name: str,
+    target: _Target,
+    path: np.ndarray,
+    base_pose: np.ndarray,
+    *,
+    worlds: int = 1,
+    device: str = "cpu",
+) -> World:
     """The simulated world: the stage with the scene cut around the path (N, 4, 4) and the base
-    (4, 4), and the robot."""
+    (4, 4), and the robot; ``worlds`` copies of it on ``device``."""
     cfg: CollectConfig = ctx.config
     positions, radius, support_z = path[:, :3, 3], target.radius, target.support_z
     base_xyz, margin = base_pose[:3, 3], cfg.newton.crop_margin_m
@@ -165,7 +174,7 @@ def _world(ctx: StageContext, name: str, target: _Target, path: np.ndarray, base
     hi = np.maximum(positions.max(axis=0) + radius, base_xyz) + margin
     lo[2], hi[2] = support_z - 0.1, max(hi[2], support_z + 1.0)
     object_path = object_layer.object_paths(ctx.stage)[name]
-    return build_world(ctx.stage, object_path, base_pose, (lo, hi), cfg.newton)
+    return build_world(ctx.stage, object_path, base_pose, (lo, hi), cfg.newton, worlds=worlds, device=device)
 
 
 def _roll_out(
@@ -240,17 +249,24 @@ def run(ctx: StageContext) -> None:
         return
     t_plan = time.perf_counter() - t_start
 
-    # the world: the stage, the scene cut around the path and the base, and the robot
-    t0 = time.perf_counter()
-    world = _world(ctx, name, target, path, outcome.base_pose)
-    sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
-    t_build = time.perf_counter() - t0
-
     rate = float(ctx.time_info.fps)
-    perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
-    rollouts = _roll_out(sim, ranked, perturbations, path, outcome.base_pose, rate, cfg)
+    device, batched = _device(cfg)
+    t0 = time.perf_counter()
+    if not batched:
+        # the world: the stage, the scene cut around the path and the base, and the robot
+        world = _world(ctx, name, target, path, outcome.base_pose)
+        sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
+        t_build = time.perf_counter() - t0
+        perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
+        rollouts = _roll_out(sim, ranked, perturbations, path, outcome.base_pose, rate, cfg)
+    else:
+        perturbations = _perturbations(cfg, target.prior, target.prior.mass_kg, rng)
+        jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
+        world, rollouts, t_build = _roll_out_batched(ctx, name, target, path, outcome.base_pose, ranked, jobs, device)
     outcome.rollouts = rollouts
     successes = _judge_all(ctx, outcome, name, path)
+    if batched and outcome.best >= 0:
+        rollouts[outcome.best].links = batch.link_poses(rollouts[outcome.best], outcome.base_pose)
     _finish(ctx, outcome)
     wall = [r.wall_s for r in rollouts]
     ctx.record(
@@ -270,7 +286,57 @@ def run(ctx: StageContext) -> None:
         rollout_mean_error_m=[_rounded(r.mean_error_m) for r in rollouts],
         rollout_final_error_m=[_rounded(r.final_error_m) for r in rollouts],
         rollout_drift_m=[_rounded(r.drift_m) for r in rollouts],
+        device=device,
+        worlds=world.worlds,
     )
+
+
+def _device(cfg: CollectConfig) -> tuple[str, bool]:
+    """The Warp device the rollouts run on, and whether they run batched (many worlds on mujoco_warp):
+    ("cpu", False) for MuJoCo's C backend, ("cuda:0", True) on a GPU."""
+    choice = cfg.newton.device
+    if choice is SimDevice.CPU or (choice is SimDevice.AUTO and not batch.cuda_available()):
+        return "cpu", False
+    if not batch.cuda_available():
+        raise ConfigError(
+            "collect.newton.device = cuda, but Warp sees no CUDA device", hint="use auto or cpu on this machine"
+        )
+    return "cuda:0", True
+
+
+def _roll_out_batched(
+    ctx: StageContext,
+    name: str,
+    target: _Target,
+    path: np.ndarray,
+    base_pose: np.ndarray,
+    ranked: grasping.Candidates,
+    jobs: list[tuple[int, Perturbation]],
+    device: str,
+) -> tuple[World, list[Rollout], float]:
+    """Every (grasp, perturbation) rollout of ``jobs`` as its own world of one model on ``device``,
+    in batches of at most ``collect.newton.max_worlds``; (world, rollouts, build seconds)."""
+    cfg: CollectConfig = ctx.config
+    rate = float(ctx.time_info.fps)
+    size = min(len(jobs), cfg.newton.max_worlds)
+    t0 = time.perf_counter()
+    world = _world(ctx, name, target, path, base_pose, worlds=size, device=device)
+    sim = batch.BatchSimulator(world, cfg.newton.dt_s, cfg.newton.iterations, cfg.newton.contacts_per_world)
+    t_build = time.perf_counter() - t0
+    grasp_tcp = [path[0] @ ranked.object_from_tcp[g] for g in range(len(ranked))]
+    plans = [batch.full_plan(base_pose, tcp, path, rate, cfg) for tcp in grasp_tcp]
+    rollouts: list[Rollout] = []
+    for start in progress(range(0, len(jobs), size), "collect batches", total=-(-len(jobs) // size), unit="batch"):
+        chunk = jobs[start : start + size]
+        chunk = chunk + [chunk[-1]] * (size - len(chunk))  # a last batch filled up; the copies are dropped
+        done = batch.run_batch(sim, plans, [g for g, _ in chunk], [p for _, p in chunk], path, cfg)
+        rollouts += done[: len(jobs) - start]
+    if sim.most_contacts >= cfg.newton.contacts_per_world * size:
+        ctx.warn(
+            f"collect: mujoco_warp used all {cfg.newton.contacts_per_world} contact slots per world and dropped "
+            "contacts; raise collect.newton.contacts_per_world"
+        )
+    return world, rollouts, t_build
 
 
 def _rounded(value: float) -> float | None:

@@ -151,16 +151,21 @@ def _pose7_to_matrix(q7: np.ndarray) -> np.ndarray:
     return se3.make_pose(se3.matrix_from_quat_xyzw(q7[..., 3:7]), q7[..., :3])
 
 
-def _perturbed_joint_q(joint_q: np.ndarray, object_q0: int, perturbation: Perturbation) -> np.ndarray:
-    """The joint coordinates ``joint_q`` with the object's free joint (from ``object_q0``) turned by
-    the perturbation's yaw and shifted by its offset [m] (changed in place and returned)."""
-    start = _pose7_to_matrix(joint_q[object_q0 : object_q0 + 7])
+def perturbed_pose(q7: np.ndarray, perturbation: Perturbation) -> np.ndarray:
+    """A free joint's coordinates (7,: position, quaternion xyzw) turned by the perturbation's yaw
+    and shifted by its offset [m]."""
+    start = _pose7_to_matrix(np.asarray(q7, dtype=float))
     turn = se3.make_pose(se3.rotation_about([0.0, 0.0, 1.0], np.radians(perturbation.yaw_deg)), np.zeros(3))
     moved = start.copy()
     moved[:3, :3] = turn[:3, :3] @ start[:3, :3]
     moved[:3, 3] = start[:3, 3] + perturbation.offset_m
-    joint_q[object_q0 : object_q0 + 3] = moved[:3, 3]
-    joint_q[object_q0 + 3 : object_q0 + 7] = se3.quat_xyzw_from_matrix(moved[:3, :3])
+    return np.concatenate([moved[:3, 3], se3.quat_xyzw_from_matrix(moved[:3, :3])])
+
+
+def _perturbed_joint_q(joint_q: np.ndarray, object_q0: int, perturbation: Perturbation) -> np.ndarray:
+    """The joint coordinates ``joint_q`` with the object's free joint (from ``object_q0``) perturbed
+    (``perturbed_pose``; changed in place and returned)."""
+    joint_q[object_q0 : object_q0 + 7] = perturbed_pose(joint_q[object_q0 : object_q0 + 7], perturbation)
     return joint_q
 
 

@@ -75,6 +75,11 @@ class World:
     object_friction: float
     scene_parts: int
     timings: dict[str, float] = field(default_factory=dict)
+    worlds: int = 1
+    """Copies of the world in the model (the indices above are the first's)."""
+    coords_per_world: int = 0
+    dofs_per_world: int = 0
+    bodies_per_world: int = 0
 
 
 def _set_attr(builder, key: str, index: int, value) -> None:
@@ -211,12 +216,28 @@ def _add_panda(b, newton, base_pose: np.ndarray, cfg: NewtonConfig) -> _Robot:
     return _Robot(q0, d0, bodies, robot_shapes, pads)
 
 
+def _replicated(b, newton, worlds: int):
+    """The builder ``b`` as ``worlds`` separate worlds of one builder (``b`` itself for one)."""
+    if worlds <= 1:
+        return b
+    from newton.solvers import SolverMuJoCo
+
+    many = newton.ModelBuilder()
+    SolverMuJoCo.register_custom_attributes(many)
+    many.rigid_gap = RIGID_GAP_M
+    many.replicate(b, worlds)
+    return many
+
+
 def build_world(
     stage: Usd.Stage,
     object_path: str,
     base_pose: np.ndarray,
     workspace: tuple[np.ndarray, np.ndarray],
     cfg: NewtonConfig,
+    *,
+    worlds: int = 1,
+    device: str = "cpu",
 ) -> World:
     """Load the stage and the Panda into one Newton model.
 
@@ -225,6 +246,9 @@ def build_world(
         object_path: prim path of the object the robot moves.
         base_pose: world pose of the robot base (4, 4).
         workspace: (lo, hi) corners [m] of the box the scene collider is cut to.
+        worlds: copies of the world in the model (each its own MuJoCo world, for many rollouts
+            stepped at once on a GPU).
+        device: Warp device of the model ("cpu", "cuda:0").
     """
     import time
 
@@ -257,7 +281,8 @@ def build_world(
     j = b.joint_child.index(obj)
     object_q0 = int(b.joint_q_start[j])
     mass = float(b.body_mass[obj])
-    model = b.finalize(device="cpu")
+    per_world = (b.joint_coord_count, b.joint_dof_count, b.body_count)
+    model = _replicated(b, newton, worlds).finalize(device=device)
     return World(
         model=model,
         object_body=obj,
@@ -274,4 +299,8 @@ def build_world(
         object_friction=friction,
         scene_parts=len(scene_shapes),
         timings=timings,
+        worlds=worlds,
+        coords_per_world=per_world[0],
+        dofs_per_world=per_world[1],
+        bodies_per_world=per_world[2],
     )
