@@ -307,3 +307,29 @@ def test_separate_by_height_where_a_printed_can_looks_like_its_printed_base():
     assert iou(by_color[1], top) < 0.8  # what this is about: color alone loses the label
     assert not np.any(by_height[0] & by_height[1])
     assert iou(by_height[1], top) > 0.97 and iou(by_height[0], base) > 0.97
+
+
+def test_color_only_breaks_ties_between_things_that_stand():
+    """A green can with a pale lid (a fifth of its pixels): with nothing else standing near it the
+    lid stays the can's (against the can's own pixels it would lose to the green); with a sleeve
+    of the lid's color beside it, color decides, and the sleeve's pixels are not the can's."""
+    from rose_usd.segment.segmenter import color_index, histogram, object_colored
+
+    rng = np.random.default_rng(0)
+    rgb = np.full((120, 160, 3), (60, 90, 150), np.uint8)
+    can = np.zeros((120, 160), bool)
+    can[40:100, 60:100] = True
+    lid = np.zeros_like(can)
+    lid[40:52, 60:100] = True
+    sleeve = np.zeros_like(can)
+    sleeve[30:110, 104:150] = True
+    rgb[can & ~lid], rgb[lid], rgb[sleeve] = (40, 170, 40), (175, 150, 205), (180, 150, 200)
+    cidx = color_index(np.clip(rgb.astype(int) + rng.integers(-8, 9, rgb.shape), 0, 255).astype(np.uint8))
+    model = histogram(cidx[can])
+    alone = object_colored(model, cidx[can], cidx[can], others=0, min_px=50)
+    assert alone.all()
+    assert object_colored(model, cidx[lid], cidx[can], others=10**6).mean() < 0.5  # what color alone does
+    near = can | sleeve
+    ok = object_colored(model, cidx, cidx[near], others=int(sleeve.sum()), min_px=50)
+    assert ok[can & ~lid].mean() > 0.95
+    assert ok[sleeve].mean() < 0.05

@@ -95,6 +95,28 @@ def histogram(idx: np.ndarray) -> np.ndarray:
     return (hist + 1e-3) / (hist.sum() + 1e-3 * hist.size)
 
 
+def object_colored(
+    color: np.ndarray,
+    idx: np.ndarray,
+    near: np.ndarray,
+    hand_hist: np.ndarray | None = None,
+    *,
+    others: int = 0,
+    min_px: float = 0,
+) -> np.ndarray:
+    """Per color index of ``idx``: likelier under the object's ``color`` histogram than under
+    that of what stands ``near`` it (color indices: the object and anything else standing in its
+    reach), mixed half and half with the hand's when there is one. Color only breaks ties: when
+    ``others`` (the near pixels that are not the object's: a hand, another object) are fewer than
+    ``min_px`` and no hand has been seen, nothing competes and every pixel passes; otherwise the
+    object's rarer colors (a can's pale lid) would lose to its commoner ones."""
+    if hand_hist is None and others < max(min_px, 1):
+        return np.ones(len(idx), bool)
+    ring = histogram(near)
+    denominator = ring if hand_hist is None else 0.5 * (ring + hand_hist)
+    return color[idx] > denominator[idx]
+
+
 @dataclass
 class ObjectTrack:
     name: str
@@ -348,7 +370,9 @@ class Segmenter:
         # pieces of the same object that a depth edge (a rim) cut off it, inside the prompt
         region = grow_across_edges(labels, labels == label, pts)
         others = [int(v) for v in np.unique(labels[inside]) if v > 0 and areas[v] >= MIN_REGION_PX * self.scale_px / 4]
-        return self.join_moving_with(labels, region, others, t)
+        rim = inside & ~cv2.erode(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        within = set(others) - set(np.unique(labels[rim]).tolist())
+        return self.join_moving_with(labels, region, others, t, within=within)
 
     def _new_track(self, name: str, t: int, mask: np.ndarray) -> ObjectTrack:
         rgb, depth, pts, edges, cidx, _ = self.frame(t)
@@ -456,7 +480,14 @@ class Segmenter:
         return np.array(out, bool)
 
     def join_moving_with(
-        self, labels: np.ndarray, region: np.ndarray, candidates: list[int], t0: int, *, max_diameter_m: float = 0.3
+        self,
+        labels: np.ndarray,
+        region: np.ndarray,
+        candidates: list[int],
+        t0: int,
+        *,
+        within: set[int] = frozenset(),
+        max_diameter_m: float = 0.3,
     ) -> np.ndarray:
         """``region`` joined with the components among ``candidates`` (labels of frame ``t0``'s
         components) that leave their place in the same frames as it: one object moves as one.
@@ -467,7 +498,10 @@ class Segmenter:
         sampled frames and in 60 % of the frames the one that moved less often moved in (a cup's
         inner wall lies a few mm over the table, and seen past by less than ``leave_m`` it seems
         to move only while the cup is high); a component that moved in over half the frames (a
-        person) is not joined, nor one that makes the union wider than ``max_diameter_m``."""
+        person) is not joined, nor one that makes the union wider than ``max_diameter_m``.
+        A component ``within`` the prompt box (touching none of its sides) may start to move later,
+        if it never moves while the region stays: a standing mug's inner wall, seen over its rim,
+        seems to leave its place only once a push has moved the mug by more than ``leave_m``."""
         mine = self.moved_when(region, t0)
         if mine.sum() < 2:
             return region
@@ -480,7 +514,8 @@ class Segmenter:
             both = np.count_nonzero(mine & theirs)
             if both < 2 or both < 0.6 * min(mine.sum(), theirs.sum()) or theirs.sum() > 0.5 * len(theirs):
                 continue
-            if abs(int(np.argmax(mine)) - int(np.argmax(theirs))) > 2:
+            later = label in within and np.count_nonzero(theirs & ~mine) <= 1
+            if abs(int(np.argmax(mine)) - int(np.argmax(theirs))) > 2 and not later:
                 continue  # they did not start to move together: two objects, carried together later
             union = region | part
             if diameter(pts[union & np.isfinite(pts[..., 2])]) <= max_diameter_m:
@@ -558,13 +593,18 @@ class Segmenter:
             ys, xs = np.nonzero(near)
             if not len(ys):
                 continue
-            c = cidx[y0:y1, x0:x1][ys, xs]
-            ring = histogram(c)
-            denominator = ring if hand_hist is None else 0.5 * (ring + hand_hist)
-            colored = np.flatnonzero(track.color[c] > denominator[c])  # object colors, before the costlier 3D test
-            ys, xs = ys[colored] + y0, xs[colored] + x0
+            ys, xs = ys + y0, xs + x0
             d, _ = cKDTree(pred).query(pts[ys, xs], k=1, distance_upper_bound=reach)
-            ok = d < shell
+            # color breaks ties only, between what stands near the object (farther than the shell
+            # from its points: a hand, another object) and the hand
+            c = cidx[ys, xs]
+            others = int(np.count_nonzero(d >= shell))
+            colored = object_colored(
+                track.color, c, c, hand_hist, others=others, min_px=MIN_REGION_PX * self.scale_px / 4
+            )
+            keep = np.flatnonzero((d < shell) & colored)
+            ys, xs, d = ys[keep], xs[keep], d[keep]
+            ok = np.ones(len(d), bool)
             core_m = p.core_m + 0.5 * track.motion_m()
             if arm is not None:
                 ok &= ~arm[ys, xs] | (d < core_m)
