@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rose_usd.segment.colors import color_index, histogram
 from rose_usd.segment.regions import main_part, peel_skin
-from rose_usd.segment.segmenter import color_index, histogram
 
 W, H = 120, 90
 SKIN = (224, 168, 140)

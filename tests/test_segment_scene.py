@@ -229,7 +229,7 @@ def test_scene_texture_from_the_frames_is_closer_to_the_video(classical_out, sam
 def _stack_image(seed: int = 0):
     """A teal box with a pink can standing on it (color index image), the two prompt-box regions
     (the box's runs up into the can, as the depth-connected region of a stack does) and the truth."""
-    from rose_usd.segment.segmenter import color_index
+    from rose_usd.segment.colors import color_index
 
     rng = np.random.default_rng(seed)
     rgb = np.full((120, 160, 3), (200, 200, 200), np.uint8)
@@ -289,7 +289,8 @@ def test_a_still_box_whose_top_a_hand_covers_has_not_moved():
 def test_separate_by_height_where_a_printed_can_looks_like_its_printed_base():
     """The can's label has the base's colors (only its lid differs): color alone gives the
     label to the base; heights give it back to the can, which stands above the base's top."""
-    from rose_usd.segment.segmenter import color_index, separate
+    from rose_usd.segment.colors import color_index
+    from rose_usd.segment.segmenter import separate
 
     cidx, base_region, top_region, base, top = _stack_image()
     rgb = np.full((120, 160, 3), (200, 200, 200), np.uint8)
@@ -313,7 +314,7 @@ def test_color_only_breaks_ties_between_things_that_stand():
     """A green can with a pale lid (a fifth of its pixels): with nothing else standing near it the
     lid stays the can's (against the can's own pixels it would lose to the green); with a sleeve
     of the lid's color beside it, color decides, and the sleeve's pixels are not the can's."""
-    from rose_usd.segment.segmenter import color_index, histogram, object_colored
+    from rose_usd.segment.colors import color_index, histogram, object_colored
 
     rng = np.random.default_rng(0)
     rgb = np.full((120, 160, 3), (60, 90, 150), np.uint8)

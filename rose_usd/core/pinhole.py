@@ -118,3 +118,13 @@ def silhouette(
     for p in pts[onscreen]:
         cv2.fillConvexPoly(out, p, 1, lineType=cv2.LINE_8, shift=4)
     return out.astype(bool)
+
+
+def world_points(depth: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
+    """World point of every pixel (H, W, 3); NaN where depth is 0."""
+    h, w = depth.shape
+    u = np.arange(w, dtype=np.float32)[None, :]
+    v = np.arange(h, dtype=np.float32)[:, None]
+    z = np.where(depth > 0, depth, np.nan).astype(np.float32)
+    cam = backproject(u, v, z, K)
+    return cam @ world_from_cv[:3, :3].T.astype(np.float32) + world_from_cv[:3, 3].astype(np.float32)

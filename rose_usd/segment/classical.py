@@ -13,8 +13,9 @@ from rose_usd.geometry.hands import Hand, HandDetector, hand_mask
 from rose_usd.geometry.support import SupportSurface
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
+from rose_usd.segment.colors import color_index, histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, color_index, histogram, interactor_mask
+from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, interactor_mask
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 

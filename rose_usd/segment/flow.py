@@ -31,8 +31,9 @@ import numpy as np
 
 from rose_usd.errors import InputError
 from rose_usd.progress import progress
+from rose_usd.segment.colors import color_index, histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import color_index, components, fill_holes, histogram
+from rose_usd.segment.segmenter import components, fill_holes
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 

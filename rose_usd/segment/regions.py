@@ -108,3 +108,17 @@ def main_part(
             nearest_side = min(float(np.nanmedian(d[part])), main_d)
             keep[k] = float(np.median(d[between])) < nearest_side - front_m
     return keep[labels]
+
+
+def depth_edges(depth: np.ndarray, *, rel: float = 0.02, abs_m: float = 0.008) -> np.ndarray:
+    """Pixels at a depth discontinuity (a jump to a neighbor beyond ``abs_m + rel * depth``)."""
+    d = depth.astype(np.float32)
+    tol = abs_m + rel * d
+    edge = np.zeros(d.shape, bool)
+    dx = np.abs(np.diff(d, axis=1)) > tol[:, :-1]
+    dy = np.abs(np.diff(d, axis=0)) > tol[:-1, :]
+    edge[:, :-1] |= dx
+    edge[:, 1:] |= dx
+    edge[:-1, :] |= dy
+    edge[1:, :] |= dy
+    return edge | (d <= 0)

@@ -43,78 +43,17 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
-from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from rose_usd.core.pinhole import backproject, pixels_of, sample_at
+from rose_usd.core.pinhole import pixels_of, sample_at, world_points
 from rose_usd.errors import InputError
 from rose_usd.geometry.background import StaticBackground
 from rose_usd.geometry.support import SupportSurface
+from rose_usd.segment.colors import color_index, histogram, object_colored
 from rose_usd.segment.config import SegmentConfig
 from rose_usd.segment.motion import diameter, rigid_motion, rotation_matrix, subsample
-from rose_usd.segment.regions import components, fill_holes, main_part, peel_skin
-
-BINS = 16
-
-
-# ----------------------------------------------------------------------------- pixel geometry
-def world_points(depth: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
-    """World point of every pixel (H, W, 3); NaN where depth is 0."""
-    h, w = depth.shape
-    u = np.arange(w, dtype=np.float32)[None, :]
-    v = np.arange(h, dtype=np.float32)[:, None]
-    z = np.where(depth > 0, depth, np.nan).astype(np.float32)
-    cam = backproject(u, v, z, K)
-    return cam @ world_from_cv[:3, :3].T.astype(np.float32) + world_from_cv[:3, 3].astype(np.float32)
-
-
-def depth_edges(depth: np.ndarray, *, rel: float = 0.02, abs_m: float = 0.008) -> np.ndarray:
-    """Pixels at a depth discontinuity (a jump to a neighbor beyond ``abs_m + rel * depth``)."""
-    d = depth.astype(np.float32)
-    tol = abs_m + rel * d
-    edge = np.zeros(d.shape, bool)
-    dx = np.abs(np.diff(d, axis=1)) > tol[:, :-1]
-    dy = np.abs(np.diff(d, axis=0)) > tol[:-1, :]
-    edge[:, :-1] |= dx
-    edge[:, 1:] |= dx
-    edge[:-1, :] |= dy
-    edge[1:, :] |= dy
-    return edge | (d <= 0)
-
-
-# ----------------------------------------------------------------------------- color models
-def color_index(rgb: np.ndarray) -> np.ndarray:
-    q = (rgb // (256 // BINS)).astype(np.int32)
-    return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
-
-
-def histogram(idx: np.ndarray) -> np.ndarray:
-    hist = np.bincount(idx.ravel(), minlength=BINS**3).astype(np.float64).reshape(BINS, BINS, BINS)
-    hist = gaussian_filter(hist, sigma=1.0, mode="constant").reshape(-1)  # shading shifts colors by a bin or two
-    return (hist + 1e-3) / (hist.sum() + 1e-3 * hist.size)
-
-
-def object_colored(
-    color: np.ndarray,
-    idx: np.ndarray,
-    near: np.ndarray,
-    hand_hist: np.ndarray | None = None,
-    *,
-    others: int = 0,
-    min_px: float = 0,
-) -> np.ndarray:
-    """Per color index of ``idx``: likelier under the object's ``color`` histogram than under
-    that of what stands ``near`` it (color indices: the object and anything else standing in its
-    reach), mixed half and half with the hand's when there is one. Color only breaks ties: when
-    ``others`` (the near pixels that are not the object's: a hand, another object) are fewer than
-    ``min_px`` and no hand has been seen, nothing competes and every pixel passes; otherwise the
-    object's rarer colors (a can's pale lid) would lose to its commoner ones."""
-    if hand_hist is None and others < max(min_px, 1):
-        return np.ones(len(idx), bool)
-    ring = histogram(near)
-    denominator = ring if hand_hist is None else 0.5 * (ring + hand_hist)
-    return color[idx] > denominator[idx]
+from rose_usd.segment.regions import components, depth_edges, fill_holes, main_part, peel_skin
 
 
 @dataclass
@@ -577,33 +516,12 @@ class Segmenter:
         owner = np.full(depth.shape, -1, np.int32)
         cores = []
         for k, track in enumerate(tracks):
-            reach = max(track.diameter, 0.03) * (1.0 + 0.5 * min(track.hidden, 10))
-            pred = track.predicted()
-            # a track seen in the last frame moves rigidly: its pixels lie near its moved points
-            shell = reach if track.hidden else p.shell_m + 0.5 * track.motion_m()
             core = np.zeros(depth.shape, bool)
             cores.append(core)
-            box = self._image_box(t, pred, reach)
-            if box is None:
+            found = self._candidates(t, track, valid, hand_hist)
+            if found is None:
                 continue
-            y0, y1, x0, x1 = box
-            sub = pts[y0:y1, x0:x1]
-            lo, hi = pred.min(axis=0) - reach, pred.max(axis=0) + reach
-            near = valid[y0:y1, x0:x1] & np.all((sub >= lo) & (sub <= hi), axis=-1)
-            ys, xs = np.nonzero(near)
-            if not len(ys):
-                continue
-            ys, xs = ys + y0, xs + x0
-            d, _ = cKDTree(pred).query(pts[ys, xs], k=1, distance_upper_bound=reach)
-            # color breaks ties only, between what stands near the object (farther than the shell
-            # from its points: a hand, another object) and the hand
-            c = cidx[ys, xs]
-            others = int(np.count_nonzero(d >= shell))
-            colored = object_colored(
-                track.color, c, c, hand_hist, others=others, min_px=MIN_REGION_PX * self.scale_px / 4
-            )
-            keep = np.flatnonzero((d < shell) & colored)
-            ys, xs, d = ys[keep], xs[keep], d[keep]
+            ys, xs, d = found
             ok = np.ones(len(d), bool)
             core_m = p.core_m + 0.5 * track.motion_m()
             if arm is not None:
@@ -634,6 +552,34 @@ class Segmenter:
                 mask &= ~(shared & (others_own | ((owner < 0) & earlier)))
             self._update(track, t, mask)
         return masks
+
+    def _candidates(self, t: int, track: ObjectTrack, valid: np.ndarray, hand_hist: np.ndarray | None):
+        """Pixels of frame t that may be the track's: ``valid`` (standing), within the shell around
+        its predicted points and of its colors where color breaks a tie; (rows, cols, distance to
+        the nearest predicted point), or None."""
+        pts, cidx = self.frame(t).pts, self.frame(t).cidx
+        reach = max(track.diameter, 0.03) * (1.0 + 0.5 * min(track.hidden, 10))
+        pred = track.predicted()
+        # a track seen in the last frame moves rigidly: its pixels lie near its moved points
+        shell = reach if track.hidden else self.config.shell_m + 0.5 * track.motion_m()
+        box = self._image_box(t, pred, reach)
+        if box is None:
+            return None
+        y0, y1, x0, x1 = box
+        sub = pts[y0:y1, x0:x1]
+        lo, hi = pred.min(axis=0) - reach, pred.max(axis=0) + reach
+        ys, xs = np.nonzero(valid[y0:y1, x0:x1] & np.all((sub >= lo) & (sub <= hi), axis=-1))
+        if not len(ys):
+            return None
+        ys, xs = ys + y0, xs + x0
+        d, _ = cKDTree(pred).query(pts[ys, xs], k=1, distance_upper_bound=reach)
+        # color breaks ties only, between what stands near the object (farther than the shell
+        # from its points: a hand, another object) and the hand
+        c = cidx[ys, xs]
+        others = int(np.count_nonzero(d >= shell))
+        colored = object_colored(track.color, c, c, hand_hist, others=others, min_px=MIN_REGION_PX * self.scale_px / 4)
+        keep = np.flatnonzero((d < shell) & colored)
+        return ys[keep], xs[keep], d[keep]
 
     def _mask_of(self, t, k, track, owner, core, hand_hist, max_hole, front) -> np.ndarray:
         """Track k's mask in frame t from the pixels it owns: the depth-connected parts holding a
