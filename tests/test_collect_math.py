@@ -138,3 +138,19 @@ def test_flat_pads_open_as_wide_as_the_object_across_them():
     horizontal = np.abs(frames[:, 2, 1]) < 0.1  # closing across the axis, not along it
     assert np.all(extent[horizontal] > 0.076)
     assert np.median(extent[horizontal]) == pytest.approx(0.08, abs=0.001)
+
+
+def test_a_flat_scene_part_is_thickened_into_the_scene():
+    """A convex part with no thickness (MuJoCo refuses it as a collider) becomes a 2 mm slab on
+    the side away from the robot's workspace, its top surface where it was; a solid part stays."""
+    from rose_usd.collect.world import thickened
+
+    square = np.array([[0, 0, 0.7], [0.1, 0, 0.7], [0.1, 0.1, 0.7], [0, 0.1, 0.7]], float)
+    tilt = np.array([[1, 0, 0], [0, np.cos(0.3), -np.sin(0.3)], [0, np.sin(0.3), np.cos(0.3)]])
+    for rotate in (np.eye(3), tilt):
+        v, faces = thickened(square @ rotate.T, away_from=np.array([0.05, 0.05, 1.5]) @ rotate.T)
+        local = v @ rotate  # back in the square's frame
+        assert local[:, 2].max() == pytest.approx(0.7, abs=1e-6) and local[:, 2].min() == pytest.approx(0.698, abs=1e-6)
+        assert len(faces) == 12  # a box
+    cube = np.array([[x, y, z] for x in (0, 0.1) for y in (0, 0.1) for z in (0, 0.1)], float)
+    assert thickened(cube, away_from=np.zeros(3)) is None

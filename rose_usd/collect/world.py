@@ -175,7 +175,38 @@ def _scene_collider(b, newton, workspace: tuple[np.ndarray, np.ndarray], cfg: Ne
             threshold=cfg.coacd_threshold,
             cache_dir=mesh_cache_dir(),
         )
-    return statics + list(range(n_before, b.shape_count))
+    parts = statics + list(range(n_before, b.shape_count))
+    centre = 0.5 * (np.asarray(lo, dtype=float) + np.asarray(hi, dtype=float))
+    for s in parts:
+        if b.shape_flags[s] and b.shape_type[s] == newton.GeoType.MESH:
+            mesh, xf = b.shape_source[s], np.asarray(b.shape_transform[s], dtype=float)
+            v = np.asarray(mesh.vertices, dtype=float) * np.asarray(b.shape_scale[s], dtype=float)
+            thick = thickened(v @ se3.matrix_from_quat_xyzw(xf[3:]).T + xf[:3], centre)
+            if thick is not None:
+                b.shape_source[s] = newton.Mesh(thick[0], thick[1].reshape(-1), compute_inertia=False)
+                b.shape_transform[s] = wp.transform_identity()
+                b.shape_scale[s] = (1.0, 1.0, 1.0)
+    return parts
+
+
+def thickened(vertices: np.ndarray, away_from: np.ndarray, *, flat_m: float = 1e-4, thickness_m: float = 0.002):
+    """A flat convex part (thinner than ``flat_m`` across its plane: a sliver a convex
+    decomposition left) as the hull of itself and its copy moved ``thickness_m`` along its normal,
+    away from ``away_from`` (into the scene, its surface unchanged); (vertices, faces) or None when
+    the part is not flat. MuJoCo's contacts refuse a planar mesh collider."""
+    import trimesh
+
+    v = np.asarray(vertices, dtype=float)
+    if len(v) < 3:
+        return None
+    centred = v - v.mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    if np.ptp(centred @ normal) >= flat_m:
+        return None
+    if float(np.dot(v.mean(axis=0) - np.asarray(away_from, dtype=float), normal)) < 0:
+        normal = -normal
+    hull = trimesh.convex.convex_hull(np.concatenate([v, v + thickness_m * normal]))
+    return np.asarray(hull.vertices, dtype=np.float32), np.asarray(hull.faces, dtype=np.int32)
 
 
 def _add_panda(b, newton, base_pose: np.ndarray, cfg: NewtonConfig) -> _Robot:
