@@ -140,3 +140,43 @@ def test_a_path_out_of_reach_gets_a_layer_that_says_so(tmp_path, small_box_out, 
     result = _collect(sample_case, out, base="2.0,2.0")
     assert result.status == "unreachable" and "reach" in result.message and result.rollouts == 0
     assert np.allclose(result.base_pose[:2, 3], [2.0, 2.0])
+
+
+def test_rendered_video_shows_the_robot_from_the_reconstructed_camera(tmp_path, small_box_out, sample_case):
+    """collect.render: the LeRobot dataset gets an AV1 camera stream with a frame per tick, at
+    half the video's size, and the robot is in it: against the stage rendered without the robot
+    at the same frame, the pixels around the hand's projection differ."""
+    from rose_usd.collect.video import even_size
+    from rose_usd.io.video import read_frames, video_info
+    from rose_usd.layers.world import read_cameras
+    from rose_usd.render.from_usd import StageRenderer
+    from rose_usd.sim import panda
+
+    out = tmp_path / "out"
+    shutil.copytree(small_box_out, out)
+    result = _collect(sample_case, out, render=True, perturbations=1)
+    assert result.successes == 1, result.message
+    root = out / "dataset" / "lerobot"
+    info, frames, rows, _ = lerobot.read_dataset(root)
+    stage = open_stage(out / "rose.usda")
+    cameras = read_cameras(stage, 48)
+    width, height = even_size(cameras.width, cameras.height, 0.5)
+    assert info["features"]["observation.images.camera"]["shape"] == [height, width, 3]
+    path = root / info["video_path"].format(video_key="observation.images.camera", chunk_index=0, file_index=0)
+    meta = video_info(path)
+    assert (meta["frames"], meta["width"], meta["height"]) == (info["total_frames"], width, height)
+    demos, _ = robomimic.read_hdf5(out / "dataset" / "robomimic.hdf5")
+    t = 24  # the video frame half way through the follow; episode 0 starts the file
+    tick = demos[0].attrs["follow_start"] + t
+    video = next(f for i, f in enumerate(read_frames(path)) if i == tick)
+    K = np.diag([width / cameras.width, height / cameras.height, 1.0]) @ cameras.K[t]
+    renderer = StageRenderer(stage)
+    renderer.pose_at(t)
+    without = renderer.scene.render_srgb8(cameras.world_from_cv[t], K, width, height, spp=4, seed=t)
+    q = frames["observation.state"][tick]
+    hand = read_collect(stage).base_pose @ panda.chain().forward(q[None])[0, panda.chain().links.index("panda_hand")]
+    cv = np.linalg.inv(cameras.world_from_cv[t]) @ hand[:, 3]
+    u, v = (K @ (cv[:3] / cv[2]))[:2].round().astype(int)
+    differs = np.abs(video.astype(int) - without.astype(int)).max(axis=2) > 20
+    assert 0 <= u < width and 0 <= v < height
+    assert differs[max(v - 4, 0) : v + 5, max(u - 4, 0) : u + 5].mean() > 0.5

@@ -56,6 +56,60 @@ def test_lerobot_round_trip(tmp_path):
     np.testing.assert_allclose(stats["observation.state"]["max"], frames["observation.state"].max(axis=0), rtol=1e-6)
 
 
+def test_lerobot_video_round_trip(tmp_path):
+    """A camera stream: one AV1 file holding the episodes one after the other, each episode's
+    place in it as lerobot seeks it (from/to timestamps), its image stats, and frames that decode
+    to what was written (within the codec's loss)."""
+    from rose_usd.io.video import read_frames, video_info
+
+    episodes = _episodes()
+    shades = [40, 140, 220]
+
+    def frames(e, n):
+        for i in range(n):
+            rgb = np.zeros((48, 64, 3), np.uint8)
+            rgb[..., e] = shades[e]
+            rgb[20:28, 4 * i : 4 * i + 8] = 255  # a square moving right
+            yield rgb
+
+    for e, ep in enumerate(episodes):
+        ep.videos["observation.images.camera"] = frames(e, ep.length)
+    lerobot.write_dataset(
+        tmp_path, episodes, FEATURES, fps=30, robot_type="panda", videos={"observation.images.camera": (48, 64)}
+    )
+    info, data, rows, _ = lerobot.read_dataset(tmp_path)
+    feature = info["features"]["observation.images.camera"]
+    assert feature["dtype"] == "video" and feature["shape"] == [48, 64, 3]
+    assert feature["info"]["video.codec"] == "av1" and feature["info"]["video.fps"] == 30
+    assert info["video_path"] == "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+    assert "observation.images.camera" not in data  # video features live in the mp4 only
+    path = tmp_path / info["video_path"].format(video_key="observation.images.camera", chunk_index=0, file_index=0)
+    meta = video_info(path)
+    assert (meta["codec"], meta["width"], meta["height"], meta["pix_fmt"], meta["frames"]) == (
+        "av1",
+        64,
+        48,
+        "yuv420p",
+        16,
+    )
+    decoded = list(read_frames(path))
+    for e, row in enumerate(rows):
+        first = int(round(row["videos/observation.images.camera/from_timestamp"] * 30))
+        last = int(round(row["videos/observation.images.camera/to_timestamp"] * 30))
+        assert (first, last) == (row["dataset_from_index"], row["dataset_to_index"])
+        assert abs(float(decoded[first][40, 40, e]) - shades[e]) < 8  # the episode's colour at its first frame
+        mean = np.asarray(row["stats/observation.images.camera/mean"], dtype=float)
+        assert (
+            mean.shape == (3, 1, 1)
+            and abs(mean[e, 0, 0] - (shades[e] * (1 - 64 / 3072) + 255 * 64 / 3072) / 255) < 0.01
+        )
+    square = [int(np.argmax(f[24, :, 1] > 200)) for f in decoded[5:12]]  # episode 1: the square moves 4 px a frame
+    assert np.all(np.abs(np.diff(square) - 4) <= 1), square
+    stats = json.loads((tmp_path / "meta" / "stats.json").read_text())
+    assert stats["observation.images.camera"]["count"] == [16]
+    assert np.asarray(stats["observation.images.camera"]["max"]).reshape(3).tolist() == [1.0, 1.0, 1.0]
+
+
 def test_lerobot_tasks_read_with_pandas_as_lerobot_does(tmp_path):
     """meta/tasks.parquet gives the task texts as pandas' index, as lerobot's load_tasks reads it."""
     pd = pytest.importorskip("pandas")

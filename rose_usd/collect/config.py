@@ -109,5 +109,10 @@ class CollectConfig:
     task: str = ""
     """Task text of the dataset (default "": "move the <object> along its demonstrated path")."""
     render: bool = False
-    """Also render camera video from the reconstructed camera into the dataset (default false; not built yet)."""
+    """Also render camera video of every successful rollout from the reconstructed camera into the
+    LeRobot dataset, with Mitsuba (default false: about a second a frame on two CPU cores)."""
+    render_scale: float = field(default=0.5, metadata=limits(maximum=2.0))
+    """Size of the rendered video relative to the input video's (default 0.5)."""
+    render_spp: int = 4
+    """Samples per pixel of the rendered video (default 4)."""
     newton: NewtonConfig = field(default_factory=NewtonConfig)

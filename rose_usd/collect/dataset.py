@@ -1,6 +1,7 @@
 """The successful rollouts as training data in ``<out>/dataset/``: a LeRobot v3.0 dataset
 (``lerobot/``) and robomimic-style HDF5 (``robomimic.hdf5``), one frame per control tick (the
-video's frame rate), every tick of a rollout from the home pose to the retreat.
+video's frame rate), every tick of a rollout from the home pose to the retreat. With
+``collect.render`` the LeRobot dataset has a camera stream too (``collect.video``).
 
 Poses are in the robot base frame, position [m] then quaternion scalar first (w, x, y, z).
 """
@@ -11,10 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
+from rose_usd.collect import batch
 from rose_usd.collect.config import CollectConfig
 from rose_usd.collect.rollout import Rollout
+from rose_usd.collect.video import RolloutCamera
 from rose_usd.core import se3
 from rose_usd.io import lerobot, robomimic
+from rose_usd.progress import progress
 from rose_usd.sim import panda
 from rose_usd.stage_api import StageContext
 
@@ -30,6 +34,8 @@ FEATURES = {
 """observation.state: joint positions [rad, m]; .velocity: joint velocities; .ee_pose: the tool
 frame; .environment_state: the object's pose; action: joint position targets; action.ee_pose:
 the tool pose those targets reach (forward kinematics) and the gripper's target opening [m]."""
+CAMERA = "observation.images.camera"
+"""The camera stream (``collect.render``): the rollout seen from the reconstructed camera."""
 
 
 def pose7(poses: np.ndarray) -> np.ndarray:
@@ -65,8 +71,19 @@ def write_dataset(
     folder = ctx.side_dir("dataset")
     task = cfg.task or f"move the {object_name.lower()} along its demonstrated path"
     fps = int(round(ctx.time_info.fps))
-    episodes = [lerobot.Episode(task, episode_arrays(r, base_pose)) for r in rollouts]
-    lerobot.write_dataset(folder / "lerobot", episodes, FEATURES, fps=fps, robot_type="panda")
+    videos, streams = {}, [{} for _ in rollouts]
+    if cfg.render:
+        camera = RolloutCamera(
+            ctx.stage, object_name, ctx.time_info.n_frames, scale=cfg.render_scale, spp=cfg.render_spp
+        )
+        videos[CAMERA] = (camera.height, camera.width)
+        for i, r in enumerate(rollouts):
+            links = r.links if len(r.links) == r.frames else batch.link_poses(r, base_pose)
+            streams[i][CAMERA] = progress(
+                camera.frames(r, links), f"collect: video {i + 1}/{len(rollouts)}", total=r.frames
+            )
+    episodes = [lerobot.Episode(task, episode_arrays(r, base_pose), v) for r, v in zip(rollouts, streams, strict=True)]
+    lerobot.write_dataset(folder / "lerobot", episodes, FEATURES, fps=fps, robot_type="panda", videos=videos)
     demos = []
     for r, ep in zip(rollouts, episodes, strict=True):
         n = r.frames

@@ -222,11 +222,6 @@ def _judge_all(ctx: StageContext, outcome: Outcome, name: str, path: np.ndarray)
 def run(ctx: StageContext) -> None:
     """Collect: grasp candidates, base, world, rollouts, then the robot layer and the dataset."""
     cfg: CollectConfig = ctx.config
-    if cfg.render:
-        raise ConfigError(
-            "collect.render = true is not built yet: the dataset has no camera video",
-            hint="drop --set collect.render=true (or render = true under [collect] in rose.toml)",
-        )
     t_start = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     picked = _pick_object(ctx, cfg)

@@ -12,6 +12,10 @@ meta/episodes/chunk-000/file-000.parquet     one row per episode: episode_index,
                                              meta/episodes/file_index, stats/<feature>/<stat>
 data/chunk-000/file-000.parquet              one row per frame: the features, plus timestamp,
                                              frame_index, episode_index, index, task_index
+videos/<key>/chunk-000/file-000.mp4          per camera stream: every episode's frames one after
+                                             the other (AV1, ``rose_usd.io.video``); the episode
+                                             rows hold videos/<key>/{chunk_index, file_index,
+                                             from_timestamp, to_timestamp} and its image stats
 ```
 
 A feature of shape (1,) is a plain column; a vector one a fixed-size list. Stats are over all
@@ -23,10 +27,13 @@ episodes', ours are exact). Load the result with
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from rose_usd.io import video
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000
@@ -60,10 +67,13 @@ class Feature:
 
 @dataclass(frozen=True)
 class Episode:
-    """One episode: per-frame arrays for every feature (T, n) and its task text."""
+    """One episode: per-frame arrays for every feature (T, n), its task text and, per camera
+    stream, its T frames ((H, W, 3) uint8 sRGB; an iterable, so a renderer can hand them over one
+    at a time)."""
 
     task: str
     data: dict[str, np.ndarray]
+    videos: dict[str, Iterable[np.ndarray]] = field(default_factory=dict)
 
     @property
     def length(self) -> int:
@@ -147,6 +157,88 @@ def _episode_columns(
     return columns, episode_rows, start
 
 
+def _video_feature(height: int, width: int, fps: int) -> dict:
+    """info.json's entry of a camera stream, as lerobot writes it for an encoded video."""
+    return {
+        "dtype": "video",
+        "shape": [height, width, 3],
+        "names": ["height", "width", "channels"],
+        "info": {
+            "video.height": height,
+            "video.width": width,
+            "video.codec": video.CODEC_NAME,
+            "video.pix_fmt": video.PIX_FMT,
+            "video.is_depth_map": False,
+            "video.fps": int(fps),
+            "video.channels": 3,
+            "has_audio": False,
+        },
+    }
+
+
+class _ImageStats:
+    """Per-channel statistics of a stream's frames as lerobot keeps them for images: values in
+    [0, 1], each of shape (3, 1, 1); exact, from 256-bin histograms."""
+
+    def __init__(self):
+        self.hist = np.zeros((3, 256), np.int64)
+        self.frames = 0
+
+    def add(self, rgb: np.ndarray) -> None:
+        for c in range(3):
+            self.hist[c] += np.bincount(rgb[..., c].ravel(), minlength=256)
+        self.frames += 1
+
+    def merged(self, other: _ImageStats) -> _ImageStats:
+        out = _ImageStats()
+        out.hist, out.frames = self.hist + other.hist, self.frames + other.frames
+        return out
+
+    def as_dict(self) -> dict[str, list]:
+        levels = np.arange(256) / 255.0
+        total = self.hist.sum(axis=1)
+        mean = (self.hist * levels).sum(axis=1) / total
+        std = np.sqrt(np.maximum((self.hist * levels**2).sum(axis=1) / total - mean**2, 0.0))
+        cdf = np.cumsum(self.hist, axis=1) / total[:, None]
+        shaped = lambda v: [[[float(x)]] for x in v]  # noqa: E731
+        out = {
+            "min": shaped([levels[np.flatnonzero(h)[0]] for h in self.hist]),
+            "max": shaped([levels[np.flatnonzero(h)[-1]] for h in self.hist]),
+            "mean": shaped(mean),
+            "std": shaped(std),
+            "count": [int(self.frames)],
+        }
+        for q in QUANTILES:
+            out[f"q{int(round(q * 100)):02d}"] = shaped([levels[np.searchsorted(c, q)] for c in cdf])
+        return out
+
+
+def _write_videos(root: Path, episodes: list[Episode], videos: dict[str, tuple[int, int]], fps: int, rows: list[dict]):
+    """Encode every stream's episodes one after the other into its file; add each episode's
+    place in it and its image stats to its row. Returns the streams' stats over all frames."""
+    totals = {}
+    for key, (height, width) in videos.items():
+        total = _ImageStats()
+        path = root / VIDEO_PATH.format(video_key=key, chunk_index=0, file_index=0)
+        with video.VideoWriter(path, fps, width, height) as writer:
+            for e, (ep, row) in enumerate(zip(episodes, rows, strict=True)):
+                first, stats = writer.frames, _ImageStats()
+                for rgb in ep.videos[key]:
+                    writer.write(rgb)
+                    stats.add(rgb)
+                if writer.frames - first != ep.length:
+                    raise ValueError(f"episode {e}: {writer.frames - first} frames of {key}, not {ep.length}")
+                row[f"videos/{key}/chunk_index"] = 0
+                row[f"videos/{key}/file_index"] = 0
+                row[f"videos/{key}/from_timestamp"] = first / fps
+                row[f"videos/{key}/to_timestamp"] = writer.frames / fps
+                for stat, value in stats.as_dict().items():
+                    row[f"stats/{key}/{stat}"] = value
+                total = total.merged(stats)
+        totals[key] = total.as_dict()
+    return totals
+
+
 def _info(robot_type: str, episodes: int, frames: int, tasks: int, fps: int, features: dict) -> dict:
     """meta/info.json's content."""
     return {
@@ -161,15 +253,22 @@ def _info(robot_type: str, episodes: int, frames: int, tasks: int, fps: int, fea
         "fps": int(fps),
         "splits": {"train": f"0:{episodes}"},
         "data_path": DATA_PATH,
-        "video_path": None,
+        "video_path": VIDEO_PATH if any(f["dtype"] == "video" for f in features.values()) else None,
         "features": features,
     }
 
 
 def write_dataset(
-    root: Path, episodes: list[Episode], features: dict[str, Feature], *, fps: int, robot_type: str
+    root: Path,
+    episodes: list[Episode],
+    features: dict[str, Feature],
+    *,
+    fps: int,
+    robot_type: str,
+    videos: dict[str, tuple[int, int]] | None = None,
 ) -> Path:
-    """Write a LeRobot v3.0 dataset of ``episodes`` into ``root`` (one data and one episodes file).
+    """Write a LeRobot v3.0 dataset of ``episodes`` into ``root`` (one data and one episodes file,
+    and one video file per camera stream of ``videos``: key -> (height, width)).
 
     Returns:
         The path of meta/info.json.
@@ -196,6 +295,10 @@ def write_dataset(
     data_file.parent.mkdir(parents=True, exist_ok=True)
     pq.write_table(pa.Table.from_arrays(arrays, names=names), data_file, compression="snappy")
 
+    video_stats = _write_videos(root, episodes, videos or {}, fps, episode_rows)
+    for key, (height, width) in (videos or {}).items():
+        all_features[key] = _video_feature(height, width, fps)
+
     episodes_file = root / EPISODES_PATH.format(chunk_index=0, file_index=0)
     episodes_file.parent.mkdir(parents=True, exist_ok=True)
     pq.write_table(pa.Table.from_pylist(episode_rows), episodes_file, compression="snappy")
@@ -206,6 +309,7 @@ def write_dataset(
     info_file = root / "meta" / "info.json"
     info_file.write_text(json.dumps(info, indent=4) + "\n")
     stats = {name: _stats(values) for name, values in merged.items()}
+    stats.update(video_stats)
     (root / "meta" / "stats.json").write_text(json.dumps(stats, indent=4) + "\n")
     return info_file
 

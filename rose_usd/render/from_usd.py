@@ -4,7 +4,7 @@ excluded) with its look, the UsdLux lights, and the camera track."""
 from __future__ import annotations
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdLux
+from pxr import Sdf, Usd, UsdGeom, UsdLux
 
 from rose_usd.errors import StageError
 from rose_usd.render.lighting import Lighting, PointLight
@@ -46,11 +46,13 @@ def read_lighting(stage: Usd.Stage) -> Lighting:
 
 
 class StageRenderer:
-    """Renders a stage at its time codes: static meshes once, animated meshes re-posed per frame."""
+    """Renders a stage at its time codes: static meshes once, animated meshes re-posed per frame.
+    ``extra`` items (not in the stage: a simulated robot's links) are drawn too, posed by the caller
+    with ``scene.set_pose``."""
 
-    def __init__(self, stage: Usd.Stage):
+    def __init__(self, stage: Usd.Stage, extra: list[RenderItem] = ()):
         self.stage = stage
-        items = []
+        items = list(extra)
         self._animated: dict[str, Usd.Prim] = {}
         purposes = {UsdGeom.Tokens.default_, UsdGeom.Tokens.render}
         for prim in stage.Traverse():
@@ -76,10 +78,19 @@ class StageRenderer:
         self.lighting = read_lighting(stage)
         self.scene = RenderScene(items, self.lighting)
 
+    def animated_under(self, path: str) -> dict[str, Usd.Prim]:
+        """The animated meshes at or below prim ``path``: render item name -> prim."""
+        root = Sdf.Path(path)
+        return {name: prim for name, prim in self._animated.items() if prim.GetPath().HasPrefix(root)}
+
+    def poses_at(self, t: int) -> dict[str, np.ndarray]:
+        """The animated meshes' world poses at time code t (render item name -> (4, 4))."""
+        code = Usd.TimeCode(t)
+        return {
+            name: np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(code), dtype=float).T
+            for name, prim in self._animated.items()
+        }
+
     def pose_at(self, t: int) -> None:
         """Move animated meshes to time code t."""
-        code = Usd.TimeCode(t)
-        for name, prim in self._animated.items():
-            self.scene.set_pose(
-                name, np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(code), dtype=float).T
-            )
+        self.scene.set_poses(self.poses_at(t))

@@ -154,16 +154,25 @@ class RenderScene:
     # ------------------------------------------------------------------ animation
     def set_pose(self, name: str, world_from_local: np.ndarray) -> None:
         """Move an item (its local vertices) to a new pose before the next render."""
-        item = self.items[name]
-        if np.array_equal(item.pose, world_from_local):
-            return
-        item.pose = np.array(world_from_local, dtype=float)
-        positions = self.dr.ravel(self.mi.Point3f(self._world_vertices(item.mesh.vertices, item.pose).T.copy()))
-        self.params[f"{name}.vertex_positions"] = positions
-        self.params.update()
-        if self.shadow_params is not None and item.casts_shadow:
-            self.shadow_params[f"{name}.vertex_positions"] = positions
-            self.shadow_params.update()
+        self.set_poses({name: world_from_local})
+
+    def set_poses(self, poses: dict[str, np.ndarray]) -> None:
+        """Move items to new poses (name -> world_from_local), rebuilding the scene once."""
+        moved = False
+        for name, world_from_local in poses.items():
+            item = self.items[name]
+            if np.array_equal(item.pose, world_from_local):
+                continue
+            item.pose = np.array(world_from_local, dtype=float)
+            positions = self.dr.ravel(self.mi.Point3f(self._world_vertices(item.mesh.vertices, item.pose).T.copy()))
+            self.params[f"{name}.vertex_positions"] = positions
+            if self.shadow_params is not None and item.casts_shadow:
+                self.shadow_params[f"{name}.vertex_positions"] = positions
+            moved = True
+        if moved:
+            self.params.update()
+            if self.shadow_params is not None:
+                self.shadow_params.update()
 
     # ------------------------------------------------------------------ rendering
     def _sensor(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int):
