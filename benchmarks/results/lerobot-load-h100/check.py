@@ -2,6 +2,7 @@
 
 Run from the repo root on the device:  python .lerobot-check/check.py
 """
+
 import json
 import os
 import sys
@@ -49,7 +50,10 @@ def img_report(label, t, ref_key=None, expected_mean=None):
     mean255 = (a.reshape(a.shape[0], -1).mean(1) * 255).tolist()
     print(f"{label}: per-channel mean*255 = {mean255}")
     if expected_mean is not None:
-        print(f"{label}: expected mean_rgb = {expected_mean}  max|diff| = {max(abs(x - y) for x, y in zip(mean255, expected_mean)):.6f}")
+        print(
+            f"{label}: expected mean_rgb = {expected_mean}  max|diff| = "
+            f"{max(abs(x - y) for x, y in zip(mean255, expected_mean)):.6f}"
+        )
     if ref_key is not None:
         ref = REF[ref_key].astype(np.float32)
         diff = np.abs(a * 255 - ref)
@@ -70,8 +74,21 @@ step("environment")
 import importlib.metadata as md  # noqa: E402
 
 print("python", sys.version)
-for p in ["torch", "torchvision", "lerobot", "datasets", "huggingface_hub", "av", "torchcodec", "pyarrow", "pandas",
-          "numpy", "fsspec", "draccus", "gymnasium"]:
+for p in [
+    "torch",
+    "torchvision",
+    "lerobot",
+    "datasets",
+    "huggingface_hub",
+    "av",
+    "torchcodec",
+    "pyarrow",
+    "pandas",
+    "numpy",
+    "fsspec",
+    "draccus",
+    "gymnasium",
+]:
     try:
         print(f"  {p}=={md.version(p)}")
     except Exception as e:  # noqa: BLE001
@@ -81,8 +98,8 @@ step("import lerobot")
 try:
     t0 = time.time()
     import lerobot
+    from lerobot.datasets.dataset_metadata import CODEBASE_VERSION, LeRobotDatasetMetadata
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
-    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata, CODEBASE_VERSION
 
     print("lerobot", lerobot.__version__, "CODEBASE_VERSION", CODEBASE_VERSION, f"import {time.time() - t0:.1f}s")
 except Exception:
@@ -92,14 +109,28 @@ except Exception:
 step("LeRobotDatasetMetadata")
 try:
     meta = LeRobotDatasetMetadata(REPO_ID, root=ROOT)
-    print("fps", meta.fps, "total_episodes", meta.total_episodes, "total_frames", meta.total_frames,
-          "total_tasks", meta.total_tasks, "robot_type", meta.robot_type)
+    print(
+        "fps",
+        meta.fps,
+        "total_episodes",
+        meta.total_episodes,
+        "total_frames",
+        meta.total_frames,
+        "total_tasks",
+        meta.total_tasks,
+        "robot_type",
+        meta.robot_type,
+    )
     print("features", list(meta.features))
     print("video_keys", meta.video_keys, "camera_keys", meta.camera_keys)
     print("tasks\n", meta.tasks)
     ep = meta.episodes[0]
     print("episode 0:", {k: v for k, v in ep.items() if not k.startswith("stats/")})
-    print("video path ep0:", meta.get_video_file_path(0, CAM), os.path.exists(os.path.join(ROOT, str(meta.get_video_file_path(0, CAM)))))
+    print(
+        "video path ep0:",
+        meta.get_video_file_path(0, CAM),
+        os.path.exists(os.path.join(ROOT, str(meta.get_video_file_path(0, CAM)))),
+    )
     print("data path ep0:", meta.get_data_file_path(0))
     print("stats keys", list(meta.stats))
     print("stats camera mean", np.asarray(meta.stats[CAM]["mean"]).tolist())
@@ -113,7 +144,8 @@ def check_dataset(backend):
         t0 = time.time()
         kw = {} if backend is None else {"video_backend": backend}
         ds = LeRobotDataset(REPO_ID, root=ROOT, **kw)
-        print(f"constructed in {time.time() - t0:.1f}s; ds.video_backend={getattr(ds, 'video_backend', getattr(ds, '_video_backend', '?'))}")
+        used = getattr(ds, "video_backend", getattr(ds, "_video_backend", "?"))
+        print(f"constructed in {time.time() - t0:.1f}s; ds.video_backend={used}")
         print("len(ds)", len(ds), "num_episodes", ds.num_episodes, "num_frames", ds.num_frames, "fps", ds.fps)
         print("meta.fps", ds.meta.fps, "total_episodes", ds.meta.total_episodes, "total_frames", ds.meta.total_frames)
         print("features", list(ds.meta.features))
@@ -161,7 +193,9 @@ def check_delta(backend):
         v = it[CAM]
         print("camera", describe(v), "pad", it.get(f"{CAM}_is_pad"))
         img_report("delta ds[100][0] (t-0.1 -> frame 97)", v[0], ref_key="f97")
-        img_report("delta ds[100][1] (t -> frame 100)", v[1], ref_key="f100", expected_mean=EXP["video_frame100_mean_rgb"])
+        img_report(
+            "delta ds[100][1] (t -> frame 100)", v[1], ref_key="f100", expected_mean=EXP["video_frame100_mean_rgb"]
+        )
         it0 = ds[0]
         print("ds[0] camera", describe(it0[CAM]), "pad", it0.get(f"{CAM}_is_pad"))
         img_report("delta ds[0][1] (frame 0)", it0[CAM][1], ref_key="f0")
