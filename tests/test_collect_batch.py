@@ -12,7 +12,7 @@ from test_collect import _collect, _shrink_object
 
 from rose_usd.collect import batch, newton_backend
 from rose_usd.collect.config import CollectConfig, NewtonConfig, SimDevice
-from rose_usd.collect.rollout import Perturbation, _pose7_to_matrix, perturbed_pose
+from rose_usd.collect.rollout import Perturbation, perturbed_pose, pose7_to_matrix
 from rose_usd.core import se3
 from rose_usd.errors import ConfigError
 from rose_usd.layers.robot import read_collect
@@ -24,7 +24,7 @@ def test_a_perturbation_turns_the_object_about_up_and_shifts_it():
     keeps its tilt and height, and its yaw grows by 4 deg."""
     tilt = se3.make_pose(se3.rotation_about([1.0, 0.0, 0.0], np.radians(10.0)), [0.1, 0.2, 0.05])
     q7 = np.concatenate([tilt[:3, 3], se3.quat_xyzw_from_matrix(tilt[:3, :3])])
-    moved = _pose7_to_matrix(perturbed_pose(q7, Perturbation(np.array([0.003, -0.002, 0.0]), 4.0, 0.3, 0.5)))
+    moved = pose7_to_matrix(perturbed_pose(q7, Perturbation(np.array([0.003, -0.002, 0.0]), 4.0, 0.3, 0.5)))
     np.testing.assert_allclose(moved[:3, 3], [0.103, 0.198, 0.05], atol=1e-12)
     np.testing.assert_allclose(
         moved[:3, :3], se3.rotation_about([0, 0, 1.0], np.radians(4.0)) @ tilt[:3, :3], atol=1e-9

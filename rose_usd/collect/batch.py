@@ -18,9 +18,8 @@ import numpy as np
 
 from rose_usd.collect import motion
 from rose_usd.collect.config import CollectConfig
-from rose_usd.collect.rollout import IMPRATIO, Perturbation, Rollout, judge, perturbed_pose
+from rose_usd.collect.rollout import Perturbation, Rollout, judge, mujoco_solver, perturbed_pose, pose7_to_matrix
 from rose_usd.collect.world import World
-from rose_usd.core import se3
 from rose_usd.sim import panda
 
 
@@ -36,26 +35,16 @@ class BatchSimulator:
 
     def __init__(self, world: World, dt_s: float, iterations: int, contacts_per_world: int):
         import warp as wp
-        from newton.solvers import SolverMuJoCo
 
         self.world, self.dt_s, self._wp = world, dt_s, wp
         self.contacts_per_world = contacts_per_world
-        self.solver = SolverMuJoCo(
-            world.model,
+        self.solver, self.scene_geoms, self.mover_geoms = mujoco_solver(
+            world,
+            iterations,
             separate_worlds=True,
             nconmax=contacts_per_world,
             njmax=6 * contacts_per_world + 64,
-            solver="newton",
-            integrator="implicitfast",
-            cone="elliptic",
-            impratio=IMPRATIO,
-            iterations=iterations,
-            ls_iterations=50,
-            enable_multiccd=True,
         )
-        geom_shape = self.solver.mjc_geom_to_newton_shape.numpy()[0]
-        self.scene_geoms = np.isin(geom_shape, world.scene_shapes)
-        self.mover_geoms = np.isin(geom_shape, world.robot_shapes + world.object_shapes)
         self.most_contacts = 0
 
     def set_objects(self, mass_kg: np.ndarray, friction: np.ndarray) -> None:
@@ -196,10 +185,6 @@ def run_batch(
     ]
 
 
-def _pose7_to_matrix(q7: np.ndarray) -> np.ndarray:
-    return se3.make_pose(se3.matrix_from_quat_xyzw(q7[..., 3:7]), q7[..., :3])
-
-
 def _rollout(plan, grasp, pert, path, cfg, k, log_q, log_qd, log_tcp, log_obj, deepest, wall, sim_s) -> Rollout:
     """World k's log as a judged ``Rollout``."""
     r = Rollout(grasp=grasp, perturbation=pert, rate_hz=plan.rate_hz)
@@ -207,8 +192,8 @@ def _rollout(plan, grasp, pert, path, cfg, k, log_q, log_qd, log_tcp, log_obj, d
     t = len(finite) if finite.all() else int(np.argmin(finite))
     r.q, r.qd = log_q[:t, k].astype(float), log_qd[:t, k].astype(float)
     r.tcp, r.object_pose = (
-        _pose7_to_matrix(log_tcp[:t, k].astype(float)),
-        _pose7_to_matrix(log_obj[:t, k].astype(float)),
+        pose7_to_matrix(log_tcp[:t, k].astype(float)),
+        pose7_to_matrix(log_obj[:t, k].astype(float)),
     )
     r.action_q = np.asarray(plan.q[:t], dtype=float)
     r.action_tcp = np.asarray(plan.tcp[:t], dtype=float)

@@ -110,7 +110,8 @@ class CollectConfig:
     """Task text of the dataset (default "": "move the <object> along its demonstrated path")."""
     render: bool = False
     """Also render camera video of every successful rollout from the reconstructed camera into the
-    LeRobot dataset, with Mitsuba (default false: about a second a frame on two CPU cores)."""
+    LeRobot dataset, with Mitsuba (default false: about 16 frames a second at 320 x 240 on two CPU
+    cores, benchmarks/results/collect-render)."""
     render_scale: float = field(default=0.5, metadata=limits(maximum=2.0))
     """Size of the rendered video relative to the input video's (default 0.5)."""
     render_spp: int = 4

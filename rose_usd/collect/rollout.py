@@ -82,29 +82,39 @@ IMPRATIO = 100.0
 (``collect/world.py`` says why)."""
 
 
+def mujoco_solver(world: World, iterations: int, **backend):
+    """SolverMuJoCo on ``world.model`` with the collect stage's contact settings (``collect/world.py``
+    says why each), on the backend ``backend`` names (``use_mujoco_cpu=True``, or mujoco_warp's
+    ``separate_worlds`` and contact buffers); and the masks, per MuJoCo geom, of the scene's geoms and
+    of the robot's and object's (for the penetration check)."""
+    from newton.solvers import SolverMuJoCo
+
+    solver = SolverMuJoCo(
+        world.model,
+        solver="newton",
+        integrator="implicitfast",
+        cone="elliptic",
+        impratio=IMPRATIO,
+        iterations=iterations,
+        ls_iterations=50,
+        enable_multiccd=True,
+        **backend,
+    )
+    geom_shape = solver.mjc_geom_to_newton_shape.numpy()[0]
+    scene = np.isin(geom_shape, world.scene_shapes)
+    movers = np.isin(geom_shape, world.robot_shapes + world.object_shapes)
+    return solver, scene, movers
+
+
 class Simulator:
     """SolverMuJoCo on one world, reused for every rollout (state reset, mass and friction set)."""
 
     def __init__(self, world: World, dt_s: float, iterations: int):
         import warp as wp
-        from newton.solvers import SolverMuJoCo
 
         self.world, self.dt_s = world, dt_s
         model = world.model
-        self.solver = SolverMuJoCo(
-            model,
-            use_mujoco_cpu=True,
-            solver="newton",
-            integrator="implicitfast",
-            cone="elliptic",
-            impratio=IMPRATIO,
-            iterations=iterations,
-            ls_iterations=50,
-            enable_multiccd=True,
-        )
-        geom_shape = self.solver.mjc_geom_to_newton_shape.numpy()[0]
-        self.scene_geoms = np.isin(geom_shape, world.scene_shapes)
-        self.mover_geoms = np.isin(geom_shape, world.robot_shapes + world.object_shapes)
+        self.solver, self.scene_geoms, self.mover_geoms = mujoco_solver(world, iterations, use_mujoco_cpu=True)
         self.base_mass = model.body_mass.numpy().copy()
         self.base_inertia = model.body_inertia.numpy().copy()
         self.base_mu = model.shape_material_mu.numpy().copy()
@@ -147,14 +157,15 @@ class Simulator:
         return float(max(0.0, -dist[pair].min())) if pair.any() else 0.0
 
 
-def _pose7_to_matrix(q7: np.ndarray) -> np.ndarray:
+def pose7_to_matrix(q7: np.ndarray) -> np.ndarray:
+    """(..., 7) position and quaternion xyzw (Newton's body_q) -> (..., 4, 4)."""
     return se3.make_pose(se3.matrix_from_quat_xyzw(q7[..., 3:7]), q7[..., :3])
 
 
 def perturbed_pose(q7: np.ndarray, perturbation: Perturbation) -> np.ndarray:
     """A free joint's coordinates (7,: position, quaternion xyzw) turned by the perturbation's yaw
     and shifted by its offset [m]."""
-    start = _pose7_to_matrix(np.asarray(q7, dtype=float))
+    start = pose7_to_matrix(np.asarray(q7, dtype=float))
     turn = se3.make_pose(se3.rotation_about([0.0, 0.0, 1.0], np.radians(perturbation.yaw_deg)), np.zeros(3))
     moved = start.copy()
     moved[:3, :3] = turn[:3, :3] @ start[:3, :3]
@@ -216,9 +227,9 @@ class _Ticks:
             return False
         self.log_q.append(jq[q0 : q0 + n])
         self.log_qd.append(state.joint_qd.numpy().astype(float)[d0 : d0 + n])
-        self.log_tcp.append(_pose7_to_matrix(body_q[w.robot_bodies[panda.TCP_LINK]]))
-        self.log_obj.append(_pose7_to_matrix(body_q[w.object_body]))
-        self.log_links.append(_pose7_to_matrix(body_q[self.link_bodies]))
+        self.log_tcp.append(pose7_to_matrix(body_q[w.robot_bodies[panda.TCP_LINK]]))
+        self.log_obj.append(pose7_to_matrix(body_q[w.object_body]))
+        self.log_links.append(pose7_to_matrix(body_q[self.link_bodies]))
         self.log_act.append(q_next)
         self.deepest = max(self.deepest, self.sim.penetration())
         return True

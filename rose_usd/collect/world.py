@@ -149,22 +149,15 @@ def _add_stage(b, stage: Usd.Stage, object_path: str) -> int:
 def _scene_collider(b, newton, workspace: tuple[np.ndarray, np.ndarray], cfg: NewtonConfig) -> list[int]:
     """Cut the builder's static meshes to the workspace box (lo, hi) [m] and split them into convex
     parts (MuJoCo sees a mesh as its hull); the scene's shape indices."""
-    import warp as wp
 
     statics = [s for s in range(b.shape_count) if b.shape_body[s] == -1 and b.shape_type[s] == newton.GeoType.MESH]
     lo, hi = workspace
     for s in statics:
-        mesh = b.shape_source[s]
-        xf = np.asarray(b.shape_transform[s], dtype=float)
-        v = np.asarray(mesh.vertices, dtype=float) * np.asarray(b.shape_scale[s], dtype=float)
-        v = v @ se3.matrix_from_quat_xyzw(xf[3:]).T + xf[:3]
-        cut = crop_to_box(v, np.asarray(mesh.indices).reshape(-1, 3), lo, hi)
+        cut = crop_to_box(_shape_vertices(b, s), np.asarray(b.shape_source[s].indices).reshape(-1, 3), lo, hi)
         if cut is None:  # nothing of it near the robot: leave a tiny far-away sliver out of the way
             b.shape_flags[s] = 0
             continue
-        b.shape_source[s] = newton.Mesh(cut[0], cut[1].reshape(-1), compute_inertia=False)
-        b.shape_transform[s] = wp.transform_identity()
-        b.shape_scale[s] = (1.0, 1.0, 1.0)
+        _set_world_mesh(b, newton, s, *cut)
     statics = [s for s in statics if b.shape_flags[s]]
     n_before = b.shape_count
     if statics:
@@ -179,14 +172,26 @@ def _scene_collider(b, newton, workspace: tuple[np.ndarray, np.ndarray], cfg: Ne
     centre = 0.5 * (np.asarray(lo, dtype=float) + np.asarray(hi, dtype=float))
     for s in parts:
         if b.shape_flags[s] and b.shape_type[s] == newton.GeoType.MESH:
-            mesh, xf = b.shape_source[s], np.asarray(b.shape_transform[s], dtype=float)
-            v = np.asarray(mesh.vertices, dtype=float) * np.asarray(b.shape_scale[s], dtype=float)
-            thick = thickened(v @ se3.matrix_from_quat_xyzw(xf[3:]).T + xf[:3], centre)
+            thick = thickened(_shape_vertices(b, s), centre)
             if thick is not None:
-                b.shape_source[s] = newton.Mesh(thick[0], thick[1].reshape(-1), compute_inertia=False)
-                b.shape_transform[s] = wp.transform_identity()
-                b.shape_scale[s] = (1.0, 1.0, 1.0)
+                _set_world_mesh(b, newton, s, *thick)
     return parts
+
+
+def _shape_vertices(b, s: int) -> np.ndarray:
+    """Mesh shape ``s``'s vertices in the world (its scale and transform applied)."""
+    xf = np.asarray(b.shape_transform[s], dtype=float)
+    v = np.asarray(b.shape_source[s].vertices, dtype=float) * np.asarray(b.shape_scale[s], dtype=float)
+    return v @ se3.matrix_from_quat_xyzw(xf[3:]).T + xf[:3]
+
+
+def _set_world_mesh(b, newton, s: int, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Make shape ``s`` the mesh (vertices in the world, faces (F, 3)) with no transform of its own."""
+    import warp as wp
+
+    b.shape_source[s] = newton.Mesh(vertices, np.asarray(faces).reshape(-1), compute_inertia=False)
+    b.shape_transform[s] = wp.transform_identity()
+    b.shape_scale[s] = (1.0, 1.0, 1.0)
 
 
 def thickened(vertices: np.ndarray, away_from: np.ndarray, *, flat_m: float = 1e-4, thickness_m: float = 0.002):

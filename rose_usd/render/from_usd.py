@@ -48,7 +48,7 @@ def read_lighting(stage: Usd.Stage) -> Lighting:
 class StageRenderer:
     """Renders a stage at its time codes: static meshes once, animated meshes re-posed per frame.
     ``extra`` items (not in the stage: a simulated robot's links) are drawn too, posed by the caller
-    with ``scene.set_pose``."""
+    with ``scene.set_poses``."""
 
     def __init__(self, stage: Usd.Stage, extra: list[RenderItem] = ()):
         self.stage = stage

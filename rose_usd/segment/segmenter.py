@@ -522,10 +522,8 @@ class Segmenter:
             if found is None:
                 continue
             ys, xs, d = found
-            ok = np.ones(len(d), bool)
             core_m = p.core_m + 0.5 * track.motion_m()
-            if arm is not None:
-                ok &= ~arm[ys, xs] | (d < core_m)
+            ok = np.ones(len(d), bool) if arm is None else ~arm[ys, xs] | (d < core_m)
             better = ok & (d < best[ys, xs])
             best[ys[better], xs[better]] = d[better]
             owner[ys[better], xs[better]] = k
