@@ -180,3 +180,71 @@ def test_rendered_video_shows_the_robot_from_the_reconstructed_camera(tmp_path, 
     differs = np.abs(video.astype(int) - without.astype(int)).max(axis=2) > 20
     assert 0 <= u < width and 0 <= v < height
     assert differs[max(v - 4, 0) : v + 5, max(u - 4, 0) : u + 5].mean() > 0.5
+
+
+def _add_to_scene_collider(out, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Append a closed mesh (world frame; the scene prim has no transform) to the scene's collider."""
+    from pxr import UsdGeom
+
+    layer = Sdf.Layer.FindOrOpen(str(layer_file(out, "scene")))
+    stage = Usd.Stage.Open(layer)
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath(paths.SCENE_COLLISION))
+    points = np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float32)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), dtype=np.int32)
+    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int32)
+    mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.concatenate([points, vertices.astype(np.float32)])))
+    mesh.GetFaceVertexCountsAttr().Set(
+        Vt.IntArray.FromNumpy(np.concatenate([counts, np.full(len(faces), 3, np.int32)]))
+    )
+    indices = np.concatenate([indices, (faces + len(points)).ravel().astype(np.int32)])
+    mesh.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(indices))
+    everything = np.concatenate([points, vertices])
+    mesh.GetExtentAttr().Set(
+        Vt.Vec3fArray.FromNumpy(np.stack([everything.min(0), everything.max(0)]).astype(np.float32))
+    )
+    layer.Save()
+
+
+def test_an_obstacle_on_the_straight_approach_is_gone_around(tmp_path, small_box_out, sample_case):
+    """A 4.5 cm cube put into the scene where the wrist passed on its way from home to the pre-grasp
+    (the base kept where it stood): the approach is planned around it (OMPL), the arm's logged
+    joint positions keep it clear, and the rollouts still carry the box."""
+    import trimesh
+
+    from rose_usd.collect import planning
+    from rose_usd.sim import panda
+    from rose_usd.usd.stage import read_provenance
+
+    before = read_collect(open_stage(small_box_out / "rose.usda"))
+    demos, _ = robomimic.read_hdf5(small_box_out / "dataset" / "robomimic.hdf5")
+    q = demos[0].obs["robot0_joint_pos"]
+    approach = np.arange(int(round(0.2 * 30)), int(round((0.2 + 1.5) * 30)))  # home 0.2 s, approach 1.5 s at 30 fps
+
+    def cube_at(tick):
+        wrist = before.base_pose @ panda.chain().forward(q[tick])[panda.chain().index("panda_link7")]
+        cube = trimesh.creation.box(extents=[0.045, 0.045, 0.045])
+        cube.apply_translation(wrist[:3, 3])
+        vf = (np.asarray(cube.vertices), np.asarray(cube.faces))
+        return vf, planning.ArmChecker(before.base_pose, [vf])
+
+    # the cube where the wrist passed, as far from the arm at home and at the pre-grasp as can be
+    ends = q[[0, approach[-1]]]
+    tick = max(approach[::3], key=lambda t: cube_at(t)[1].clearance(ends).min())
+    cube, obstacle = cube_at(tick)
+    assert obstacle.clearance(q[approach]).min() < 0  # the old approach went through it
+    assert obstacle.clearance(ends).min() > 0.02  # home and the pre-grasp are clear
+
+    out = tmp_path / "out"
+    shutil.copytree(small_box_out, out)
+    _add_to_scene_collider(out, *cube)
+    options = oracle_options()
+    Pipeline(sample_case, out, Options(backends=options.backends)).run("object")  # the scene changed
+    _shrink_object(out, 0.75)
+    x, y = before.base_pose[:2, 3]
+    yaw = np.degrees(np.arctan2(before.base_pose[1, 0], before.base_pose[0, 0]))
+    result = _collect(sample_case, out, base=f"{x},{y},{yaw}")
+    assert result.status == "ok" and result.successes >= 1, result.message
+    assert set(read_provenance(layer_file(out, "robot"))["results"]["rollout_approach"]) == {"planned"}
+    demos, _ = robomimic.read_hdf5(out / "dataset" / "robomimic.hdf5")
+    for demo in demos:  # from home to the start of the follow, the arm kept clear of the cube
+        assert obstacle.clearance(demo.obs["robot0_joint_pos"][: demo.attrs["follow_start"]]).min() > 0

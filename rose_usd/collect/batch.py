@@ -96,11 +96,11 @@ class BatchSimulator:
 
 
 def full_plan(
-    base_pose: np.ndarray, grasp_tcp: np.ndarray, path: np.ndarray, rate: float, cfg: CollectConfig
+    base_pose: np.ndarray, grasp_tcp: np.ndarray, path: np.ndarray, rate: float, cfg: CollectConfig, route=None
 ) -> motion.Plan:
     """Approach, grasp, lift, follow, place and release, planned for a grasp's world tool pose (4, 4)
-    and the object's path (N, 4, 4) as reconstructed."""
-    plan = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s)
+    and the object's path (N, 4, 4) as reconstructed; ``route`` as for :func:`motion.approach_plan`."""
+    plan = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s, route)
     follow = motion.lifted(motion.follow_poses(path, path[0], grasp_tcp), cfg.lift_m)
     motion.carry_plan(plan, base_pose, follow, cfg.lift_m)
     return plan
@@ -199,6 +199,7 @@ def _rollout(plan, grasp, pert, path, cfg, k, log_q, log_qd, log_tcp, log_obj, d
     r.action_tcp = np.asarray(plan.tcp[:t], dtype=float)
     r.phase = list(plan.phase[:t])
     r.penetration_m, r.ik_error_m, r.ik_error_deg = float(deepest), plan.ik_error_m, plan.ik_error_deg
+    r.approach = plan.approach
     r.wall_s, r.sim_s = wall, sim_s
     if t < len(finite):
         r.reason = f"the simulation diverged (NaN) in phase {plan.phase[t]!r}"

@@ -93,7 +93,11 @@ class CollectConfig:
     pose_noise_deg: float = field(default=5.0, metadata=limits(0.0))
     """Largest perturbation of the object's yaw [deg] (default 5)."""
     approach_s: float = 1.5
-    """Time from the home pose to the pre-grasp pose [s] (default 1.5)."""
+    """Time from the home pose to the pre-grasp pose [s], longer where a route around the scene
+    needs it (default 1.5)."""
+    approach_clearance_m: float = field(default=0.005, metadata=limits(0.0, 0.1))
+    """Clearance [m] the arm keeps from the scene and the objects from home to the pre-grasp: the
+    straight joint-space line where it keeps that, else a route OMPL's RRTConnect finds (default 0.005)."""
     max_drift_m: float = 0.02
     """Success: the object's pose in the hand moves less than this from the grasp [m] (default 0.02)."""
     max_drift_deg: float = 10.0

@@ -1,7 +1,8 @@
 """What the robot is told to do: joint targets per control tick, in phases.
 
-home -> pre-grasp (joint-space interpolation to an IK solution 10 cm back along the approach)
--> grasp (a straight descent) -> close (the fingers' target goes to 0; their drives' force limit
+home -> pre-grasp (to an IK solution 10 cm back along the approach, through joint space: the
+straight line, or around the scene where that collides, :mod:`rose_usd.collect.planning`) ->
+grasp (a straight descent) -> close (the fingers' target goes to 0; their drives' force limit
 squeezes) -> lift (to the path's first pose, ``lift_m`` higher) -> follow (the path at the
 video's times) -> place (down by ``lift_m``) -> release (fingers open, hand backs off).
 
@@ -13,6 +14,8 @@ rate: follow tick t is video frame t.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +28,9 @@ from rose_usd.sim import panda
 PREGRASP_M = 0.10
 """Distance of the pre-grasp pose behind the grasp along the approach [m]."""
 DESCEND_S = 0.8
+APPROACH_SPEED_RAD_S = 1.0
+"""Mean speed [rad/s] of the fastest joint along a planned approach (its peak is 1.5 times that,
+under the Panda's limits); the approach takes ``approach_s`` or longer when its route needs."""
 SETTLE_S = 0.1
 CLOSE_S = 0.5
 SQUEEZE_S = 0.3
@@ -83,6 +89,8 @@ class Plan:
     ik_error_m: float = 0.0
     """Largest IK position error on the Cartesian segments [m]."""
     ik_error_deg: float = 0.0
+    approach: str = "straight"
+    """How the approach's route was found (:class:`rose_usd.collect.planning.Route`)."""
 
     def __len__(self) -> int:
         return len(self.q)
@@ -93,6 +101,24 @@ class Plan:
         s = s * s * (3 - 2 * s)
         for si in s:
             q = q_from + si * (q_to - q_from)
+            q[7:] = fingers
+            self.q.append(q)
+            self.tcp.append(np.full((4, 4), np.nan))
+            self.phase.append(phase)
+
+    def joint_path(self, waypoints: np.ndarray, seconds: float, phase: str, fingers: float) -> None:
+        """Through joint-space waypoints (K, 7+) from the first (excluded) to the last: one smoothstep
+        in time over their length (the largest joint change per segment)."""
+        waypoints = np.asarray(waypoints, dtype=float)
+        lengths = np.abs(np.diff(waypoints, axis=0)).max(axis=1)
+        along = np.concatenate([[0.0], np.cumsum(lengths)]) / max(lengths.sum(), 1e-12)
+        s = np.linspace(0.0, 1.0, ticks(seconds, self.rate_hz) + 1)[1:]
+        s = s * s * (3 - 2 * s)
+        for si in s:
+            k = min(int(np.searchsorted(along, si, side="right")) - 1, len(lengths) - 1)
+            a = (si - along[k]) / max(along[k + 1] - along[k], 1e-12)
+            q = np.zeros(len(panda.JOINTS))
+            q[: waypoints.shape[1]] = waypoints[k] + a * (waypoints[k + 1] - waypoints[k])
             q[7:] = fingers
             self.q.append(q)
             self.tcp.append(np.full((4, 4), np.nan))
@@ -129,9 +155,28 @@ class Plan:
     def phase_ticks(self, phase: str) -> np.ndarray:
         return np.flatnonzero(np.asarray(self.phase) == phase)
 
+    def delayed(self, length: int) -> "Plan":
+        """This plan ``length`` ticks long: its first tick held longer (phase ``home``) in front."""
+        extra = max(0, length - len(self))
+        return dataclasses.replace(
+            self,
+            q=[self.q[0]] * extra + self.q,
+            tcp=[self.tcp[0]] * extra + self.tcp,
+            phase=["home"] * extra + self.phase,
+        )
 
-def approach_plan(base_pose: np.ndarray, grasp_tcp: np.ndarray, rate_hz: float, approach_s: float) -> Plan:
-    """Home -> pre-grasp -> grasp -> close, for a grasp's world tool pose (4, 4)."""
+
+def approach_plan(
+    base_pose: np.ndarray,
+    grasp_tcp: np.ndarray,
+    rate_hz: float,
+    approach_s: float,
+    route: Callable[[np.ndarray, np.ndarray], object] | None = None,
+) -> Plan:
+    """Home -> pre-grasp -> grasp -> close, for a grasp's world tool pose (4, 4).
+
+    ``route(q_home, q_pregrasp)`` returns the approach's :class:`rose_usd.collect.planning.Route`;
+    without it the approach is the straight joint-space line."""
     plan = Plan(rate_hz)
     open_, closed = panda.FINGER_OPEN_M, 0.0
     pre = grasp_tcp.copy()
@@ -139,7 +184,14 @@ def approach_plan(base_pose: np.ndarray, grasp_tcp: np.ndarray, rate_hz: float, 
     q_pre, pos_err, rot_err = ik.solve((se3.invert(base_pose) @ pre)[None], panda.HOME_Q, n_seeds=16, iterations=80)
     plan.ik_error_m, plan.ik_error_deg = float(pos_err[0]), float(rot_err[0])
     plan.hold(panda.HOME_Q, 0.2, "home", open_, np.full((4, 4), np.nan))
-    plan.joint_move(panda.HOME_Q.copy(), q_pre[0], approach_s, "approach", open_)
+    if route is None:
+        plan.joint_move(panda.HOME_Q.copy(), q_pre[0], approach_s, "approach", open_)
+    else:
+        found = route(panda.HOME_Q, q_pre[0])
+        plan.approach = found.how
+        length = np.abs(np.diff(found.waypoints, axis=0)).max(axis=1).sum()
+        seconds = max(approach_s, length / APPROACH_SPEED_RAD_S)
+        plan.joint_path(np.vstack([panda.HOME_Q[:7], found.waypoints[1:-1], q_pre[0][:7]]), seconds, "approach", open_)
     q = plan.path(base_pose, cartesian(pre, grasp_tcp, ticks(DESCEND_S, rate_hz)), q_pre[0], "descend", open_)
     plan.hold(q, SETTLE_S, "settle", open_, grasp_tcp)
     plan.fingers_to(q, open_, closed, CLOSE_S, "close", grasp_tcp)

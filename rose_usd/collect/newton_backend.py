@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rose_usd.collect import batch, grasping, motion
+from rose_usd.collect import batch, grasping, motion, planning
 from rose_usd.collect.author import Outcome, author_robot
 from rose_usd.collect.config import CollectConfig, SimDevice
 from rose_usd.collect.dataset import write_dataset
@@ -177,6 +177,16 @@ def _world(
     return build_world(ctx.stage, object_path, base_pose, (lo, hi), cfg.newton, worlds=worlds, device=device)
 
 
+def _arm_checker(ctx: StageContext, base_pose: np.ndarray, cfg: CollectConfig) -> planning.ArmChecker:
+    """The arm's clearance from the scene collider and every object where it stands at frame 0."""
+    obstacles = [object_layer.visual_mesh(ctx.stage, o) for o in object_layer.object_paths(ctx.stage)]
+    meshes = [(m.vertices, m.faces) for m in obstacles]
+    collider = scene_collider(ctx.stage)
+    if collider is not None:
+        meshes.append(collider)
+    return planning.ArmChecker(base_pose, meshes, clearance_m=cfg.approach_clearance_m)
+
+
 def _roll_out(
     sim: Simulator,
     ranked: grasping.Candidates,
@@ -185,15 +195,17 @@ def _roll_out(
     base_pose: np.ndarray,
     rate: float,
     cfg: CollectConfig,
+    checker: planning.ArmChecker,
 ) -> list[Rollout]:
-    """One rollout per ranked grasp and perturbation, each grasp's approach planned once; ``rate`` [Hz]."""
+    """One rollout per ranked grasp and perturbation, each grasp's approach planned once (around
+    what ``checker`` sees); ``rate`` [Hz]."""
     jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
     rollouts: list[Rollout] = []
     plans: dict[int, motion.Plan] = {}
     for g, pert in progress(jobs, "collect rollouts", total=len(jobs), unit="rollout"):
         if g not in plans:
             grasp_tcp = path[0] @ ranked.object_from_tcp[g]
-            plans[g] = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s)
+            plans[g] = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s, checker.route)
         rollouts.append(run_rollout(sim, plans[g], path, pert, g, cfg))
     return rollouts
 
@@ -246,6 +258,7 @@ def run(ctx: StageContext) -> None:
 
     rate = float(ctx.time_info.fps)
     device, batched = _device(cfg)
+    checker = _arm_checker(ctx, outcome.base_pose, cfg)
     t0 = time.perf_counter()
     if not batched:
         # the world: the stage, the scene cut around the path and the base, and the robot
@@ -253,11 +266,13 @@ def run(ctx: StageContext) -> None:
         sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
         t_build = time.perf_counter() - t0
         perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
-        rollouts = _roll_out(sim, ranked, perturbations, path, outcome.base_pose, rate, cfg)
+        rollouts = _roll_out(sim, ranked, perturbations, path, outcome.base_pose, rate, cfg, checker)
     else:
         perturbations = _perturbations(cfg, target.prior, target.prior.mass_kg, rng)
         jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
-        world, rollouts, t_build = _roll_out_batched(ctx, name, target, path, outcome.base_pose, ranked, jobs, device)
+        world, rollouts, t_build = _roll_out_batched(
+            ctx, name, target, path, outcome.base_pose, ranked, jobs, device, checker
+        )
     outcome.rollouts = rollouts
     successes = _judge_all(ctx, outcome, name, path)
     if batched and outcome.best >= 0:
@@ -281,6 +296,8 @@ def run(ctx: StageContext) -> None:
         rollout_mean_error_m=[_rounded(r.mean_error_m) for r in rollouts],
         rollout_final_error_m=[_rounded(r.final_error_m) for r in rollouts],
         rollout_drift_m=[_rounded(r.drift_m) for r in rollouts],
+        rollout_approach=[r.approach for r in rollouts],
+        approach_checks=checker.checks,
         device=device,
         worlds=world.worlds,
     )
@@ -308,6 +325,7 @@ def _roll_out_batched(
     ranked: grasping.Candidates,
     jobs: list[tuple[int, Perturbation]],
     device: str,
+    checker: planning.ArmChecker,
 ) -> tuple[World, list[Rollout], float]:
     """Every (grasp, perturbation) rollout of ``jobs`` as its own world of one model on ``device``,
     in batches of at most ``collect.newton.max_worlds``; (world, rollouts, build seconds)."""
@@ -319,7 +337,8 @@ def _roll_out_batched(
     sim = batch.BatchSimulator(world, cfg.newton.dt_s, cfg.newton.iterations, cfg.newton.contacts_per_world)
     t_build = time.perf_counter() - t0
     grasp_tcp = [path[0] @ ranked.object_from_tcp[g] for g in range(len(ranked))]
-    plans = [batch.full_plan(base_pose, tcp, path, rate, cfg) for tcp in grasp_tcp]
+    plans = [batch.full_plan(base_pose, tcp, path, rate, cfg, checker.route) for tcp in grasp_tcp]
+    plans = [p.delayed(max(len(q) for q in plans)) for p in plans]  # one length for every world
     rollouts: list[Rollout] = []
     for start in progress(range(0, len(jobs), size), "collect batches", total=-(-len(jobs) // size), unit="batch"):
         chunk = jobs[start : start + size]

@@ -66,6 +66,8 @@ class Rollout:
     ik_error_m: float = 0.0
     """Largest IK position error of the plan's Cartesian segments [m]."""
     ik_error_deg: float = 0.0
+    approach: str = "straight"
+    """How the approach's route was found (:class:`rose_usd.collect.planning.Route`)."""
     hand_lag_m: float = float("nan")
     """Largest distance of the tool from its commanded pose over the follow [m]."""
     hand_lag_deg: float = float("nan")
@@ -245,6 +247,7 @@ class _Ticks:
         result.phase = list(plan.phase[:t])
         result.penetration_m = self.deepest
         result.ik_error_m, result.ik_error_deg = plan.ik_error_m, plan.ik_error_deg
+        result.approach = plan.approach
         result.sim_s = t * self.substeps * self.dt
 
 
@@ -335,5 +338,7 @@ def judge(r: Rollout, path: np.ndarray, carry_from: int, cfg: CollectConfig) -> 
         failed.insert(
             0, f"the arm could not follow the path (IK {100 * r.ik_error_m:.1f} cm, {r.ik_error_deg:.0f} deg off)"
         )
+    if failed and r.approach.endswith("blocked"):
+        failed.insert(0, f"no clear approach from home ({r.approach}): the arm took the straight line")
     r.success = not failed
     r.reason = "; ".join(failed)
