@@ -12,7 +12,9 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    ``max_points`` points. The hand and other objects are outside the mask, so occlusion only
    removes points.
 3. **Registration.** Point-to-plane ICP (Gauss-Newton, Cauchy weights) of the observed points
-   onto the model, from a constant-velocity prediction, coarse to fine (3 cm, 1.5 cm, 8 mm
+   onto the model, from a constant-velocity prediction (from the last pose when the two frames
+   before were not both tracked: the step onto a re-acquired pose is no velocity, and carried on
+   it spun a ball 93 deg a frame), coarse to fine (3 cm, 1.5 cm, 8 mm
    correspondence radius). Model points facing away from the camera are never matched (a mug's
    far wall). A weak pull toward the prediction keeps what depth cannot see (a can's spin about
    its axis) at the predicted motion instead of drifting. It is one damping for all six
@@ -379,7 +381,8 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
             reacquired += 1
         else:
             score = functools.partial(silhouette_score, t, mask)
-            fit, moved = _registered(model, observed, cam[:3, 3], motions, t, cfg, score)
+            steady = t >= 2 and tracked[t - 1] and tracked[t - 2]
+            fit, moved = _registered(model, observed, cam[:3, 3], motions, t, cfg, score, steady=steady)
             slid += moved
         if t == 0:
             iou0 = silhouette_iou(model, fit.motion, mask, occluders(0), cam, K)
@@ -445,11 +448,14 @@ def _finish(name: str, motions, tracked, fitness, cfg, counts: dict, iou0: float
     return filled, confidence, facts
 
 
-def _registered(model: Model, observed: np.ndarray, cam_pos: np.ndarray, motions: list, t: int, cfg, score):
-    """Registration from the damped constant-velocity prediction; where depth leaves a direction
-    free, slid along it to where ``score()`` (fitness plus silhouette IoU) is best (module step 3).
-    Returns the fit and whether the slide moved it."""
-    start = _predict(motions) if t else np.eye(4)
+def _registered(
+    model: Model, observed: np.ndarray, cam_pos: np.ndarray, motions: list, t: int, cfg, score, *, steady: bool
+):
+    """Registration from the damped constant-velocity prediction (from the last pose when the two
+    frames before were not both tracked: the step from a held or re-acquired pose is no velocity);
+    where depth leaves a direction free, slid along it to where ``score()`` (fitness plus
+    silhouette IoU) is best (module step 3). Returns the fit and whether the slide moved it."""
+    start = (_predict(motions) if steady else motions[-1]) if t else np.eye(4)
     fit = register(model, observed, cam_pos, start, prior_weight=cfg.prior_weight)
     axis = weak_axis(model, observed, fit.motion, cam_pos) if t and cfg.slide_span_m > 0 else None
     if axis is None:
