@@ -4,16 +4,19 @@ The arm is points on each link's collision mesh (:func:`rose_usd.collect.author.
 about ``spacing_m`` apart, their vertices included), placed by the Panda's forward kinematics. A
 configuration is clear when every point lies at least ``clearance_m`` outside the obstacles: the
 scene collider and the objects where they stand at frame 0 (signed distances to their closed
-meshes, Open3D's raycasting scene). The base link, bolted to the support, is not checked.
+meshes, Open3D's raycasting scene, five rays voting on the sign). The base link, bolted to the support, is not checked.
 
 The straight line in joint space is kept when it is clear at every ``step_rad`` (largest joint
 change). Otherwise OMPL's RRTConnect searches around it in the arm's 7-D joint space within its
-limits for ``time_s``, and OMPL's simplifier shortens what it found. When it finds nothing (or
+limits for ``time_s``, and OMPL's simplifier shortens what it found. OMPL's random numbers are
+seeded once per process (``OMPL_SEED``), so a run that finds its routes within the time gives the
+same routes every time. When it finds nothing (or
 an end is itself not clear) the straight line stays and the route says so.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +25,17 @@ from rose_usd.core.metrics import SignedDistance
 from rose_usd.sim import panda
 
 ARM = 7
+OMPL_SEED = 1
+
+
+@functools.cache
+def _seed_ompl() -> None:
+    """Seed OMPL's random numbers, once per process (OMPL takes a seed only before its first
+    random number)."""
+    from ompl import util as ou
+
+    ou.setLogLevel(ou.LOG_WARN)
+    ou.RNG.setSeed(OMPL_SEED)
 
 
 @dataclass(frozen=True)
@@ -73,7 +87,7 @@ class ArmChecker:
             vertices.append(np.asarray(v, dtype=float))
             faces.append(np.asarray(f) + offset)
             offset += len(v)
-        self.distance = SignedDistance(np.concatenate(vertices), np.concatenate(faces)) if vertices else None
+        self.distance = SignedDistance(np.concatenate(vertices), np.concatenate(faces), rays=5) if vertices else None
         self.checks = 0
         """Configurations checked so far."""
 
@@ -127,9 +141,8 @@ def _rrt_connect(checker: ArmChecker, a: np.ndarray, b: np.ndarray, *, time_s: f
     waypoints (K, 7), None when it found no exact solution in ``time_s``."""
     from ompl import base as ob
     from ompl import geometric as og
-    from ompl import util as ou
 
-    ou.setLogLevel(ou.LOG_WARN)
+    _seed_ompl()
     chain = panda.chain()
     space = ob.RealVectorStateSpace(ARM)
     bounds = ob.RealVectorBounds(ARM)
@@ -155,5 +168,5 @@ def _rrt_connect(checker: ArmChecker, a: np.ndarray, b: np.ndarray, *, time_s: f
     solved = setup.solve(time_s)
     if not solved or not setup.haveExactSolutionPath():
         return None
-    setup.simplifySolution(min(1.0, time_s))
+    setup.simplifySolution()  # to the end, not for a time: the same path under any load
     return np.array([[s[j] for j in range(ARM)] for s in setup.getSolutionPath().getStates()])
