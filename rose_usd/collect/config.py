@@ -78,6 +78,9 @@ class CollectConfig:
     base: tuple[float, ...] = field(default=(), metadata={"parse": parse_base})
     """Robot base "x,y" or "x,y,yaw_deg" in the world [m, deg], on the support's height
     (default "": placed where the whole path is best reachable)."""
+    base_tries: int = 2
+    """Bases tried, best reachability first, while every rollout from the ones before failed (a
+    base placed by reachability only; default 2)."""
     lift_m: float = field(default=0.01, metadata=limits(0.0))
     """The object is carried this far above its reconstructed path, clear of the support [m] (default 0.01)."""
     max_width_m: float = 0.076

@@ -248,8 +248,8 @@ def base_candidates(path: np.ndarray, support_z: float, scene_points: np.ndarray
     return np.array(out)
 
 
-def place_base(path: np.ndarray, cands: Candidates, support_z: float, scene_points: np.ndarray) -> np.ndarray:
-    """The base pose from which the best few grasps reach most of the path."""
+def place_bases(path: np.ndarray, cands: Candidates, support_z: float, scene_points: np.ndarray) -> np.ndarray:
+    """The base poses (B, 4, 4), best first: from the first the best few grasps reach most of the path."""
     bases = base_candidates(path, support_z, scene_points)
     if len(bases) == 0:
         raise NoGrasp("no place for the robot base: the scene stands above the support all around the path")
@@ -259,7 +259,7 @@ def place_base(path: np.ndarray, cands: Candidates, support_z: float, scene_poin
     best = np.argmax(score, axis=1)
     rows = np.arange(len(bases))
     order = np.lexsort((worst[rows, best], -reached[rows, best]))
-    return bases[order[0]]
+    return bases[order]
 
 
 def chained_reach(base_pose: np.ndarray, path: np.ndarray, object_from_tcp: np.ndarray, lift_m: float, chunk: int = 8):

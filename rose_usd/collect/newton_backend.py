@@ -30,6 +30,37 @@ from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
 
 
+def _roll_out_at(
+    ctx: StageContext,
+    name: str,
+    target: _Target,
+    path: np.ndarray,
+    base_pose: np.ndarray,
+    ranked: grasping.Candidates,
+    rng: np.random.Generator,
+) -> tuple[World, list[Rollout], float, planning.ArmChecker]:
+    """Every (ranked grasp, perturbation) rollout with the robot at ``base_pose``: one world on the
+    CPU, one after another, or every rollout its own world on a GPU; (world, rollouts, build
+    seconds, the approach's checker)."""
+    cfg: CollectConfig = ctx.config
+    rate = float(ctx.time_info.fps)
+    device, batched = _device(cfg)
+    checker = _arm_checker(ctx, base_pose, cfg)
+    t0 = time.perf_counter()
+    if not batched:
+        # the world: the stage, the scene cut around the path and the base, and the robot
+        world = _world(ctx, name, target, path, base_pose)
+        sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
+        t_build = time.perf_counter() - t0
+        perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
+        rollouts = _roll_out(sim, ranked, perturbations, path, base_pose, rate, cfg, checker)
+        return world, rollouts, t_build, checker
+    perturbations = _perturbations(cfg, target.prior, target.prior.mass_kg, rng)
+    jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
+    world, rollouts, t_build = _roll_out_batched(ctx, name, target, path, base_pose, ranked, jobs, device, checker)
+    return world, rollouts, t_build, checker
+
+
 def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray] | None:
     """The object to move and its path (N, 4, 4): the configured one, else the one whose path is longest."""
     names = object_layer.object_paths(ctx.stage)
@@ -122,8 +153,9 @@ def _target(ctx: StageContext, name: str, path: np.ndarray, rng: np.random.Gener
 
 def _grasps_and_base(
     cfg: CollectConfig, target: _Target, path: np.ndarray, outcome: Outcome, rng: np.random.Generator
-) -> tuple[grasping.Candidates, grasping.Candidates]:
-    """The grasp candidates and the ranked few to roll out; the base pose goes into ``outcome``.
+) -> tuple[grasping.Candidates, grasping.Candidates, np.ndarray]:
+    """The grasp candidates, the ranked few to roll out and the other base poses to try, best
+    first (none when rose.toml places the base); the base pose goes into ``outcome``.
 
     Raises:
         grasping.NoGrasp: no grasp fits, is free of the scene or reaches the path.
@@ -148,11 +180,13 @@ def _grasps_and_base(
             se3.rotation_about([0.0, 0.0, 1.0], np.radians(yaw[0] if yaw else 0.0)), [x, y, target.support_z]
         )
         outcome.base_source = "user"
+        others = np.zeros((0, 4, 4))
     else:
-        base = grasping.place_base(path, cands, target.support_z, target.scene_points)
+        bases = grasping.place_bases(path, cands, target.support_z, target.scene_points)
+        base, others = bases[0], bases[1:]
     outcome.base_pose = base
     ranked = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
-    return cands, ranked
+    return cands, ranked, others
 
 
 def _world(
@@ -248,7 +282,7 @@ def run(ctx: StageContext) -> None:
 
     outcome = Outcome("ok", object_name=name)
     try:
-        cands, ranked = _grasps_and_base(cfg, target, path, outcome, rng)
+        cands, ranked, other_bases = _grasps_and_base(cfg, target, path, outcome, rng)
     except grasping.NoGrasp as why:
         status = "unreachable" if "reach" in str(why) else "no-grasp"
         outcome.status, outcome.message = status, str(why)
@@ -256,23 +290,20 @@ def run(ctx: StageContext) -> None:
         return
     t_plan = time.perf_counter() - t_start
 
-    rate = float(ctx.time_info.fps)
-    device, batched = _device(cfg)
-    checker = _arm_checker(ctx, outcome.base_pose, cfg)
-    t0 = time.perf_counter()
-    if not batched:
-        # the world: the stage, the scene cut around the path and the base, and the robot
-        world = _world(ctx, name, target, path, outcome.base_pose)
-        sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
-        t_build = time.perf_counter() - t0
-        perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
-        rollouts = _roll_out(sim, ranked, perturbations, path, outcome.base_pose, rate, cfg, checker)
-    else:
-        perturbations = _perturbations(cfg, target.prior, target.prior.mass_kg, rng)
-        jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
-        world, rollouts, t_build = _roll_out_batched(
-            ctx, name, target, path, outcome.base_pose, ranked, jobs, device, checker
-        )
+    device, batched = _device(cfg)  # (batched: the best rollout's link poses come from its joints)
+    world, rollouts, t_build, checker = _roll_out_at(ctx, name, target, path, outcome.base_pose, ranked, rng)
+    bases_tried = 1
+    for base in other_bases:
+        if any(r.success for r in rollouts) or bases_tried >= cfg.base_tries:
+            break
+        try:  # every rollout failed: the next base, where the grasps reach the path from there too
+            ranked_here = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
+        except grasping.NoGrasp:
+            continue
+        bases_tried += 1
+        say(f"collect: no rollout succeeded from the base at {np.round(outcome.base_pose[:2, 3], 3)}; trying the next")
+        outcome.base_pose, ranked = base, ranked_here
+        world, rollouts, t_build, checker = _roll_out_at(ctx, name, target, path, base, ranked, rng)
     outcome.rollouts = rollouts
     successes = _judge_all(ctx, outcome, name, path)
     if batched and outcome.best >= 0:
@@ -298,6 +329,7 @@ def run(ctx: StageContext) -> None:
         rollout_drift_m=[_rounded(r.drift_m) for r in rollouts],
         rollout_approach=[r.approach for r in rollouts],
         approach_checks=checker.checks,
+        bases_tried=bases_tried,
         device=device,
         worlds=world.worlds,
     )
