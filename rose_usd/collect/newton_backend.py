@@ -30,37 +30,6 @@ from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
 
 
-def _roll_out_at(
-    ctx: StageContext,
-    name: str,
-    target: _Target,
-    path: np.ndarray,
-    base_pose: np.ndarray,
-    ranked: grasping.Candidates,
-    rng: np.random.Generator,
-) -> tuple[World, list[Rollout], float, planning.ArmChecker]:
-    """Every (ranked grasp, perturbation) rollout with the robot at ``base_pose``: one world on the
-    CPU, one after another, or every rollout its own world on a GPU; (world, rollouts, build
-    seconds, the approach's checker)."""
-    cfg: CollectConfig = ctx.config
-    rate = float(ctx.time_info.fps)
-    device, batched = _device(cfg)
-    checker = _arm_checker(ctx, base_pose, cfg)
-    t0 = time.perf_counter()
-    if not batched:
-        # the world: the stage, the scene cut around the path and the base, and the robot
-        world = _world(ctx, name, target, path, base_pose)
-        sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
-        t_build = time.perf_counter() - t0
-        perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
-        rollouts = _roll_out(sim, ranked, perturbations, path, base_pose, rate, cfg, checker)
-        return world, rollouts, t_build, checker
-    perturbations = _perturbations(cfg, target.prior, target.prior.mass_kg, rng)
-    jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
-    world, rollouts, t_build = _roll_out_batched(ctx, name, target, path, base_pose, ranked, jobs, device, checker)
-    return world, rollouts, t_build, checker
-
-
 def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray] | None:
     """The object to move and its path (N, 4, 4): the configured one, else the one whose path is longest."""
     names = object_layer.object_paths(ctx.stage)
@@ -242,6 +211,37 @@ def _roll_out(
             plans[g] = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s, checker.route)
         rollouts.append(run_rollout(sim, plans[g], path, pert, g, cfg))
     return rollouts
+
+
+def _roll_out_at(
+    ctx: StageContext,
+    name: str,
+    target: _Target,
+    path: np.ndarray,
+    base_pose: np.ndarray,
+    ranked: grasping.Candidates,
+    rng: np.random.Generator,
+) -> tuple[World, list[Rollout], float, planning.ArmChecker]:
+    """Every (ranked grasp, perturbation) rollout with the robot at ``base_pose``: one world on the
+    CPU, one after another, or every rollout its own world on a GPU; (world, rollouts, build
+    seconds, the approach's checker)."""
+    cfg: CollectConfig = ctx.config
+    rate = float(ctx.time_info.fps)
+    device, batched = _device(cfg)
+    checker = _arm_checker(ctx, base_pose, cfg)
+    t0 = time.perf_counter()
+    if not batched:
+        # the world: the stage, the scene cut around the path and the base, and the robot
+        world = _world(ctx, name, target, path, base_pose)
+        sim = Simulator(world, cfg.newton.dt_s, cfg.newton.iterations)
+        t_build = time.perf_counter() - t0
+        perturbations = _perturbations(cfg, target.prior, world.object_mass_kg, rng)
+        rollouts = _roll_out(sim, ranked, perturbations, path, base_pose, rate, cfg, checker)
+        return world, rollouts, t_build, checker
+    perturbations = _perturbations(cfg, target.prior, target.prior.mass_kg, rng)
+    jobs = [(g, p) for g in range(len(ranked)) for p in perturbations]
+    world, rollouts, t_build = _roll_out_batched(ctx, name, target, path, base_pose, ranked, jobs, device, checker)
+    return world, rollouts, t_build, checker
 
 
 def _judge_all(ctx: StageContext, outcome: Outcome, name: str, path: np.ndarray) -> list[int]:
