@@ -90,7 +90,7 @@ def test_joint_path_passes_every_waypoint_in_order_and_ends_at_the_last():
 
 def test_a_delayed_plan_holds_its_first_tick_in_front():
     plan = motion.Plan(rate_hz=30.0)
-    plan.joint_move(panda.HOME_Q.copy(), panda.HOME_Q + 0.1, 0.5, "approach", 0.04)
+    plan.joint_path(np.stack([panda.HOME_Q, panda.HOME_Q + 0.1]), 0.5, "approach", 0.04)
     longer = plan.delayed(len(plan) + 7)
     assert len(longer) == len(plan) + 7 and longer.phase[:7] == ["home"] * 7
     assert all(np.array_equal(q, plan.q[0]) for q in longer.q[:8]) and longer.q[7:] == plan.q

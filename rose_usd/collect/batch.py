@@ -96,7 +96,7 @@ class BatchSimulator:
 
 
 def full_plan(
-    base_pose: np.ndarray, grasp_tcp: np.ndarray, path: np.ndarray, rate: float, cfg: CollectConfig, route=None
+    base_pose: np.ndarray, grasp_tcp: np.ndarray, path: np.ndarray, rate: float, cfg: CollectConfig, route
 ) -> motion.Plan:
     """Approach, grasp, lift, follow, place and release, planned for a grasp's world tool pose (4, 4)
     and the object's path (N, 4, 4) as reconstructed; ``route`` as for :func:`motion.approach_plan`."""

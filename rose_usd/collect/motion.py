@@ -95,17 +95,6 @@ class Plan:
     def __len__(self) -> int:
         return len(self.q)
 
-    def joint_move(self, q_from: np.ndarray, q_to: np.ndarray, seconds: float, phase: str, fingers: float) -> None:
-        n = ticks(seconds, self.rate_hz)
-        s = np.linspace(0.0, 1.0, n + 1)[1:]
-        s = s * s * (3 - 2 * s)
-        for si in s:
-            q = q_from + si * (q_to - q_from)
-            q[7:] = fingers
-            self.q.append(q)
-            self.tcp.append(np.full((4, 4), np.nan))
-            self.phase.append(phase)
-
     def joint_path(self, waypoints: np.ndarray, seconds: float, phase: str, fingers: float) -> None:
         """Through joint-space waypoints (K, 7+) from the first (excluded) to the last: one smoothstep
         in time over their length (the largest joint change per segment)."""
@@ -171,12 +160,12 @@ def approach_plan(
     grasp_tcp: np.ndarray,
     rate_hz: float,
     approach_s: float,
-    route: Callable[[np.ndarray, np.ndarray], object] | None = None,
+    route: Callable[[np.ndarray, np.ndarray], object],
 ) -> Plan:
     """Home -> pre-grasp -> grasp -> close, for a grasp's world tool pose (4, 4).
 
-    ``route(q_home, q_pregrasp)`` returns the approach's :class:`rose_usd.collect.planning.Route`;
-    without it the approach is the straight joint-space line."""
+    ``route(q_home, q_pregrasp)`` returns the approach's :class:`rose_usd.collect.planning.Route`
+    (``ArmChecker.route``)."""
     plan = Plan(rate_hz)
     open_, closed = panda.FINGER_OPEN_M, 0.0
     pre = grasp_tcp.copy()
@@ -184,14 +173,11 @@ def approach_plan(
     q_pre, pos_err, rot_err = ik.solve((se3.invert(base_pose) @ pre)[None], panda.HOME_Q, n_seeds=16, iterations=80)
     plan.ik_error_m, plan.ik_error_deg = float(pos_err[0]), float(rot_err[0])
     plan.hold(panda.HOME_Q, 0.2, "home", open_, np.full((4, 4), np.nan))
-    if route is None:
-        plan.joint_move(panda.HOME_Q.copy(), q_pre[0], approach_s, "approach", open_)
-    else:
-        found = route(panda.HOME_Q, q_pre[0])
-        plan.approach = found.how
-        length = np.abs(np.diff(found.waypoints, axis=0)).max(axis=1).sum()
-        seconds = max(approach_s, length / APPROACH_SPEED_RAD_S)
-        plan.joint_path(np.vstack([panda.HOME_Q[:7], found.waypoints[1:-1], q_pre[0][:7]]), seconds, "approach", open_)
+    found = route(panda.HOME_Q, q_pre[0])  # from home's 7 arm joints to the pre-grasp's
+    plan.approach = found.how
+    length = np.abs(np.diff(found.waypoints, axis=0)).max(axis=1).sum()
+    seconds = max(approach_s, length / APPROACH_SPEED_RAD_S)
+    plan.joint_path(found.waypoints, seconds, "approach", open_)
     q = plan.path(base_pose, cartesian(pre, grasp_tcp, ticks(DESCEND_S, rate_hz)), q_pre[0], "descend", open_)
     plan.hold(q, SETTLE_S, "settle", open_, grasp_tcp)
     plan.fingers_to(q, open_, closed, CLOSE_S, "close", grasp_tcp)
