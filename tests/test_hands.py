@@ -88,3 +88,25 @@ def test_found_hands_are_the_interactors_and_no_objects(monkeypatch, sample_case
         assert not (read_mask(out / "masks" / "Box" / f"{t:06d}.png") & area).any(), t
         assert read_mask(out / "masks" / "Interactor" / f"{t:06d}.png")[area].all(), t
     assert read_mask(out / "masks" / "Box" / "000005.png").any()
+
+
+def test_a_hand_lost_for_a_few_frames_is_bridged():
+    """A hand tracked in frames 0-1, lost in 2-5, found again in 6 a little further on: frames
+    2-5 get it, interpolated; the other hand, found throughout, is not doubled; a hand found far
+    from where one was lost is not joined to it."""
+    from rose_usd.geometry.hands import bridge_gaps
+
+    still = _open_hand((150.0, 0.0))
+    moving = [_open_hand((0.0, 2.0 * t)) for t in range(8)]
+    found = [[still, moving[0]], [still, moving[1]], [still], [still], [still], [still], [still, moving[6]], [still]]
+    bridged = bridge_gaps(found)
+    for t in range(2, 6):
+        assert len(bridged[t]) == 2
+        new = bridged[t][1]
+        np.testing.assert_allclose(new.landmarks_px, moving[t].landmarks_px, atol=1e-9)
+        assert new.score == pytest.approx(0.45)
+    assert [len(h) for h in bridged] == [2, 2, 2, 2, 2, 2, 2, 1]  # not carried past its last frame
+    far = [[moving[0]], [], [], [_open_hand((0.0, 150.0))]]
+    assert [len(h) for h in bridge_gaps(far)] == [1, 0, 0, 1]
+    long_gap = [[moving[0]]] + [[] for _ in range(16)] + [[moving[1]]]
+    assert sum(len(h) for h in bridge_gaps(long_gap)) == 2

@@ -54,6 +54,12 @@ class Hand:
         """Index to little finger base distance [px]: the hand's scale in the image."""
         return float(np.linalg.norm(self.landmarks_px[5] - self.landmarks_px[17]))
 
+    @property
+    def size_px(self) -> float:
+        """The diagonal of the landmarks' bounding box [px]: a scale that holds for a hand seen
+        edge-on too (its palm width then shrinks to a few pixels)."""
+        return float(np.linalg.norm(np.ptp(self.landmarks_px, axis=0)))
+
 
 @contextlib.contextmanager
 def _quiet_stderr():
@@ -166,6 +172,44 @@ def distinct(hands: list[Hand], *, overlap: float = 0.5) -> list[Hand]:
         if all(np.median(np.linalg.norm(hand.landmarks_px - k.landmarks_px, axis=1)) > overlap * scale for k in kept):
             kept.append(hand)
     return kept
+
+
+def _near(a: Hand, b: Hand, within: float) -> bool:
+    """Whether b's landmarks lie, on median, within ``within`` hand sizes of a's."""
+    scale = max(min(a.size_px, b.size_px), 1.0)
+    return bool(np.median(np.linalg.norm(a.landmarks_px - b.landmarks_px, axis=1)) <= within * scale)
+
+
+def bridge_gaps(found: list[list[Hand]], *, max_gap: int = 15, reach: float = 0.6) -> list[list[Hand]]:
+    """The hands of every frame with short losses bridged: a hand that is not found in the next
+    frame and is found again within ``max_gap`` frames, within ``reach`` hand sizes of where it
+    was lost, is put in the frames between by interpolating its landmarks (MediaPipe's tracking
+    drops a hand that holds something for a few frames, and its palm detector takes a while to
+    find it again). A bridged hand's score is half the lower of its two ends'."""
+    out = [list(hands) for hands in found]
+    n = len(found)
+    for t in range(n - 1):
+        for lost in found[t]:
+            if any(_near(lost, h, 0.3) for h in out[t + 1]):
+                continue
+            for t2 in range(t + 2, min(n, t + 2 + max_gap)):
+                again = next((h for h in found[t2] if _near(lost, h, reach)), None)
+                if again is None:
+                    continue
+                if any(_near(again, h, 0.3) for h in found[t2 - 1]):
+                    break  # found again, but it was there the frame before: another hand
+                for k in range(t + 1, t2):
+                    w = (k - t) / (t2 - t)
+                    between = Hand(
+                        (1 - w) * lost.landmarks_px + w * again.landmarks_px,
+                        (1 - w) * lost.relative_depth + w * again.relative_depth,
+                        lost.side if lost.score >= again.score else again.side,
+                        0.5 * min(lost.score, again.score),
+                    )
+                    if not any(_near(between, h, 0.3) for h in out[k]):
+                        out[k].append(between)
+                break
+    return out
 
 
 def hand_mask(hands: list[Hand], shape: tuple[int, int], *, finger_width: float = 0.22) -> np.ndarray:

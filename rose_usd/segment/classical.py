@@ -9,7 +9,7 @@ import numpy as np
 
 from rose_usd.errors import EnvironmentProblem, InputError
 from rose_usd.geometry.background import StaticBackground
-from rose_usd.geometry.hands import Hand, HandDetector, hand_mask
+from rose_usd.geometry.hands import Hand, HandDetector, bridge_gaps, hand_mask
 from rose_usd.geometry.support import SupportSurface
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
@@ -124,8 +124,8 @@ def _hand_pixels(seg: Segmenter, t: int, found_hands: list[list[Hand]]) -> np.nd
 
 
 def _found_hands(ctx: StageContext) -> list[list[Hand]] | None:
-    """The hands in every frame (a forward pass: the detector tracks them from frame to frame),
-    None with a warning when the hand models are not installed."""
+    """The hands in every frame (a forward pass: the detector tracks them from frame to frame;
+    short losses bridged), None with a warning when the hand models are not installed."""
     try:
         detector = HandDetector(ctx.case.fps)
     except EnvironmentProblem as exc:
@@ -133,4 +133,5 @@ def _found_hands(ctx: StageContext) -> list[list[Hand]] | None:
         return None
     with detector:
         n = ctx.time_info.n_frames
-        return [detector.detect(ctx.case.rgb(t), t) for t in progress(range(n), "segment: hands", total=n)]
+        found = [detector.detect(ctx.case.rgb(t), t) for t in progress(range(n), "segment: hands", total=n)]
+    return bridge_gaps(found)
