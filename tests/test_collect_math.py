@@ -154,3 +154,34 @@ def test_a_flat_scene_part_is_thickened_into_the_scene():
         assert len(faces) == 12  # a box
     cube = np.array([[x, y, z] for x in (0, 0.1) for y in (0, 0.1) for z in (0, 0.1)], float)
     assert thickened(cube, away_from=np.zeros(3)) is None
+    sliver = np.array([[0, 0, 0.7], [0.02, 0, 0.7], [0, 0.02, 0.7005], [0.02, 0.02, 0.7005]], float)
+    assert thickened(sliver, away_from=np.array([0.0, 0.0, 1.5])) is not None  # 0.35 mm thick
+
+
+def test_flat_convex_parts_become_slabs_mujoco_accepts():
+    """A convex-mesh scene part with no thickness (CoACD leaves such slivers, a 0.4 mm triangle
+    on the sample) made MuJoCo's CPU backend refuse the whole world; thickened, the world builds
+    and a part with volume is left as it was."""
+    import warp as wp
+    from newton.solvers import SolverMuJoCo
+
+    from rose_usd.collect.world import thicken_flat_parts
+    from rose_usd.sim.engine import newton as load_newton
+
+    newton = load_newton()
+    b = newton.ModelBuilder()
+    SolverMuJoCo.register_custom_attributes(b)
+    slab = trimesh.creation.box((0.6, 0.6, 0.02))
+    slab.apply_translation((0.0, 0.0, -0.01))
+    solid = b.add_shape_convex_hull(-1, mesh=newton.Mesh(slab.vertices, slab.faces.reshape(-1)))
+    tri = np.array([[0.1, 0.1, 0.0], [0.1004, 0.1, 0.0], [0.1, 0.1004, 0.0]])
+    flat = b.add_shape_convex_hull(-1, mesh=newton.Mesh(tri, np.array([0, 1, 2])))
+    body = b.add_body(xform=wp.transform((0.0, 0.0, 0.1), wp.quat_identity()))
+    b.add_shape_box(body, hx=0.02, hy=0.02, hz=0.02)
+    with pytest.raises(ValueError, match="planar mesh"):
+        SolverMuJoCo(b.finalize(device="cpu"), use_mujoco_cpu=True)
+    assert thicken_flat_parts(b, newton, [solid, flat], np.array([0.0, 0.0, 0.5])) == 1
+    v = np.asarray(b.shape_source[flat].vertices)
+    assert v[:, 2].max() == pytest.approx(0.0, abs=1e-7) and v[:, 2].min() == pytest.approx(-0.002, abs=1e-6)
+    assert np.ptp(np.asarray(b.shape_source[solid].vertices)[:, 2]) == pytest.approx(0.02, abs=1e-7)
+    SolverMuJoCo(b.finalize(device="cpu"), use_mujoco_cpu=True)

@@ -169,13 +169,21 @@ def _scene_collider(b, newton, workspace: tuple[np.ndarray, np.ndarray], cfg: Ne
             cache_dir=mesh_cache_dir(),
         )
     parts = statics + list(range(n_before, b.shape_count))
-    centre = 0.5 * (np.asarray(lo, dtype=float) + np.asarray(hi, dtype=float))
-    for s in parts:
-        if b.shape_flags[s] and b.shape_type[s] == newton.GeoType.MESH:
-            thick = thickened(_shape_vertices(b, s), centre)
+    thicken_flat_parts(b, newton, parts, 0.5 * (np.asarray(lo, dtype=float) + np.asarray(hi, dtype=float)))
+    return parts
+
+
+def thicken_flat_parts(b, newton, shapes: list[int], away_from: np.ndarray) -> int:
+    """Replace each flat mesh or convex-mesh shape among ``shapes`` (CoACD's parts are convex
+    meshes) by a slab (``thickened``) on the side away from ``away_from``; how many were."""
+    count = 0
+    for s in shapes:
+        if b.shape_flags[s] and b.shape_type[s] in (newton.GeoType.MESH, newton.GeoType.CONVEX_MESH):
+            thick = thickened(_shape_vertices(b, s), away_from)
             if thick is not None:
                 _set_world_mesh(b, newton, s, *thick)
-    return parts
+                count += 1
+    return count
 
 
 def _shape_vertices(b, s: int) -> np.ndarray:
@@ -194,11 +202,12 @@ def _set_world_mesh(b, newton, s: int, vertices: np.ndarray, faces: np.ndarray) 
     b.shape_scale[s] = (1.0, 1.0, 1.0)
 
 
-def thickened(vertices: np.ndarray, away_from: np.ndarray, *, flat_m: float = 1e-4, thickness_m: float = 0.002):
+def thickened(vertices: np.ndarray, away_from: np.ndarray, *, flat_m: float = 0.001, thickness_m: float = 0.002):
     """A flat convex part (thinner than ``flat_m`` across its plane: a sliver a convex
     decomposition left) as the hull of itself and its copy moved ``thickness_m`` along its normal,
     away from ``away_from`` (into the scene, its surface unchanged); (vertices, faces) or None when
-    the part is not flat. MuJoCo's contacts refuse a planar mesh collider."""
+    the part is not flat. MuJoCo's contacts refuse a planar mesh collider (Newton raises), and
+    collide badly with one a few micrometres thick."""
     import trimesh
 
     v = np.asarray(vertices, dtype=float)
