@@ -79,6 +79,10 @@ class SegmentConfig:
     shell_m: float = 0.025
     """classical: an object seen in the last frame takes only pixels this close to its points moved
     by its last motion, plus half that motion [m] (default 0.025)."""
+    occluder_m: float = 0.01
+    """classical: a pixel connected to a hand is the object's only within its predicted silhouette
+    and not nearer the camera than its predicted surface by more than this, plus a quarter of its
+    last motion (a finger in front of it) [m] (default 0.01)."""
     foreground_m: float = 0.015
     """classical: the interactor is nearer than the static world by more than this (+1 % of depth) [m]
     (default 0.015)."""

@@ -23,8 +23,11 @@ under it (``geometry.support``: the table as the video sees it, which may bend a
    ``shell_m`` (plus half the last motion) of the object's previous points moved by its last
    rigid motion (within ``max(diameter, 3 cm)``, growing, while it is hidden), its color is more
    likely under the object's color model than under the model of its surroundings and the hand,
-   and it is depth-connected to a core of pixels within ``core_m`` of the moved points. A pixel
-   belongs to one object at most. Color models are updated as the object turns. The motion
+   and it is depth-connected to a core of pixels within ``core_m`` of the moved points. Pixels
+   connected to a found hand (its fingers, its arm, what it holds) are the object's only within
+   ``core_m`` of the moved points, inside the silhouette they show and not in front of their
+   surface by more than ``occluder_m`` (fingers wrapped around it). A pixel belongs to one
+   object at most. Color models are updated as the object turns. The motion
    between frames is rigid: translation-only ICP of the seen points first (not the shift of
    their mean, which occlusion moves), then a turn where it fits clearly better (a cup turned in
    the hand). Points that something now stands in front of are kept, moved along, while they lie
@@ -523,7 +526,22 @@ class Segmenter:
                 continue
             ys, xs, d = found
             core_m = p.core_m + 0.5 * track.motion_m()
-            ok = np.ones(len(d), bool) if arm is None else ~arm[ys, xs] | (d < core_m)
+            if arm is None:
+                ok = np.ones(len(d), bool)
+            else:
+                # what is connected to a hand is the object's near its points and on the surface
+                # they show: within its predicted silhouette, not in front of it (fingers wrapped
+                # around it are within core_m of its points)
+                off = off_surface(
+                    track.predicted(),
+                    self.cam.world_from_cv[t],
+                    self.cam.K[t],
+                    self.frame(t).depth,
+                    ys,
+                    xs,
+                    p.occluder_m + 0.25 * track.motion_m(),
+                )
+                ok = ~arm[ys, xs] | ((d < core_m) & ~off)
             better = ok & (d < best[ys, xs])
             best[ys[better], xs[better]] = d[better]
             owner[ys[better], xs[better]] = k
@@ -680,6 +698,29 @@ class Segmenter:
         track.color = 0.5 * track.first_color + 0.5 * (
             0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask])
         )
+
+
+def off_surface(
+    points: np.ndarray,
+    world_from_cv: np.ndarray,
+    K: np.ndarray,
+    depth: np.ndarray,
+    ys: np.ndarray,
+    xs: np.ndarray,
+    tol_m: float,
+) -> np.ndarray:
+    """Whether pixels (ys, xs) are not on the surface that ``points`` (world, (N, 3): an object's
+    predicted points) show in this view: no point projects within 2 px of them (outside its
+    predicted silhouette), or they are nearer the camera than the nearest such point by more
+    than ``tol_m`` (something in front of it: a finger). Pixels without depth are on it."""
+    h, w = depth.shape
+    u, v, z = pixels_of(points, world_from_cv, K, w, h, min_z=0.05)
+    near = np.full((h, w), np.inf, np.float32)
+    seen = u >= 0
+    np.minimum.at(near, (v[seen], u[seen]), z[seen].astype(np.float32))
+    near = cv2.erode(near, np.ones((5, 5), np.uint8), borderType=cv2.BORDER_REPLICATE)  # min over 5 x 5 px
+    d = depth[ys, xs]
+    return (d > 0) & (d < near[ys, xs] - tol_m)
 
 
 def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
