@@ -6,7 +6,8 @@ pictures: the masks over the video, the fitted object over the video and the gat
         [--category cup] [--crop x0,y0,x1,y1] [--every 12] [--runs /tmp/real-runs]
 
 Without ``--box`` the object is unprompted (found where the hand goes). Writes into OUT:
-``masks.png``, ``object.png``, ``gate.png`` (the gate's compare picture) and ``result.json``
+``masks.png``, ``masks-count.jpg`` (the object's mask outline, enlarged, every 6th frame: what
+its masks are judged on), ``object.png``, ``gate.png`` (the gate's compare picture) and ``result.json``
 (plan, per-stage times, gate, validation, the object's size, volume, mass and watertightness,
 the largest jump of its trajectory between frames, the frames its mask is empty). The
 reconstruction itself goes to ``--runs``/<OUT's name> (not committed: it holds the clip's masks).
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rose_usd import reconstruct, registry
-from rose_usd.bench.sheets import mask_sheet, object_sheet
+from rose_usd.bench.sheets import mask_sheet, object_sheet, outline_sheet
 from rose_usd.case.layout import load_case
 from rose_usd.layers.masks import read_masks
 from rose_usd.layers.objects import object_paths, visual_mesh
@@ -86,6 +87,7 @@ def main() -> None:
     parser.add_argument("--box", help="x0,y0,x1,y1 on frame 0 [px] (none: unprompted)")
     parser.add_argument("--crop", help="x0,y0,x1,y1 of the pictures [px]")
     parser.add_argument("--every", type=int, default=12)
+    parser.add_argument("--count-every", type=int, default=6, help="frames between masks-count.jpg's windows")
     parser.add_argument("--runs", type=Path, default=Path("/tmp/real-runs"))
     args = parser.parse_args()
     box = [int(v) for v in args.box.split(",")] if args.box else None
@@ -118,12 +120,13 @@ def main() -> None:
             "rest_displacement_mm": {k: round(1e3 * v, 2) for k, v in g.rest_displacement_m.items()},
         }
         shutil.copyfile(run_dir / "report" / "compare.png", out / "gate.png")
-    for stale in ("masks.png", "object.png", "gate.png"):
+    for stale in ("masks.png", "masks-count.jpg", "object.png", "gate.png"):
         if stale == "gate.png" and "gate" in ran:
             continue
         (out / stale).unlink(missing_ok=True)
     if "segment" in ran:
         mask_sheet(case, run_dir, out / "masks.png", every=args.every, crop=crop, tile_w=320, cols=6)
+        outline_sheet(case, run_dir, out / "masks-count.jpg", args.name, every=args.count_every)
         result["object"] = describe(run_dir, case, args.name)
     if "trajectory" in ran:
         object_sheet(case, run_dir, out / "object.png", every=args.every, crop=crop, tile_w=320, cols=6)

@@ -3,7 +3,9 @@ interest and enlarged (real clips' objects can be 20-40 px wide):
 
 - ``mask_sheet``: each object's mask (its own colour) and the interactor's (blue) over the video;
 - ``object_sheet``: each object's mesh posed by the trajectory layer, drawn through the world
-  layer's camera (filled outline in the object's colour), with the mask's outline in red.
+  layer's camera (filled outline in the object's colour), with the mask's outline in red;
+- ``outline_sheet``: one object's mask outline (green) and the interactor's (blue), on a window
+  that follows the object, enlarged: for judging masks frame by frame.
 """
 
 from __future__ import annotations
@@ -94,6 +96,49 @@ def object_sheet(
     return _write(tiles, cols, path)
 
 
+def outline_sheet(
+    case: Case,
+    run_dir: Path,
+    path: Path,
+    name: str,
+    *,
+    every: int = 6,
+    window: tuple[int, int] = (120, 100),
+    scale: int = 3,
+    cols: int = 6,
+) -> Path:
+    """Write ``path``: object ``name``'s mask outline (green, all of its parts and holes) and the
+    interactor's (blue) over the frames of ``case``, every ``every`` frames, each on a ``window``
+    (w, h) pixel window centred on the mask (where it was last seen when it is empty), enlarged
+    ``scale`` times without smoothing."""
+    n = case.n_frames
+    masks = read_masks(open_stage(run_dir / "rose.usda"), n, (case.height, case.width))
+    w, h = window
+    centre = (case.width // 2, case.height // 2)
+    tiles = []
+    for t in range(0, n, every):
+        m = masks.mask(name, t)
+        if m is not None and m.any():
+            ys, xs = np.nonzero(m)
+            centre = (int(np.median(xs)), int(np.median(ys)))
+        x0 = int(np.clip(centre[0] - w // 2, 0, max(case.width - w, 0)))
+        y0 = int(np.clip(centre[1] - h // 2, 0, max(case.height - h, 0)))
+        big = cv2.resize(
+            case.rgb(t)[y0 : y0 + h, x0 : x0 + w], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST
+        )
+        hand = masks.mask(INTERACTOR, t) if masks.has(INTERACTOR) else None
+        for mask, colour, kind in ((hand, HAND, cv2.RETR_EXTERNAL), (m, COLOURS[0], cv2.RETR_LIST)):
+            if mask is None:
+                continue
+            crop = mask[y0 : y0 + h, x0 : x0 + w].astype(np.uint8)
+            crop = cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+            contours, _ = cv2.findContours(crop, kind, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(big, contours, -1, colour, 2)
+        cv2.putText(big, str(t), (6, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 0), 2, cv2.LINE_AA)
+        tiles.append(big)
+    return _write(tiles, cols, path)
+
+
 def _outline(image: np.ndarray, mask: np.ndarray, colour) -> None:
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     cv2.drawContours(image, contours, -1, colour, 1)
@@ -116,5 +161,6 @@ def _write(tiles: list[np.ndarray], cols: int, path: Path) -> Path:
         tiles.append(np.zeros_like(tiles[0]))
     sheet = np.vstack([np.hstack(tiles[i : i + cols]) for i in range(0, len(tiles), cols)])
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+    params = [cv2.IMWRITE_JPEG_QUALITY, 80] if path.suffix.lower() in (".jpg", ".jpeg") else []
+    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), params)
     return path
