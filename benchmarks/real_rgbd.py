@@ -5,7 +5,8 @@ pictures: the masks over the video, the fitted object over the video and the gat
         --name Ball --box 268,136,308,180 -o benchmarks/results/real-cups-rgbd/ball \\
         [--category cup] [--crop x0,y0,x1,y1] [--every 12] [--runs /tmp/real-runs]
 
-Without ``--box`` the object is unprompted (found where the hand goes). Writes into OUT:
+Without ``--box`` the object is unprompted (found where the hand goes); ``--name`` given more
+than once names several unprompted objects. Writes into OUT:
 ``masks.png``, ``masks-count.jpg`` (the object's mask outline, enlarged, every 6th frame: what
 its masks are judged on), ``object.png``, ``gate.png`` (the gate's compare picture) and ``result.json``
 (plan, per-stage times, gate, validation, the object's size, volume, mass and watertightness,
@@ -31,8 +32,9 @@ from rose_usd.layers.trajectory import object_poses
 from rose_usd.usd import paths
 
 
-def stage_case(clip: Path, folder: Path, name: str, category: str, box: list[int] | None) -> Path:
-    """A case folder linking the clip's rgb/ and depth/ (and cam_K.txt if any), with a rose.toml."""
+def stage_case(clip: Path, folder: Path, names: list[str], category: str, box: list[int] | None) -> Path:
+    """A case folder linking the clip's rgb/ and depth/ (and cam_K.txt if any), with a rose.toml
+    naming ``names`` (the box prompts the first)."""
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
@@ -40,7 +42,11 @@ def stage_case(clip: Path, folder: Path, name: str, category: str, box: list[int
         if (clip / part).exists():
             (folder / part).symlink_to((clip / part).resolve())
     prompt = f"\nprompt = {{ frame = 0, box = [{', '.join(str(v) for v in box)}] }}" if box else ""
-    (folder / "rose.toml").write_text(f'[[objects]]\nname = "{name}"\ncategory = "{category}"{prompt}\n')
+    entries = [
+        f'[[objects]]\nname = "{name}"\ncategory = "{category}"{prompt if k == 0 else ""}\n'
+        for k, name in enumerate(names)
+    ]
+    (folder / "rose.toml").write_text("\n".join(entries))
     return folder
 
 
@@ -82,7 +88,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("clip", type=Path)
     parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument("--name", default="Object")
+    parser.add_argument(
+        "--name", action="append", help="object name (default Object); repeat it for several unprompted objects"
+    )
     parser.add_argument("--category", default="generic")
     parser.add_argument("--box", help="x0,y0,x1,y1 on frame 0 [px] (none: unprompted)")
     parser.add_argument("--crop", help="x0,y0,x1,y1 of the pictures [px]")
@@ -93,7 +101,10 @@ def main() -> None:
     box = [int(v) for v in args.box.split(",")] if args.box else None
     crop = tuple(int(v) for v in args.crop.split(",")) if args.crop else None
     work = args.runs / args.output.name
-    case_dir = stage_case(args.clip, work / "case", args.name, args.category, box)
+    names = args.name or ["Object"]
+    if box and len(names) > 1:
+        parser.error("--box prompts one object: give one --name with it")
+    case_dir = stage_case(args.clip, work / "case", names, args.category, box)
     run_dir = work / "out"
     if run_dir.exists():
         shutil.rmtree(run_dir)
@@ -126,8 +137,11 @@ def main() -> None:
         (out / stale).unlink(missing_ok=True)
     if "segment" in ran:
         mask_sheet(case, run_dir, out / "masks.png", every=args.every, crop=crop, tile_w=320, cols=6)
-        outline_sheet(case, run_dir, out / "masks-count.jpg", args.name, every=args.count_every)
-        result["object"] = describe(run_dir, case, args.name)
+        outline_sheet(case, run_dir, out / "masks-count.jpg", names[0], every=args.count_every)
+        if len(names) == 1:
+            result["object"] = describe(run_dir, case, names[0])
+        else:
+            result["objects"] = {name: describe(run_dir, case, name) for name in names}
     if "trajectory" in ran:
         object_sheet(case, run_dir, out / "object.png", every=args.every, crop=crop, tile_w=320, cols=6)
     (out / "result.json").write_text(json.dumps(result, indent=1) + "\n")
