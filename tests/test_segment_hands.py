@@ -82,7 +82,7 @@ def test_what_is_off_the_object_surface_is_found():
     finger's pixels are off the face's surface (in front of it), and so are pixels beside the box
     (outside its silhouette), up to the image's edges; the face's own pixels (depth noise 3 mm)
     are on it."""
-    from rose_usd.segment.segmenter import off_surface
+    from rose_usd.segment.regions import off_surface
 
     K = np.array([[100.0, 0, W / 2], [0, 100.0, H / 2], [0, 0, 1]])
     pose = np.eye(4)  # camera = world, looking along +z

@@ -246,7 +246,7 @@ def _stack_image(seed: int = 0):
 
 
 def test_stacked_objects_prompt_regions_share_no_pixel():
-    from rose_usd.segment.segmenter import separate
+    from rose_usd.segment.regions import separate
 
     cidx, base_region, top_region, base, top = _stack_image()
     assert np.count_nonzero(base_region & top_region) > 500  # the overlap this is about
@@ -258,7 +258,7 @@ def test_stacked_objects_prompt_regions_share_no_pixel():
 
 
 def test_separate_falls_back_to_the_nearest_region_for_objects_of_one_color():
-    from rose_usd.segment.segmenter import separate
+    from rose_usd.segment.regions import separate
 
     cidx, base_region, top_region, base, top = _stack_image()
     same = np.full_like(cidx, cidx[80, 80])  # every pixel one color: color cannot decide
@@ -290,7 +290,7 @@ def test_separate_by_height_where_a_printed_can_looks_like_its_printed_base():
     """The can's label has the base's colors (only its lid differs): color alone gives the
     label to the base; heights give it back to the can, which stands above the base's top."""
     from rose_usd.segment.colors import color_index
-    from rose_usd.segment.segmenter import separate
+    from rose_usd.segment.regions import separate
 
     cidx, base_region, top_region, base, top = _stack_image()
     rgb = np.full((120, 160, 3), (200, 200, 200), np.uint8)

@@ -1,10 +1,16 @@
-"""Pixel regions of masks: connected parts and holes, and what an object's mask takes that is not
-the object: the fingers on it, peeled off by their color, and blobs apart from it."""
+"""Pixel regions of masks: connected parts and holes; regions of one frame kept apart or joined
+across a depth edge; and what an object's mask takes that is not the object: the fingers on it,
+peeled off by their color or found off its predicted surface, and blobs apart from it."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
+
+from rose_usd.core.pinhole import pixels_of
+from rose_usd.segment.colors import histogram
+from rose_usd.segment.motion import diameter, subsample
 
 
 def components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
@@ -122,3 +128,119 @@ def depth_edges(depth: np.ndarray, *, rel: float = 0.02, abs_m: float = 0.008) -
     edge[:-1, :] |= dy
     edge[1:, :] |= dy
     return edge | (d <= 0)
+
+
+def off_surface(
+    points: np.ndarray,
+    world_from_cv: np.ndarray,
+    K: np.ndarray,
+    depth: np.ndarray,
+    ys: np.ndarray,
+    xs: np.ndarray,
+    tol_m: float,
+) -> np.ndarray:
+    """Whether pixels (ys, xs) are not on the surface that ``points`` (world, (N, 3): an object's
+    predicted points) show in this view: no point projects within 2 px of them (outside its
+    predicted silhouette), or they are nearer the camera than the nearest such point by more
+    than ``tol_m`` (something in front of it: a finger). Pixels without depth are on it."""
+    h, w = depth.shape
+    u, v, z = pixels_of(points, world_from_cv, K, w, h, min_z=0.05)
+    near = np.full((h, w), np.inf, np.float32)
+    seen = u >= 0
+    np.minimum.at(near, (v[seen], u[seen]), z[seen].astype(np.float32))
+    near = cv2.erode(near, np.ones((5, 5), np.uint8), borderType=cv2.BORDER_REPLICATE)  # min over 5 x 5 px
+    d = depth[ys, xs]
+    return (d > 0) & (d < near[ys, xs] - tol_m)
+
+
+def separate(
+    regions: list[np.ndarray], cidx: np.ndarray, *, sure: float = 2.0, height: np.ndarray | None = None
+) -> list[np.ndarray]:
+    """Regions that share no pixel: an object hides what is behind it, so a pixel shows one object.
+
+    Prompt boxes of stacked objects overlap, and the depth-connected region inside the lower
+    object's box runs up into the upper object. With ``height`` (each pixel's height above the
+    support [m], NaN where unknown) and two contesting regions, geometry decides first: the
+    lower object's top is the 95th percentile of the heights it alone claims, and nothing of it
+    stands higher, so a contested pixel more than 1 cm above that top goes to the other region,
+    one less than 5 mm above it to the lower. The rest goes to the region whose colors (of the
+    pixels it alone claims) make it more likely, by a factor ``sure``; where no color model is
+    that sure, to the nearest pixel claimed by one region alone. Each region then keeps its
+    largest 4-connected part. (A printed can on a printed box: their colors are alike, their
+    heights are not.)"""
+    claims = np.sum(regions, axis=0) if regions else np.zeros(cidx.shape, int)
+    if not np.any(claims > 1):
+        return [r.copy() for r in regions]
+    alone = [r & (claims == 1) for r in regions]
+    hists = [histogram(cidx[a] if a.sum() >= 50 else cidx[r]) for a, r in zip(alone, regions)]
+    contested = claims > 1
+    cy, cx = np.nonzero(contested)
+    c = cidx[cy, cx]
+    k = len(regions)
+    likely = np.stack([np.where(regions[i][cy, cx], np.log(hists[i][c]), -np.inf) for i in range(k)])
+    ranked = np.sort(likely, axis=0)
+    by_color = np.argmax(likely, axis=0)
+    distance = np.stack(
+        [
+            np.where(
+                regions[i][cy, cx], cv2.distanceTransform((~alone[i]).astype(np.uint8), cv2.DIST_L2, 5)[cy, cx], np.inf
+            )
+            for i in range(k)
+        ]
+    )
+    winner = np.where(ranked[-1] - ranked[-2] >= np.log(sure), by_color, np.argmin(distance, axis=0))
+    if height is not None and k == 2 and all(a.sum() >= 50 for a in alone):
+        tops = [np.nanpercentile(height[a], 95) if np.isfinite(height[a]).any() else np.nan for a in alone]
+        if np.all(np.isfinite(tops)):
+            lower = int(np.argmin(tops))
+            h = height[cy, cx]
+            winner = np.where(h > tops[lower] + 0.01, 1 - lower, winner)
+            winner = np.where(h < tops[lower] + 0.005, lower, winner)
+    out = []
+    for i, region in enumerate(regions):
+        mine = region & ~contested
+        mine[cy[winner == i], cx[winner == i]] = True
+        n, labels, areas = components(mine)
+        out.append(labels == 1 + int(np.argmax(areas[1:])) if n > 1 else mine)
+    return out
+
+
+def grow_across_edges(
+    labels: np.ndarray,
+    start: np.ndarray,
+    pts: np.ndarray,
+    *,
+    gap_m: float = 0.01,
+    reach_px: int = 3,
+    max_diameter_m: float = 0.3,
+) -> np.ndarray:
+    """``start`` (a region of ``labels``, the depth-connected components of what stands on the
+    support) joined with the components that touch it in 3D: within ``reach_px`` in the image
+    and ``gap_m`` in space across the depth edge between them. A depth edge cuts one object into
+    pieces as well as it cuts objects apart: a cup lying on its side is its outer wall and, seen
+    through its rim, its inner wall. A piece is not joined when the union would be wider than
+    ``max_diameter_m``."""
+    region = start.copy()
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    tried: set[int] = set(np.unique(labels[start]).tolist()) | {0}
+    while True:
+        ring = cv2.dilate(region.astype(np.uint8), kernel).astype(bool) & ~region
+        candidates = [int(v) for v in np.unique(labels[ring]) if int(v) not in tried]
+        if not candidates:
+            return region
+        tree = cKDTree(subsample(pts[region & np.isfinite(pts[..., 2])], 3000))
+        grown = False
+        for label in candidates:
+            tried.add(label)
+            near = ring & (labels == label) & np.isfinite(pts[..., 2])
+            if not near.any():
+                continue
+            d, _ = tree.query(pts[near], k=1)
+            if float(np.median(d)) > gap_m:
+                continue
+            union = region | (labels == label)
+            if diameter(pts[union & np.isfinite(pts[..., 2])]) > max_diameter_m:
+                continue
+            region, grown = union, True
+        if not grown:
+            return region
