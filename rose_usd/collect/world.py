@@ -8,6 +8,8 @@ Contact settings, and why (measured on this CPU, ``docs/architecture.md`` amendm
   convex hull, so the room-sized scene collider would be one convex blob around everything. It
   is cut to a box around the object's path and the robot base (a boolean intersection, so it
   stays closed) and split into convex parts by CoACD, cached under ``~/.cache/rose_usd/coacd``.
+  A part thinner than 1 mm (CoACD leaves such slivers) becomes a 2 mm slab into the scene: MuJoCo's
+  CPU backend refuses a flat one.
 - Finger pads and object: ``condim`` 6 (torsional and rolling friction), a stiff raw ``solref``
   (time constant 4 ms instead of MuJoCo's 20 ms) and a hard ``solimp``: the soft default let a
   held object slip 3-5x more. Pads have friction 1 (rubber); MuJoCo takes the larger of two
