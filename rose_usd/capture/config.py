@@ -40,6 +40,10 @@ class RgbdConfig:
     static_fraction: float = 0.3
     """The camera is static (identity poses, no tracking; capture.static) when at least this
     fraction of the first frame's corners stay within 0.5 px; above 1 never (default 0.3)."""
+    repeatable: bool = True
+    """Track in a separate process bound to one CPU, so that runs repeat bit for bit (Open3D's
+    parallel odometry sums in an order that varies); false: in this process on every CPU, about
+    a third faster, not repeatable (default true; Linux only, elsewhere always false)."""
 
 
 @dataclass(frozen=True, kw_only=True)

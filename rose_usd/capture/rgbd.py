@@ -14,7 +14,7 @@ import numpy as np
 
 from rose_usd.capture.intrinsics import resolve_K
 from rose_usd.capture.static import still_fraction
-from rose_usd.capture.tracking import RgbdTracker, TrackingParams
+from rose_usd.capture.tracking import RgbdTracker, TrackingParams, can_bind_cpu, track_on_one_cpu
 from rose_usd.capture.world import author_tracked_world, fused_points, locate
 from rose_usd.core import se3
 from rose_usd.errors import InputError
@@ -122,9 +122,12 @@ def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of, v
     others interpolated: (poses, keyframes, what to record)."""
     case = ctx.case
     frames = np.flatnonzero(valid)
-    result = RgbdTracker(K, case.width, case.height, params).track(
-        len(frames), lambda i: (case.rgb(int(frames[i])), depth_of(int(frames[i])), None)
-    )
+    if ctx.config.rgbd.repeatable and can_bind_cpu():
+        result = track_on_one_cpu(case.folder, frames.tolist(), K, case.width, case.height, params)
+    else:
+        result = RgbdTracker(K, case.width, case.height, params).track(
+            len(frames), lambda i: (case.rgb(int(frames[i])), depth_of(int(frames[i])), None)
+        )
     poses = _fill_dropped(result.world_from_camera, frames, case.n_frames)
     # the first camera is the tracking frame's origin even when its own depth dropped out
     poses = np.einsum("ij,njk->nik", se3.invert(poses[0]), poses)

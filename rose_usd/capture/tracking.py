@@ -15,12 +15,20 @@ directions: the smallest eigenvalue of their scatter matrix, relative to the lar
 ``min_normal_spread`` (typical values: a tabletop, 0.01-0.05; the 7-Scenes kitchen, 0.39-0.47).
 Moving parts (the object, the hand) and invalid depth are outliers for the robust losses and the
 depth-difference gate; pixels can also be masked out explicitly.
+
+``track_on_one_cpu`` runs the tracking in a fresh process bound to one CPU before Open3D starts
+its thread pool: Open3D's odometry sums its normal equations in parallel (TBB) in an order that
+changes from run to run, and the poses differed by about 1e-5 per call, enough to move every
+later stage; on one CPU they repeat bit for bit. (Binding the running process does not do it:
+Open3D's pool keeps the size it started with.)
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -231,3 +239,46 @@ class RgbdTracker:
             graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(), option
         )
         return {k: np.asarray(graph.nodes[index[k]].pose) for k in keyframes}
+
+
+def can_bind_cpu() -> bool:
+    """Whether this platform lets a process choose its CPUs (Linux)."""
+    return hasattr(os, "sched_setaffinity")
+
+
+def track_on_one_cpu(
+    folder: Path, frames: list[int], K: np.ndarray, width: int, height: int, params: TrackingParams
+) -> TrackResult:
+    """``RgbdTracker(K, width, height, params).track`` over ``frames`` of the case in ``folder``
+    (colour and metric depth as ``Case`` reads them), in a fresh process bound to the CPU this one
+    runs on, so that the result repeats bit for bit."""
+    import multiprocessing
+
+    pool = multiprocessing.get_context("spawn").Pool(1, initializer=_bind_cpu, initargs=(_current_cpu(),))
+    try:
+        return pool.apply(_track_frames, (str(folder), [int(f) for f in frames], K, width, height, params))
+    finally:
+        pool.terminate()
+
+
+def _current_cpu() -> int | None:
+    """The CPU this thread last ran on (Linux: the 39th field of its stat), None if unknown."""
+    try:
+        with open("/proc/thread-self/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[36])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _bind_cpu(cpu: int | None) -> None:
+    cpus = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {cpu if cpu in cpus else min(cpus)})
+
+
+def _track_frames(folder: str, frames: list[int], K, width: int, height: int, params: TrackingParams) -> TrackResult:
+    from rose_usd import registry
+    from rose_usd.case.layout import load_case
+
+    case = load_case(folder, registry.STAGE_NAMES)
+    tracker = RgbdTracker(K, width, height, params)
+    return tracker.track(len(frames), lambda i: (case.rgb(frames[i]), case.depth_m(frames[i]), None))
