@@ -265,10 +265,7 @@ def test_rgbd_tracking_repeats_bit_for_bit(sample_case):
     if not can_bind_cpu():
         pytest.skip("this platform cannot bind a process to one CPU")
     case = load_case(sample_case, registry.STAGE_NAMES)
-    runs = [
-        track_on_one_cpu(sample_case, list(range(24)), case.K(), case.width, case.height, TrackingParams())
-        for _ in range(2)
-    ]
+    runs = [track_on_one_cpu(case, list(range(24)), case.K(), TrackingParams()) for _ in range(2)]
     assert runs[0].world_from_camera.shape == (24, 4, 4)
     assert np.array_equal(runs[0].world_from_camera, runs[1].world_from_camera)
     assert runs[0].keyframes == runs[1].keyframes

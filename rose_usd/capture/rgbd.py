@@ -123,7 +123,7 @@ def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of, v
     case = ctx.case
     frames = np.flatnonzero(valid)
     if ctx.config.rgbd.repeatable and can_bind_cpu():
-        result = track_on_one_cpu(case.folder, frames.tolist(), K, case.width, case.height, params)
+        result = track_on_one_cpu(case, frames.tolist(), K, params)
     else:
         result = RgbdTracker(K, case.width, case.height, params).track(
             len(frames), lambda i: (case.rgb(int(frames[i])), depth_of(int(frames[i])), None)

@@ -28,7 +28,6 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -246,17 +245,15 @@ def can_bind_cpu() -> bool:
     return hasattr(os, "sched_setaffinity")
 
 
-def track_on_one_cpu(
-    folder: Path, frames: list[int], K: np.ndarray, width: int, height: int, params: TrackingParams
-) -> TrackResult:
-    """``RgbdTracker(K, width, height, params).track`` over ``frames`` of the case in ``folder``
-    (colour and metric depth as ``Case`` reads them), in a fresh process bound to the CPU this one
-    runs on, so that the result repeats bit for bit."""
+def track_on_one_cpu(case, frames: list[int], K: np.ndarray, params: TrackingParams) -> TrackResult:
+    """``RgbdTracker(K, case.width, case.height, params).track`` over ``frames`` of ``case`` (a
+    ``Case``: colour and metric depth as it reads them), in a fresh process bound to the CPU this
+    one runs on, so that the result repeats bit for bit."""
     import multiprocessing
 
     pool = multiprocessing.get_context("spawn").Pool(1, initializer=_bind_cpu, initargs=(_current_cpu(),))
     try:
-        return pool.apply(_track_frames, (str(folder), [int(f) for f in frames], K, width, height, params))
+        return pool.apply(_track_frames, (case, [int(f) for f in frames], K, params))
     finally:
         pool.terminate()
 
@@ -275,10 +272,6 @@ def _bind_cpu(cpu: int | None) -> None:
     os.sched_setaffinity(0, {cpu if cpu in cpus else min(cpus)})
 
 
-def _track_frames(folder: str, frames: list[int], K, width: int, height: int, params: TrackingParams) -> TrackResult:
-    from rose_usd import registry
-    from rose_usd.case.layout import load_case
-
-    case = load_case(folder, registry.STAGE_NAMES)
-    tracker = RgbdTracker(K, width, height, params)
+def _track_frames(case, frames: list[int], K, params: TrackingParams) -> TrackResult:
+    tracker = RgbdTracker(K, case.width, case.height, params)
     return tracker.track(len(frames), lambda i: (case.rgb(frames[i]), case.depth_m(frames[i]), None))
