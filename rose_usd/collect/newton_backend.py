@@ -221,13 +221,14 @@ def _roll_out_at(
     base_pose: np.ndarray,
     ranked: grasping.Candidates,
     rng: np.random.Generator,
+    device: str,
+    batched: bool,
 ) -> tuple[World, list[Rollout], float, planning.ArmChecker]:
     """Every (ranked grasp, perturbation) rollout with the robot at ``base_pose``: one world on the
-    CPU, one after another, or every rollout its own world on a GPU; (world, rollouts, build
-    seconds, the approach's checker)."""
+    CPU, one after another, or (``batched``) every rollout its own world on ``device``; (world,
+    rollouts, build seconds, the approach's checker)."""
     cfg: CollectConfig = ctx.config
     rate = float(ctx.time_info.fps)
-    device, batched = _device(cfg)
     checker = _arm_checker(ctx, base_pose, cfg)
     t0 = time.perf_counter()
     if not batched:
@@ -290,8 +291,10 @@ def run(ctx: StageContext) -> None:
         return
     t_plan = time.perf_counter() - t_start
 
-    device, batched = _device(cfg)  # (batched: the best rollout's link poses come from its joints)
-    world, rollouts, t_build, checker = _roll_out_at(ctx, name, target, path, outcome.base_pose, ranked, rng)
+    device, batched = _device(cfg)
+    world, rollouts, t_build, checker = _roll_out_at(
+        ctx, name, target, path, outcome.base_pose, ranked, rng, device, batched
+    )
     bases_tried = 1
     for base in other_bases:
         if any(r.success for r in rollouts) or bases_tried >= cfg.base_tries:
@@ -303,7 +306,7 @@ def run(ctx: StageContext) -> None:
         bases_tried += 1
         say(f"collect: no rollout succeeded from the base at {np.round(outcome.base_pose[:2, 3], 3)}; trying the next")
         outcome.base_pose, ranked = base, ranked_here
-        world, rollouts, t_build, checker = _roll_out_at(ctx, name, target, path, base, ranked, rng)
+        world, rollouts, t_build, checker = _roll_out_at(ctx, name, target, path, base, ranked, rng, device, batched)
     outcome.rollouts = rollouts
     successes = _judge_all(ctx, outcome, name, path)
     if batched and outcome.best >= 0:

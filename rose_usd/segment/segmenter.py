@@ -437,7 +437,8 @@ class Segmenter:
         for k, track in enumerate(tracks):
             core = np.zeros(depth.shape, bool)
             cores.append(core)
-            found = self._candidates(t, track, valid, hand_hist)
+            pred = track.predicted()
+            found = self._candidates(t, track, pred, valid, hand_hist)
             if found is None:
                 continue
             ys, xs, d = found
@@ -449,7 +450,7 @@ class Segmenter:
                 # they show: within its predicted silhouette, not in front of it (fingers wrapped
                 # around it are within core_m of its points)
                 off = off_surface(
-                    track.predicted(),
+                    pred,
                     self.cam.world_from_cv[t],
                     self.cam.K[t],
                     self.frame(t).depth,
@@ -485,13 +486,14 @@ class Segmenter:
             self._update(track, t, mask)
         return masks
 
-    def _candidates(self, t: int, track: ObjectTrack, valid: np.ndarray, hand_hist: np.ndarray | None):
+    def _candidates(
+        self, t: int, track: ObjectTrack, pred: np.ndarray, valid: np.ndarray, hand_hist: np.ndarray | None
+    ):
         """Pixels of frame t that may be the track's: ``valid`` (standing), within the shell around
-        its predicted points and of its colors where color breaks a tie; (rows, cols, distance to
-        the nearest predicted point), or None."""
+        its predicted points ``pred`` (``track.predicted()``) and of its colors where color breaks a
+        tie; (rows, cols, distance to the nearest predicted point), or None."""
         pts, cidx = self.frame(t).pts, self.frame(t).cidx
         reach = max(track.diameter, 0.03) * (1.0 + 0.5 * min(track.hidden, 10))
-        pred = track.predicted()
         # a track seen in the last frame moves rigidly: its pixels lie near its moved points
         shell = reach if track.hidden else self.config.shell_m + 0.5 * track.motion_m()
         box = self._image_box(t, pred, reach)
