@@ -250,12 +250,11 @@ def track_on_one_cpu(case, frames: list[int], K: np.ndarray, params: TrackingPar
     ``Case``: colour and metric depth as it reads them), in a fresh process bound to the CPU this
     one runs on, so that the result repeats bit for bit."""
     import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
 
-    pool = multiprocessing.get_context("spawn").Pool(1, initializer=_bind_cpu, initargs=(_current_cpu(),))
-    try:
-        return pool.apply(_track_frames, (case, [int(f) for f in frames], K, params))
-    finally:
-        pool.terminate()
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(1, mp_context=spawn, initializer=_bind_cpu, initargs=(_current_cpu(),)) as pool:
+        return pool.submit(_track_frames, case, [int(f) for f in frames], K, params).result()
 
 
 def _current_cpu() -> int | None:
