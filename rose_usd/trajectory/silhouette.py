@@ -137,6 +137,11 @@ def _view(layer, name, t, mask, cameras, cfg, *, soft=None, box=None) -> View:
     )
 
 
+FIRST_IOU_FLOOR = 0.05
+"""The IoU the confidences are relative to when the object's first pose overlaps its first mask
+less (an object fit that failed): the confidence is then the IoU over this, near 0."""
+
+
 def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
     """The object's poses (n, 4, 4, world), their confidence (n,) and what to record, frame by
     frame from ``default``: held, refitted, set down or lost (see the module's steps)."""
@@ -148,7 +153,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
     pose, ref_iou, velocity = default.copy(), None, np.eye(4)
     still, settled = 0, False
     fitted = held = lost = set_down = searched = 0
-    colors, base = None, None
+    colors, base, first = None, None, None
     for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
         mask = mask_of(t)
         has_mask = mask is not None and mask.sum() >= cfg.min_pixels
@@ -165,7 +170,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box if posterior is not None else None)
         now = iou([view], se3.transform_points(pose, v), f, convex=convex)
         if ref_iou is None:
-            ref_iou = base = now
+            ref_iou, first, base = now, now, max(now, FIRST_IOU_FLOOR)
         floor = cfg.min_iou * base
         if now >= max(floor, ref_iou - cfg.hold_drop * base):
             poses[t], conf[t], present[t] = pose, min(1.0, now / base), True
@@ -188,7 +193,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         poses[t], conf[t], present[t] = pose, min(1.0, best[1] / base), True
         fitted, still, settled = fitted + 1, 0, False
     counts = {"held": held, "fitted": fitted, "lost": lost, "set_down": set_down, "turn_searches": searched}
-    return _finish(poses, present, conf, counts, colors is not None, base)
+    return _finish(poses, present, conf, counts, colors is not None, first)
 
 
 def _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> ColorPosterior | None:
@@ -234,7 +239,7 @@ def _refit(v, f, view: View, pose, velocity, ref_iou: float, cfg, convex: bool) 
     return best, 1
 
 
-def _finish(poses, present, conf, counts: dict, color_model: bool, base):
+def _finish(poses, present, conf, counts: dict, color_model: bool, first):
     """The tracked poses with the lost frames between tracked ones interpolated (confidence 0.5),
     their confidence and the record; all held at the start (confidence 0) when none was tracked."""
     n = len(poses)
@@ -248,7 +253,7 @@ def _finish(poses, present, conf, counts: dict, color_model: bool, base):
         {
             **counts,
             "color_model": color_model,
-            "score_first": None if base is None else round(float(base), 4),
+            "score_first": None if first is None else round(float(first), 4),
             "confidence_mean": round(float(conf[present].mean()), 4),
         },
     )
