@@ -12,8 +12,11 @@ videos without depth (capture ``sfm``).
      search over rho done by the simplex with position and yaw, started at rho_0 = the world's
      object width over the mesh's.
    - Without: the category's primitive (``geometry.primitives``: a cup's frustum, a mug's or a
-     can's cylinder, a pen's lying cylinder, a box), its dimensions fitted to the silhouettes,
-     marked as a proxy (``RoseShapeAPI``: ``rose:shape:proxy``).
+     can's cylinder, a pen's lying cylinder, a box), its dimensions fitted to the silhouettes
+     under a log-normal prior around the typical ones (``size_m``'s where given; one sigma: the
+     category's spread and the world scale's together), so a size the masks leave open (an end
+     hidden by the hand or out of the crop) stays near it; marked as a proxy (``RoseShapeAPI``:
+     ``rose:shape:proxy``). A pen starts on its mask's axis cast onto the support.
    The world's metric scale came from the same kind of fit in the capture stage (its size prior,
    category or mesh), so the sizes agree with it.
 3. **Pose.** Standing on the support (the scene's pad height under it) at (x, y) turned by yaw,
@@ -46,6 +49,8 @@ from rose_usd.geometry.silhouette import (
     fit_free,
     fit_standing,
     footprint_xy,
+    log_normal_sizes,
+    lying_start,
     search_free,
 )
 from rose_usd.geometry.texture import transfer_colors
@@ -168,12 +173,14 @@ def run(ctx: StageContext) -> None:
         if path is not None:
             model, fact, shape = _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras)
         else:
-            model, fact, shape = _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras)
+            model, fact, shape = _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scale)
         fact.update(rest_frames=[frames[0], frames[-1]], fitted_frames=picked, support_height_m=support_z)
         if fact["silhouette_iou"] < 0.6:
             ctx.warn(
                 f"object {spec.name!r}: its shape overlaps its masks poorly"
-                f" (silhouette IoU {fact['silhouette_iou']:.2f})"
+                f" (silhouette IoU {fact['silhouette_iou']:.2f}): a {fact['size_m'] * 100:.1f} cm"
+                f" {spec.category or 'object'} standing on the support does not fit them; the world's"
+                " gravity, intrinsics or scale may be wrong (give cam_K.txt, size_m)"
             )
         models.append(model)
         facts[spec.name] = fact
@@ -211,27 +218,47 @@ def _object_width_m(view: View, xy) -> float:
     return float(xs.max() - xs.min()) * foot[2] / view.K[0, 0]
 
 
-def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras):
+def size_prior(typ, size_given_m: float | None, scale_uncertainty: float) -> tuple[np.ndarray, float]:
+    """The expected dimensions of a category's primitive in the world's meters and their relative
+    one-sigma: the typical ones (scaled to ``size_m`` where given, then known to
+    ``GIVEN_SIZE_SIGMA``), uncertain by the category's spread and the world's scale together."""
+    dims = np.asarray(typ.dims, float)
+    if size_given_m:
+        return dims * float(size_given_m) / typ.size_m, float(np.hypot(GIVEN_SIZE_SIGMA, scale_uncertainty))
+    return dims, float(np.hypot(typ.sigma, scale_uncertainty))
+
+
+GIVEN_SIZE_SIGMA = 0.05
+"""Relative one-sigma of a primitive's dimensions around a given ``size_m`` (its proportions are
+the category's)."""
+
+
+def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scale):
     typ, known = typical(spec.category)
     if not known:
         ctx.warn(f"object {spec.name!r}: no primitive for category {spec.category!r}: a box stands in for it")
     width = _object_width_m(views[0], xy)
-    dims0 = np.asarray(typ.dims) * width / max(typ.size_m, 1e-6)
+    expected, sigma = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
     turn = typ.kind in (PrimitiveKind.BOX, PrimitiveKind.LYING_CYLINDER)
     yaws = (
         tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
         if typ.kind is PrimitiveKind.LYING_CYLINDER
         else (tuple(np.radians([0.0, 30.0, 60.0])) if turn else (0.0,))
     )
+    xy0 = _start(xy, views, width)
+    lying = lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)
+    if typ.kind is PrimitiveKind.LYING_CYLINDER and lying is not None:
+        xy0, yaws = np.array(lying[:2]), (lying[2], *yaws)  # a pen: on its mask's axis, along it
     fit = fit_standing(
         lambda d: primitive_mesh(typ.kind, d),
-        dims0,
+        expected,
         views,
-        _start(xy, views, width),
+        xy0,
         support_z=support_z,
         yaws=yaws,
         turn=turn,
         convex=True,
+        size_cost=log_normal_sizes(expected, sigma),
     )
     v, f = primitive_mesh(typ.kind, fit.size, segments=48)
     v, f = _dense(v, f, 0.008)
