@@ -70,7 +70,7 @@ def _open(path: Path) -> Image.Image:
     try:
         img = Image.open(path)
         img.load()
-    except (OSError, ValueError, Image.DecompressionBombError) as exc:
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:  # SyntaxError: broken PNG chunk
         raise InputError(
             f"cannot read this mask ({type(exc).__name__})", path=path, hint="save SAM 2 masks as PNG images"
         ) from None
