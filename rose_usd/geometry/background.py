@@ -40,6 +40,7 @@ class StaticBackground:
         self.h, self.w = height // stride, width // stride
         n = len(self.poses)
         self.refs = sorted(set(np.linspace(0, n - 1, min(n, n_refs)).round().astype(int).tolist()))
+        self._last: dict[int, np.ndarray] = {}  # the latest frames' static depth (asked for 2-3 times each)
         self._ref_points = []
         for r in self.refs:
             d = depth_of(r)[: self.h * stride : stride, : self.w * stride : stride]
@@ -53,7 +54,16 @@ class StaticBackground:
         return self.K[t] if len(self.K) > 1 else self.K[0]
 
     def depth(self, t: int) -> np.ndarray:
-        """Static depth seen from frame t at full resolution (H, W) [m], 0 where no reference sees it."""
+        """Static depth seen from frame t at full resolution (H, W) [m], 0 where no reference sees
+        it (read-only: the latest few frames' are kept and handed out again)."""
+        if t not in self._last:
+            if len(self._last) >= 2:
+                del self._last[next(iter(self._last))]
+            self._last[t] = self._depth(t)
+            self._last[t].setflags(write=False)
+        return self._last[t]
+
+    def _depth(self, t: int) -> np.ndarray:
         pose, k = self.poses[t], self._K(t)
         rot, center = pose[:3, :3], pose[:3, 3]
         stack = np.full((len(self.refs), self.h * self.w), np.nan, dtype=np.float32)

@@ -14,12 +14,21 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 DEPTH_SUFFIXES = (".png", ".npy", ".exr")
 
 
+_DECODED: set[tuple] = set()
+"""Files (path, inode, size, mtime, ctime) Pillow decoded in this process: each is checked once,
+not at every read (the stages read a frame several times)."""
+
+
 def check_decodes(path: str | os.PathLike, what: str = "image") -> None:
     """InputError naming ``path`` unless its pixels decode. Decoded with Pillow first because a broken
     PNG or JPEG handed to OpenCV prints libpng/libjpeg messages on stderr besides our one line."""
     from PIL import Image, UnidentifiedImageError
 
     try:
+        st = os.stat(path)
+        key = (os.fspath(path), st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+        if key in _DECODED:
+            return
         with Image.open(path) as im:
             im.load()
     except (OSError, ValueError, SyntaxError, UnidentifiedImageError, Image.DecompressionBombError):
@@ -28,6 +37,7 @@ def check_decodes(path: str | os.PathLike, what: str = "image") -> None:
             path=path,
             hint="replace or remove the file",
         ) from None
+    _DECODED.add(key)
 
 
 def read_rgb(path: str | os.PathLike) -> np.ndarray:
