@@ -62,3 +62,53 @@ def test_newton_reads_default_pose_frame_0(oracle_out):
     translate = prim.GetAttribute("xformOp:translate")
     assert translate.Get(Usd.TimeCode.Default()) == translate.Get(Usd.TimeCode(0))
     assert translate.GetNumTimeSamples() == 48
+
+
+def test_the_oracle_object_follows_its_masks(oracle_out):
+    """The track check: the oracle box's re-rendered pixels overlap its masks by IoU > 0.9 on
+    average over the 48 frames, and it passes."""
+    stage = open_stage(oracle_out / "rose.usda")
+    gate = stage.GetPrimAtPath(paths.GATE)
+    assert list(gate.GetAttribute("rose:gate:track:objects").Get()) == ["Box"]
+    assert gate.GetAttribute("rose:gate:track:iou").Get()[0] > 0.9
+    assert gate.GetAttribute("rose:gate:track:frames").Get()[0] == 48
+    assert gate.GetAttribute("rose:gate:track:passed").Get()
+
+
+def test_a_box_rendered_5_cm_off_its_masks_fails_the_track_iou(oracle_out):
+    """The renderer's object labels against the masks layer at frame 20: IoU > 0.9 where the
+    trajectory puts the box, below the 0.5 threshold with the box moved 5 cm sideways; a mask all
+    left out (the interactor's) or under the pixel minimum gives no IoU; the summary averages the
+    frames with one."""
+    import numpy as np
+
+    from rose_usd.gate.run import _track_iou, _track_summary
+    from rose_usd.layers.masks import read_masks
+    from rose_usd.layers.objects import object_paths
+    from rose_usd.layers.world import read_cameras
+    from rose_usd.render.from_usd import StageRenderer
+
+    stage = open_stage(oracle_out / "rose.usda")
+    n, t = 48, 20
+    cameras, masks = read_cameras(stage, n), read_masks(stage, n)
+    renderer = StageRenderer(stage, labels={path: 1 for path in object_paths(stage).values()})
+    renderer.pose_at(t)
+    w, h = cameras.width, cameras.height
+
+    def seen() -> np.ndarray:
+        return renderer.scene.depth_and_labels(cameras.world_from_cv[t], cameras.K[t], w, h)[1] == 1
+
+    assert _track_iou(masks, "Box", t, seen(), None, 50) > 0.9
+    moved = {}
+    for name, pose in renderer.poses_at(t).items():
+        pose = pose.copy()
+        pose[0, 3] += 0.05
+        moved[name] = pose
+    renderer.scene.set_poses(moved)
+    off = _track_iou(masks, "Box", t, seen(), None, 50)
+    assert off < 0.5
+    assert np.isnan(_track_iou(masks, "Box", t, seen(), np.ones((h, w), bool), 50))  # all the hand's
+    assert np.isnan(_track_iou(masks, "Box", t, seen(), None, 10**7))  # too few mask pixels
+    summary = _track_summary({"Box": np.array([0.95, np.nan, off]), "Lost": np.full(3, np.nan)}, 0.5)
+    assert summary["frames"] == {"Box": 2, "Lost": 0} and summary["iou"]["Lost"] is None
+    assert summary["passed"] == ((0.95 + off) / 2 >= 0.5)

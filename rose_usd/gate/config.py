@@ -35,5 +35,11 @@ class GateConfig:
     """XPBD solver iterations per step (default 30; 10 lets a box on a 0.3 deg incline creep ~5 deg in 1 s)."""
     physics_threshold_m: float = 0.005
     """Largest displacement an object at rest may show [m] (default 0.005)."""
+    track: bool = True
+    """Compare each object's re-rendered pixels with its masks (the track check) (default true)."""
+    track_iou_threshold: float = field(default=0.5, metadata=limits(0.0, 1.0))
+    """Mean IoU of each object's re-rendered pixels with its masks needed to pass [-] (default 0.5)."""
+    track_min_pixels: int = field(default=50, metadata=limits(1))
+    """Frames where an object's mask has fewer pixels do not count in its IoU (default 50)."""
     save_frames: bool = False
     """Also write every re-rendered frame to report/frames/ (default false)."""

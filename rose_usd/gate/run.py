@@ -51,15 +51,16 @@ def run(ctx: StageContext) -> None:
     cfg, stage, n = ctx.config, ctx.stage, ctx.time_info.n_frames
     from rose_usd.render.from_usd import StageRenderer
 
-    renderer = StageRenderer(stage)
+    objects = object_paths(stage)
+    renderer = StageRenderer(stage, labels={path: k + 1 for k, path in enumerate(objects.values())})
     frames = list(range(0, n, max(1, cfg.frame_stride)))
     report_dir = ctx.side_dir("report")
-    ssim, keep = _render_and_compare(ctx, renderer, frames, report_dir)
+    ssim, keep, track_iou = _render_and_compare(ctx, renderer, frames, report_dir, list(objects))
     worst = int(np.nanargmin(ssim))
     ssim_mean = float(np.nanmean(ssim))
+    track = _track_summary(track_iou, cfg.track_iou_threshold)
 
     rest = []
-    objects = object_paths(stage)
     if cfg.physics and objects:
         from rose_usd.sim.rest import simulate_rest
 
@@ -68,7 +69,7 @@ def run(ctx: StageContext) -> None:
         )
     physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for r in rest)
     geometry_problems = _geometry_check(stage)
-    passed = _author_gate(ctx, frames, ssim, renderer.scene.variant, rest, physics_ok, geometry_problems)
+    passed = _author_gate(ctx, frames, ssim, renderer.scene.variant, rest, physics_ok, track, geometry_problems)
 
     summary = {
         "passed": passed,
@@ -80,19 +81,32 @@ def run(ctx: StageContext) -> None:
         "frames_rendered": len(frames),
         "physics": [r.__dict__ for r in rest],
         "physics_passed": physics_ok if cfg.physics else None,
+        "track": track,
         "geometry_problems": geometry_problems,
     }
     (report_dir / "gate.json").write_text(json.dumps(summary, indent=2) + "\n")
     write_report(report_dir, ssim, cfg.ssim_threshold, keep)
+    for name, iou in track["iou"].items():
+        if iou is not None and iou < cfg.track_iou_threshold:
+            ctx.warn(
+                f"object {name!r}: its re-render overlaps its masks by IoU {iou:.2f} on average"
+                f" (threshold {cfg.track_iou_threshold}): its shape or trajectory does not follow the video"
+            )
     ctx.record(
-        ssim_mean=round(ssim_mean, 5), passed=passed, physics={r.name: round(r.max_displacement_m, 6) for r in rest}
+        ssim_mean=round(ssim_mean, 5),
+        passed=passed,
+        physics={r.name: round(r.max_displacement_m, 6) for r in rest},
+        track_iou={k: None if v is None else round(v, 4) for k, v in track["iou"].items()},
     )
 
 
-def _render_and_compare(ctx: StageContext, renderer, frames: list[int], report_dir) -> tuple[np.ndarray, dict]:
-    """SSIM per frame of the re-render against the video (NaN where not rendered), and the
-    pictures of four frames spread over the video and of the worst: t -> (original, rendered,
-    SSIM map, excluded pixels)."""
+def _render_and_compare(
+    ctx: StageContext, renderer, frames: list[int], report_dir, names: list[str]
+) -> tuple[np.ndarray, dict, dict]:
+    """SSIM per frame of the re-render against the video (NaN where not rendered); the pictures
+    of four frames spread over the video and of the worst: t -> (original, rendered, SSIM map,
+    excluded pixels); and per object (``names``, render labels 1, 2, ... in that order) the IoU
+    per rendered frame of its visible re-rendered pixels with its mask (``_track_iou``)."""
     cfg, stage, case, n = ctx.config, ctx.stage, ctx.case, ctx.time_info.n_frames
     camera = read_cameras(stage, n)
     if (camera.width, camera.height) != (case.width, case.height):
@@ -110,11 +124,16 @@ def _render_and_compare(ctx: StageContext, renderer, frames: list[int], report_d
         return _interactor_mask(masks, t, cfg.interactor_dilate_px) if cfg.exclude_interactor else None
 
     ssim = np.full(n, np.nan)
+    track = {name: np.full(n, np.nan) for name in names} if cfg.track and masks is not None else {}
     keep = {}
     sample_frames = set(np.linspace(0, len(frames) - 1, 4).round().astype(int).tolist())
     for i, t in enumerate(progress(frames, "gate render", total=len(frames))):
         rendered, original, left_out = render(t), case.rgb(t), exclude(t)
         ssim[t], ssim_map = masked_ssim(original, rendered, left_out)
+        if track:
+            labels = renderer.scene.depth_and_labels(camera.world_from_cv[t], camera.K[t], case.width, case.height)[1]
+            for k, name in enumerate(names):
+                track[name][t] = _track_iou(masks, name, t, labels == k + 1, left_out, cfg.track_min_pixels)
         if cfg.save_frames:
             write_rgb(report_dir / "frames" / f"{t:06d}.png", rendered)
         if i in sample_frames:
@@ -123,10 +142,34 @@ def _render_and_compare(ctx: StageContext, renderer, frames: list[int], report_d
     if worst not in keep:
         rendered, left_out = render(worst), exclude(worst)
         keep[worst] = (case.rgb(worst), rendered, masked_ssim(case.rgb(worst), rendered, left_out)[1], left_out)
-    return ssim, keep
+    return ssim, keep, track
 
 
-def _author_gate(ctx: StageContext, frames, ssim, variant: str, rest, physics_ok: bool, geometry_problems) -> bool:
+def _track_iou(masks: Masks, name: str, t: int, seen: np.ndarray, left_out, min_pixels: int) -> float:
+    """IoU of an object's visible re-rendered pixels ``seen`` with its mask at frame t, the
+    interactor's (``left_out``) not counted; NaN where the mask has fewer than ``min_pixels``."""
+    mask = masks.mask(name, t) if masks.has(name) else None
+    if mask is None:
+        return float("nan")
+    if left_out is not None:
+        mask, seen = mask & ~left_out, seen & ~left_out
+    if np.count_nonzero(mask) < min_pixels:
+        return float("nan")
+    return float(np.count_nonzero(mask & seen) / np.count_nonzero(mask | seen))
+
+
+def _track_summary(track: dict[str, np.ndarray], threshold: float) -> dict:
+    """Per object its mean IoU (None without masked frames) and frame count; passed when every
+    object with masked frames reaches ``threshold``."""
+    iou = {name: (float(np.nanmean(v)) if np.isfinite(v).any() else None) for name, v in track.items()}
+    frames = {name: int(np.isfinite(v).sum()) for name, v in track.items()}
+    passed = all(v is None or v >= threshold for v in iou.values())
+    return {"iou": iou, "frames": frames, "threshold": threshold, "passed": passed}
+
+
+def _author_gate(
+    ctx: StageContext, frames, ssim, variant: str, rest, physics_ok: bool, track: dict, geometry_problems
+) -> bool:
     """Write /World/Gate (RoseGateAPI); returns whether the gate passed."""
     cfg = ctx.config
     gate = UsdGeom.Scope.Define(ctx.stage, paths.GATE).GetPrim()
@@ -147,8 +190,16 @@ def _author_gate(ctx: StageContext, frames, ssim, variant: str, rest, physics_ok
     gate.GetAttribute(tokens.GATE_PHYSICS_THRESHOLD).Set(float(cfg.physics_threshold_m))
     gate.GetAttribute(tokens.GATE_PHYSICS_DURATION).Set(float(cfg.physics_duration_s if cfg.physics else 0.0))
     gate.GetAttribute(tokens.GATE_PHYSICS_PASSED).Set(bool(physics_ok and cfg.physics))
+    names = list(track["iou"])
+    gate.GetAttribute(tokens.GATE_TRACK_OBJECTS).Set(names)
+    gate.GetAttribute(tokens.GATE_TRACK_IOU).Set(
+        [float("nan") if track["iou"][k] is None else track["iou"][k] for k in names]
+    )
+    gate.GetAttribute(tokens.GATE_TRACK_FRAMES).Set([track["frames"][k] for k in names])
+    gate.GetAttribute(tokens.GATE_TRACK_THRESHOLD).Set(float(track["threshold"]))
+    gate.GetAttribute(tokens.GATE_TRACK_PASSED).Set(bool(track["passed"]))
     gate.GetAttribute(tokens.GATE_GEOMETRY_PASSED).Set(not geometry_problems)
     gate.GetAttribute(tokens.GATE_GEOMETRY_REPORT).Set("\n".join(geometry_problems))
-    passed = passed_ssim and (physics_ok or not cfg.physics) and not geometry_problems
+    passed = passed_ssim and (physics_ok or not cfg.physics) and track["passed"] and not geometry_problems
     gate.GetAttribute(tokens.GATE_PASSED).Set(bool(passed))
     return bool(passed)

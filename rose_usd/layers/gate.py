@@ -11,8 +11,8 @@ from rose_usd.usd import paths, tokens
 
 @dataclass(frozen=True)
 class GateResult:
-    """The quality gate of a stage: re-render SSIM against the video, the physics rest check and
-    the collider check."""
+    """The quality gate of a stage: re-render SSIM against the video, the physics rest check, the
+    track check (each object's re-render against its masks) and the collider check."""
 
     passed: bool
     ssim_mean: float
@@ -24,12 +24,18 @@ class GateResult:
     physics_passed: bool
     geometry_passed: bool
     geometry_report: str
+    track_iou: dict[str, float]
+    """Per object: mean IoU of its re-render with its masks (NaN without masked frames; empty when
+    the check did not run)."""
+    track_threshold: float
 
     def summary(self) -> str:
         rest = ", ".join(f"{name} {1e3 * d:.2f} mm" for name, d in self.rest_displacement_m.items())
+        track = ", ".join(f"{name} {iou:.2f}" for name, iou in self.track_iou.items())
         return (
             f"gate {'PASS' if self.passed else 'FAIL'}: SSIM {self.ssim_mean:.4f} (min {self.ssim_min:.4f}, "
             f"threshold {self.ssim_threshold:.2f}); rest {rest or 'not run'}; "
+            f"track IoU {track or 'not run'}{f' (threshold {self.track_threshold:.2f})' if track else ''}; "
             f"colliders {'ok' if self.geometry_passed else self.geometry_report}"
         )
 
@@ -60,4 +66,8 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
         physics_passed=bool(get(tokens.GATE_PHYSICS_PASSED)),
         geometry_passed=bool(get(tokens.GATE_GEOMETRY_PASSED)),
         geometry_report=str(get(tokens.GATE_GEOMETRY_REPORT) or ""),
+        track_iou=dict(
+            zip(list(get(tokens.GATE_TRACK_OBJECTS) or []), [float(v) for v in get(tokens.GATE_TRACK_IOU) or []])
+        ),
+        track_threshold=float(get(tokens.GATE_TRACK_THRESHOLD) or 0.0),
     )

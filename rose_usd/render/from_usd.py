@@ -50,9 +50,11 @@ class StageRenderer:
     ``extra`` items (not in the stage: a simulated robot's links) are drawn too, posed by the caller
     with ``scene.set_poses``."""
 
-    def __init__(self, stage: Usd.Stage, extra: list[RenderItem] = ()):
+    def __init__(self, stage: Usd.Stage, extra: list[RenderItem] = (), labels: dict[str, int] | None = None):
+        """``labels``: prim path -> label (1-255) of the meshes at or below it in label images."""
         self.stage = stage
         items = list(extra)
+        roots = [(Sdf.Path(path), int(label)) for path, label in (labels or {}).items()]
         self._animated: dict[str, Usd.Prim] = {}
         purposes = {UsdGeom.Tokens.default_, UsdGeom.Tokens.render}
         for prim in stage.Traverse():
@@ -62,13 +64,14 @@ class StageRenderer:
             if imageable.ComputePurpose() not in purposes or imageable.ComputeVisibility() == UsdGeom.Tokens.invisible:
                 continue
             name = f"m{len(items)}"
+            label = next((lab for root, lab in roots if prim.GetPath().HasPrefix(root)), 0)
             if _animated(prim):
                 mesh = read_mesh(prim, world=False)
                 pose = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode(0)), dtype=float).T
                 self._animated[name] = prim
-                items.append(RenderItem(name, mesh, pose=pose))
+                items.append(RenderItem(name, mesh, label=label, pose=pose))
             else:
-                items.append(RenderItem(name, read_mesh(prim, world=True)))
+                items.append(RenderItem(name, read_mesh(prim, world=True), label=label))
         if not items:
             raise StageError(
                 "the stage has no renderable meshes",

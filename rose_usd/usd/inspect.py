@@ -363,6 +363,13 @@ def _gate_lines(g: dict[str, Any]) -> list[str]:
         f"  physics: rest check over {g.get(tokens.GATE_PHYSICS_DURATION, 0):g} s: {moves or 'not run'}: "
         f"{'pass' if g.get(tokens.GATE_PHYSICS_PASSED) else 'FAIL'}"
     )
+    names, ious = g.get(tokens.GATE_TRACK_OBJECTS, []), g.get(tokens.GATE_TRACK_IOU, [])
+    track = ", ".join(f"{o} {v:.3f}" for o, v in zip(names, ious))
+    verdict = "pass" if g.get(tokens.GATE_TRACK_PASSED) else "FAIL"
+    lines.append(
+        f"  track: re-render vs masks, mean IoU {track or 'not run'} vs threshold "
+        f"{g.get(tokens.GATE_TRACK_THRESHOLD, float('nan')):.2f}: {verdict}"
+    )
     lines.append(
         "  geometry: "
         f"{'pass' if g.get(tokens.GATE_GEOMETRY_PASSED) else 'FAIL: ' + g.get(tokens.GATE_GEOMETRY_REPORT, '')}"

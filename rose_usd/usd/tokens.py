@@ -44,6 +44,11 @@ GATE_SSIM = "rose:gate:ssim"
 GATE_SSIM_MEAN = "rose:gate:ssimMean"
 GATE_SSIM_PASSED = "rose:gate:ssimPassed"
 GATE_SSIM_THRESHOLD = "rose:gate:ssimThreshold"
+GATE_TRACK_FRAMES = "rose:gate:track:frames"
+GATE_TRACK_IOU = "rose:gate:track:iou"
+GATE_TRACK_OBJECTS = "rose:gate:track:objects"
+GATE_TRACK_PASSED = "rose:gate:track:passed"
+GATE_TRACK_THRESHOLD = "rose:gate:track:threshold"
 
 # masks
 MASKS_CONFIDENCE = "rose:masks:confidence"
