@@ -138,8 +138,8 @@ def _view(layer, name, t, mask, cameras, cfg, *, soft=None, box=None) -> View:
 
 
 FIRST_IOU_FLOOR = 0.05
-"""The IoU the confidences are relative to when the object's first pose overlaps its first mask
-less (an object fit that failed): the confidence is then the IoU over this, near 0."""
+"""When the object's first pose overlaps its first mask less (an object fit that failed), the
+confidences are the IoUs themselves, not relative to the first one."""
 
 
 def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
@@ -170,7 +170,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box if posterior is not None else None)
         now = iou([view], se3.transform_points(pose, v), f, convex=convex)
         if ref_iou is None:
-            ref_iou, first, base = now, now, max(now, FIRST_IOU_FLOOR)
+            ref_iou, first, base = now, now, (now if now >= FIRST_IOU_FLOOR else 1.0)
         floor = cfg.min_iou * base
         if now >= max(floor, ref_iou - cfg.hold_drop * base):
             poses[t], conf[t], present[t] = pose, min(1.0, now / base), True
