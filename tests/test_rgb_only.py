@@ -308,3 +308,46 @@ def test_a_size_prior_keeps_a_half_hidden_pen_its_length():
     assert abs(held.size[1] / 0.14 - 1) < 0.3
     assert abs(held.size[1] - 0.14) < 0.5 * abs(free.size[1] - 0.14)
     assert held.iou > 0.95
+
+
+def test_structure_from_motion_repeats(sample_case):
+    """pycolmap over the same frames twice (the sample's every 2nd frame, a hand-held camera)
+    gives the same map: the same keyframes registered, poses and points bit for bit."""
+    from rose_usd.capture.colmap import run_sfm
+    from rose_usd.case.layout import load_case
+
+    case = load_case(sample_case)
+    frames = [case.rgb(t) for t in range(0, case.n_frames, 2)]
+    first, second = (run_sfm(frames, case.K(), fix_K=True) for _ in range(2))
+    assert first is not None and len(first.poses) >= 12
+    assert first.poses.keys() == second.poses.keys()
+    assert all(np.array_equal(first.poses[k], second.poses[k]) for k in first.poses)
+    assert np.array_equal(first.points, second.points)
+
+
+def test_a_map_with_its_support_above_the_camera_is_not_used(tmp_path, sample_case, monkeypatch):
+    """When structure from motion's support plane lies above the reference camera (a wrong map),
+    capture warns, tracks the camera against the support plane as for a near-static one, and the
+    world has its camera above the support."""
+    import rose_usd
+    import rose_usd.capture.sfm as sfm
+    from rose_usd.capture.gravity import Plane
+    from rose_usd.usd.stage import layer_file, read_provenance
+
+    real = sfm._map_gravity
+
+    def above(ctx, gravity, poses, points, K, spec, ref, record):
+        gravity, support = real(ctx, gravity, poses, points, K, spec, ref, record)
+        return gravity, Plane(support.normal, float(support.normal @ poses[ref][:3, 3]) + 0.1, 0, 0.0)
+
+    monkeypatch.setattr(sfm, "_map_gravity", above)
+    case = tmp_path / "case"
+    shutil.copytree(sample_case, case)
+    shutil.rmtree(case / "depth")
+    moving = {"capture": {"sfm": {"near_static_motion": 0.01}}}  # the sample's camera moves 6 %: map it
+    rose_usd.reconstruct(case, tmp_path / "out", until="capture", settings=moving)
+    prov = read_provenance(layer_file(tmp_path / "out", "world"))
+    assert prov["results"]["sfm_rejected"] == "support plane above the camera"
+    assert prov["results"]["camera_motion"] == "near-static"
+    assert any("support plane above the camera" in w for w in prov.get("warnings", []))
+    assert prov["results"]["camera_height_m"] > 0

@@ -62,6 +62,9 @@ from rose_usd.geometry.vanishing import up_from_lines, upright_prior
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext
 
+PLAUSIBLE_HEIGHT_M = (0.05, 3.0)
+"""The reference camera's height over the support a tabletop video can have [m]; outside, a warning."""
+
 _IMAGE_GRAVITY = ("vanishing-points", "upright-prior")
 """Gravity sources of a single image (not a map's plane, not a sensor): the object may refine them."""
 
@@ -160,6 +163,17 @@ def run(ctx: StageContext) -> None:
 
     # ---------------------------------------------------------------- gravity and the support plane
     gravity, support, poses = _gravity_and_support(ctx, motion, poses, points, K, spec, ref, record)
+    if motion == "moving" and float(support.normal @ poses[ref][:3, 3]) <= support.offset:
+        # a map whose support plane is not under its camera is wrong, and so is its self-calibration
+        ctx.warn(
+            "structure from motion put the support plane above the camera: the camera is tracked against"
+            " its support plane instead, with the intrinsics it had before"
+        )
+        record["sfm_rejected"] = "support plane above the camera"
+        motion, points = "near-static", None
+        K, k_source, _ = resolve_K(case, fov_guess_deg=cfg.fov_guess_deg)
+        record["camera_motion"] = motion
+        gravity, support, poses = _gravity_and_support(ctx, motion, None, None, K, spec, ref, record)
     up = gravity.up / np.linalg.norm(gravity.up)
 
     # ---------------------------------------------------------------- world frame (units) and scale
@@ -173,6 +187,12 @@ def run(ctx: StageContext) -> None:
     cues, chosen, agreement = _scale(ctx, spec, mask, K, world_units[ref], record)
     world_from_camera = _author(ctx, world_units, world_from_track, K, k_source, gravity, chosen, cues)
     height = float(world_from_camera[ref, 2, 3])
+    if not PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]:
+        ctx.warn(
+            f"the camera comes out {height:.3g} m above the support, not a tabletop video's"
+            f" {PLAUSIBLE_HEIGHT_M[0]}-{PLAUSIBLE_HEIGHT_M[1]} m: the gravity, the intrinsics or the scale is"
+            " likely wrong (give cam_K.txt, size_m)"
+        )
     say(
         f"capture: {motion} camera, gravity from {gravity.source} (+-{gravity.uncertainty_deg:.1f} deg), "
         f"scale from {chosen.name} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
@@ -317,8 +337,10 @@ def _structure_from_motion(ctx: StageContext, K: np.ndarray, k_source: str, ref:
     step = max(1, int(np.ceil(n / cfg.keyframes)))
     keys = sorted(set(range(0, n, step)) | {n - 1, ref})
     say(f"capture: structure from motion over {len(keys)} keyframes (COLMAP)")
-    result = run_sfm([case.rgb(t) for t in keys], K, fix_K=k_source == "file", max_side=cfg.max_side)
+    frames = [case.rgb(t) for t in keys]
+    result = run_sfm(frames, K, fix_K=k_source == "file", max_side=cfg.max_side)
     record = {"keyframes": len(keys)}
+    held = k_source == "file"
     if result is None or ref not in {keys[i] for i in result.poses}:
         record["sfm"] = "failed" if result is None else "reference frame not registered"
         return None, None, K, k_source, record
@@ -330,7 +352,7 @@ def _structure_from_motion(ctx: StageContext, K: np.ndarray, k_source: str, ref:
         sfm_reprojection_px=round(result.reprojection_px, 3),
         sfm_seconds=round(result.wall_s, 1),
     )
-    if k_source != "file":
+    if not held:
         record["sfm_focal_px"] = round(float(result.K[0, 0]), 2)
         record["sfm_k1"] = round(result.distortion, 5)
         K, k_source = result.K, "self-calibrated"
