@@ -269,3 +269,21 @@ def test_rgbd_tracking_repeats_bit_for_bit(sample_case):
     assert runs[0].world_from_camera.shape == (24, 4, 4)
     assert np.array_equal(runs[0].world_from_camera, runs[1].world_from_camera)
     assert runs[0].keyframes == runs[1].keyframes
+
+
+def test_a_script_without_a_main_guard_can_reconstruct(tmp_path, sample_case):
+    """A user's script that calls rose_usd.reconstruct at its top level (no ``if __name__ ==
+    "__main__"``) runs the rgbd capture: its one-CPU tracking process does not import the script
+    (a multiprocessing spawn child did, and the run died with BrokenProcessPool)."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "user_script.py"
+    script.write_text(
+        "import rose_usd\n"
+        f"result = rose_usd.reconstruct({str(sample_case)!r}, {str(tmp_path / 'out')!r}, until='capture')\n"
+        "print('captured', result.plan)\n"
+    )
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "captured {'capture': 'rgbd'}" in done.stdout

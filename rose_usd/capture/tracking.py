@@ -248,13 +248,43 @@ def can_bind_cpu() -> bool:
 def track_on_one_cpu(case, frames: list[int], K: np.ndarray, params: TrackingParams) -> TrackResult:
     """``RgbdTracker(K, case.width, case.height, params).track`` over ``frames`` of ``case`` (a
     ``Case``: colour and metric depth as it reads them), in a fresh process bound to the CPU this
-    one runs on, so that the result repeats bit for bit."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    one runs on, so that the result repeats bit for bit. The process is ``python -m
+    rose_usd.capture.tracking`` (the job pickled on its stdin, the result into a file): unlike a
+    multiprocessing child it never imports the caller's script, so a script that calls
+    ``rose_usd.reconstruct`` needs no ``if __name__ == "__main__"`` guard."""
+    import pickle
+    import subprocess
+    import sys
+    import tempfile
 
-    spawn = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(1, mp_context=spawn, initializer=_bind_cpu, initargs=(_current_cpu(),)) as pool:
-        return pool.submit(_track_frames, case, [int(f) for f in frames], K, params).result()
+    with tempfile.TemporaryDirectory(prefix="rose-track-") as tmp:
+        out = os.path.join(tmp, "result.pickle")
+        job = pickle.dumps((_current_cpu(), case, [int(f) for f in frames], K, params, out))
+        done = subprocess.run([sys.executable, "-m", "rose_usd.capture.tracking"], input=job, check=False)
+        if done.returncode != 0 or not os.path.isfile(out):
+            raise RuntimeError(
+                f"the one-CPU tracking process failed (exit status {done.returncode}; its output is above)"
+            )
+        with open(out, "rb") as f:
+            ok, value = pickle.load(f)
+    if not ok:
+        raise value  # the tracker's own error (an InputError naming a frame, say)
+    return value
+
+
+def _child() -> None:
+    """``python -m rose_usd.capture.tracking``: bind to the CPU given, track, write the result."""
+    import pickle
+    import sys
+
+    cpu, case, frames, K, params, out = pickle.load(sys.stdin.buffer)
+    _bind_cpu(cpu)  # before Open3D starts its threads
+    try:
+        result = (True, _track_frames(case, frames, K, params))
+    except Exception as exc:  # noqa: BLE001 - handed to the parent, which raises it
+        result = (False, exc)
+    with open(out, "wb") as f:
+        pickle.dump(result, f)
 
 
 def _current_cpu() -> int | None:
@@ -274,3 +304,10 @@ def _bind_cpu(cpu: int | None) -> None:
 def _track_frames(case, frames: list[int], K, params: TrackingParams) -> TrackResult:
     tracker = RgbdTracker(K, case.width, case.height, params)
     return tracker.track(len(frames), lambda i: (case.rgb(frames[i]), case.depth_m(frames[i]), None))
+
+
+if __name__ == "__main__":
+    # run the module's own copy (``rose_usd.capture.tracking``), so results pickle under its name
+    from rose_usd.capture.tracking import _child as child
+
+    child()
