@@ -241,6 +241,7 @@ class Pipeline:
         side_dirs = {s.layer: s.side_dirs for s in registry.STAGES}
         writer = usd_stage.LayerWriter(self.out_dir, stage_def.layer, self.time_info, provenance, side_dirs)
         with writer:
+            _fresh_random_state()
             func(StageContext(stage_def, config, self.case, self.out_dir, self.time_info, writer))
         wall = float(writer.provenance["wall_time_s"])
         say(f"[{stage_def.name}] wrote {usd_stage.layer_file(self.out_dir, stage_def.layer)} in {wall:.1f} s")
@@ -288,3 +289,12 @@ class Pipeline:
         if usd_stage.existing_layers(self.out_dir) and not usd_stage.root_file(self.out_dir).is_file():
             usd_stage.write_root(self.out_dir, self.time_info)
         return outcomes
+
+
+def _fresh_random_state() -> None:
+    """OpenCV's global random generator (GrabCut's k-means draws from it) back to a fresh
+    process's state (``setRNGSeed(0)`` is that state), so that a stage's result does not depend
+    on what ran before it in the process: a batch or Ray worker runs case after case."""
+    import cv2
+
+    cv2.setRNGSeed(0)
