@@ -337,10 +337,8 @@ def _structure_from_motion(ctx: StageContext, K: np.ndarray, k_source: str, ref:
     step = max(1, int(np.ceil(n / cfg.keyframes)))
     keys = sorted(set(range(0, n, step)) | {n - 1, ref})
     say(f"capture: structure from motion over {len(keys)} keyframes (COLMAP)")
-    frames = [case.rgb(t) for t in keys]
-    result = run_sfm(frames, K, fix_K=k_source == "file", max_side=cfg.max_side)
+    result = run_sfm([case.rgb(t) for t in keys], K, fix_K=k_source == "file", max_side=cfg.max_side)
     record = {"keyframes": len(keys)}
-    held = k_source == "file"
     if result is None or ref not in {keys[i] for i in result.poses}:
         record["sfm"] = "failed" if result is None else "reference frame not registered"
         return None, None, K, k_source, record
@@ -352,7 +350,7 @@ def _structure_from_motion(ctx: StageContext, K: np.ndarray, k_source: str, ref:
         sfm_reprojection_px=round(result.reprojection_px, 3),
         sfm_seconds=round(result.wall_s, 1),
     )
-    if not held:
+    if k_source != "file":
         record["sfm_focal_px"] = round(float(result.K[0, 0]), 2)
         record["sfm_k1"] = round(result.distortion, 5)
         K, k_source = result.K, "self-calibrated"

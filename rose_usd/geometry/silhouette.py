@@ -181,20 +181,15 @@ PRIOR_WEIGHT = 0.005
 """Cost of a one-sigma size deviation in a standing fit with a size prior, in IoU."""
 
 
-def log_normal_sizes(expected: np.ndarray, sigma: float, *, scale_free: bool = False) -> Callable[[np.ndarray], float]:
+def log_normal_sizes(expected: np.ndarray, sigma: float) -> Callable[[np.ndarray], float]:
     """A size prior for ``fit_standing``: ``PRIOR_WEIGHT`` * z**2 per size parameter, z its log
     ratio to ``expected`` over the relative one-sigma ``sigma`` (a 1-sigma size costs as much as
     0.005 IoU, 3 sigma 0.045), so the silhouettes decide within that spread and a size they leave
-    open (an end outside the crop, a side an occluder hides) stays near the expected one. With
-    ``scale_free`` only the proportions are held (the log ratios' mean is free): for a fit in a
-    reconstruction's units, whose metric scale is what is being measured."""
+    open (an end outside the crop, a side an occluder hides) stays near the expected one."""
     log_expected = np.log(np.asarray(expected, float))
 
     def cost(size: np.ndarray) -> float:
-        z = np.log(np.asarray(size, float)) - log_expected
-        if scale_free:
-            z = z - z.mean()
-        z = z / max(sigma, 1e-6)
+        z = (np.log(np.asarray(size, float)) - log_expected) / max(sigma, 1e-6)
         return PRIOR_WEIGHT * float(np.sum(z * z))
 
     return cost
@@ -212,14 +207,9 @@ def lying_start(view_mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray,
     mean = pts.mean(axis=0)
     axis = np.linalg.eigh(np.cov((pts - mean).T))[1][:, -1]
     along = (pts - mean) @ axis
-    ends = []
-    for q in (2.0, 98.0):
-        u, v = mean + np.percentile(along, q) * axis
-        ray = world_from_cv[:3, :3] @ np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], 1.0])
-        if ray[2] > -1e-6:
-            return None
-        origin = world_from_cv[:3, 3]
-        ends.append((origin + (support_z - origin[2]) / ray[2] * ray)[:2])
+    ends = [_onto_plane(*(mean + np.percentile(along, q) * axis), K, world_from_cv, support_z) for q in (2.0, 98.0)]
+    if ends[0] is None or ends[1] is None:
+        return None
     d = ends[1] - ends[0]
     center = (ends[0] + ends[1]) / 2.0
     return float(center[0]), float(center[1]), float(np.arctan2(d[1], d[0])), float(np.hypot(*d))
@@ -289,13 +279,17 @@ def footprint_xy(view_mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray
     if not len(ys):
         return None
     low = ys >= np.percentile(ys, 95)
-    u, v = float(np.median(xs[low])), float(np.percentile(ys, 98))
+    return _onto_plane(float(np.median(xs[low])), float(np.percentile(ys, 98)), K, world_from_cv, support_z)
+
+
+def _onto_plane(u: float, v: float, K: np.ndarray, world_from_cv: np.ndarray, support_z: float):
+    """Where pixel (u, v)'s ray meets the plane z = ``support_z`` (world x, y); None when the ray
+    points above the horizon."""
     ray = world_from_cv[:3, :3] @ np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], 1.0])
     origin = world_from_cv[:3, 3]
     if ray[2] > -1e-6:
         return None
-    s = (support_z - origin[2]) / ray[2]
-    return (origin + s * ray)[:2]
+    return (origin + (support_z - origin[2]) / ray[2] * ray)[:2]
 
 
 # ----------------------------------------------------------------------------- free pose

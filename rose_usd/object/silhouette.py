@@ -246,8 +246,12 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
         else (tuple(np.radians([0.0, 30.0, 60.0])) if turn else (0.0,))
     )
     xy0 = _start(xy, views, width)
-    lying = lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)
-    if typ.kind is PrimitiveKind.LYING_CYLINDER and lying is not None:
+    lying = (
+        lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)
+        if typ.kind is PrimitiveKind.LYING_CYLINDER
+        else None
+    )
+    if lying is not None:
         xy0, yaws = np.array(lying[:2]), (lying[2], *yaws)  # a pen: on its mask's axis, along it
     fit = fit_standing(
         lambda d: primitive_mesh(typ.kind, d),

@@ -50,11 +50,16 @@ def _load(newton, stage: Usd.Stage, object_paths: dict[str, str]):
     return builder.finalize(device=wp.get_preferred_device()), body_of
 
 
-def _objects_bounds(stage: Usd.Stage, object_paths: dict[str, str]) -> tuple[np.ndarray, np.ndarray]:
-    """The world bounds (lo, hi) of all the objects together."""
-    cache = UsdGeom.BBoxCache(
+def _bbox_cache() -> UsdGeom.BBoxCache:
+    """Bounds at the default time over every purpose an object's meshes use (collision: guide)."""
+    return UsdGeom.BBoxCache(
         Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.guide]
     )
+
+
+def _objects_bounds(stage: Usd.Stage, object_paths: dict[str, str]) -> tuple[np.ndarray, np.ndarray]:
+    """The world bounds (lo, hi) of all the objects together."""
+    cache = _bbox_cache()
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for path in object_paths.values():
         box = cache.ComputeWorldBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
@@ -76,9 +81,9 @@ def _keep_near(newton, builder, bounds: tuple[np.ndarray, np.ndarray], near_m: f
             continue
         mesh = builder.shape_source[i]
         tf = builder.shape_transform[i]
-        rot = np.asarray(wp.quat_to_matrix(tf.q), dtype=float).reshape(3, 3)
-        world = (np.asarray(mesh.vertices, float) * np.asarray(builder.shape_scale[i], float)) @ rot.T + np.asarray(
-            tf.p
+        world_from_shape = se3.make_pose(np.asarray(wp.quat_to_matrix(tf.q), dtype=float).reshape(3, 3), tf.p)
+        world = se3.transform_points(
+            world_from_shape, np.asarray(mesh.vertices, float) * np.asarray(builder.shape_scale[i], float)
         )
         tris = np.asarray(mesh.indices, dtype=np.int64).reshape(-1, 3)
         corners = world[tris]
@@ -102,9 +107,7 @@ def _body_corners(stage: Usd.Stage, object_paths: dict[str, str]) -> dict[str, n
     rigid-body prims)."""
     corners = {}
     for name, path in object_paths.items():
-        bbox = UsdGeom.BBoxCache(
-            Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.guide]
-        )
+        bbox = _bbox_cache()
         box = bbox.ComputeUntransformedBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
         lo, hi = np.asarray(box.GetMin()), np.asarray(box.GetMax())
         corners[name] = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
