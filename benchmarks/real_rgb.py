@@ -382,6 +382,10 @@ def run_seven_scenes(args) -> dict:
     rot_err = [se3.rotation_angle_deg((rot @ e[:3, :3]).T @ g[:3, :3]) for e, g in zip(est, truth)]
     up = rot @ np.array([0.0, 0.0, 1.0])
     gravity_err = float(np.degrees(np.arccos(np.clip(up @ -gravity, -1.0, 1.0))))
+    # the same without the alignment: gravity seen from each camera, ours against the recording's
+    down_ours = np.einsum("nji,j->ni", est[:, :3, :3], [0.0, 0.0, -1.0])
+    down_true = np.einsum("nji,j->ni", truth[:, :3, :3], gravity)
+    in_camera = np.degrees(np.arccos(np.clip((down_ours * down_true).sum(axis=1), -1.0, 1.0)))
     prov = read_provenance(layer_file(run_dir, "world")) or {}
     result = {
         "sequence": folder.name,
@@ -392,6 +396,11 @@ def run_seven_scenes(args) -> dict:
         "camera_rotation_error_deg": {"mean": float(np.mean(rot_err)), "max": float(np.max(rot_err))},
         "sim3_scale": scale,
         "gravity_error_deg": gravity_err,
+        "gravity_in_camera_error_deg": {
+            "frame_0": float(in_camera[0]),
+            "mean": float(in_camera.mean()),
+            "max": float(in_camera.max()),
+        },
         "capture_results": {k: v for k, v in (prov.get("results") or {}).items() if k != "scale_cues"},
         "capture_warnings": prov.get("warnings", []),
     }

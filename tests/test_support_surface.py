@@ -5,6 +5,7 @@ under it."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from rose_usd.core import se3
@@ -96,3 +97,42 @@ def test_ransac_finds_the_plane_and_repeats():
     assert 2000 <= count < 2000 + 20
     again = ransac_plane(points, 0.005, np.random.default_rng(0))
     assert again[2] == count and abs(abs(again[1]) - abs(offset)) == 0.0
+
+
+def test_a_plane_is_one_connected_patch_not_a_slab_through_two_surfaces():
+    """A sparse, noisy map's near table (400 points, 1.2 cm noise) and a counter 1 m beyond it and
+    15 cm higher: one RANSAC slab through both is tilted 8 deg and holds the most points; as
+    connected patches each surface is its own plane, within 2 deg of level."""
+    from rose_usd.capture.gravity import fit_planes
+
+    rng = np.random.default_rng(1)
+
+    def patch(x0, z):
+        p = np.column_stack([rng.uniform(x0, x0 + 0.3, 400), rng.uniform(-0.15, 0.15, 400), np.full(400, z)])
+        p[:, 2] += rng.normal(0, 0.012, 400)
+        return p
+
+    points = np.vstack([patch(0.0, 0.0), patch(1.0, 0.15)])
+    viewpoint = np.array([0.0, 0.0, 1.0])
+
+    def tilts(planes):
+        return [np.degrees(np.arccos(min(1.0, abs(p.normal[2])))) for p in planes]
+
+    slab = fit_planes(points, viewpoint, min_points=50, distance_m=0.03)
+    assert tilts(slab)[0] > 6.0 and slab[0].inliers > 600
+    patches = fit_planes(points, viewpoint, min_points=50, distance_m=0.03, connected_m=0.1)
+    assert len(patches) == 2 and max(tilts(patches)) < 2.0
+    assert sorted(abs(p.offset) for p in patches) == pytest.approx([0.0, 0.15], abs=0.01)
+
+
+def test_the_planes_scatter_is_the_gravity_uncertainty():
+    """Parallel planes agree (0 deg); planes 0 and 6 deg off up, equally weighted, scatter by
+    sqrt(18) = 4.24 deg RMS; a wall (90 deg) is not a horizontal plane and does not count."""
+    from rose_usd.capture.gravity import Plane, disagreement_deg
+
+    up = np.array([0.0, 0.0, 1.0])
+    tilted = np.array([np.sin(np.radians(6.0)), 0.0, np.cos(np.radians(6.0))])
+    wall = np.array([1.0, 0.0, 0.0])
+    assert disagreement_deg(up, [Plane(up, 0.0, 100, 0.0), Plane(up, 0.7, 50, 0.0)]) == 0.0
+    planes = [Plane(up, 0.0, 100, 0.0), Plane(tilted, 0.1, 100, 0.0), Plane(wall, 1.0, 500, 0.0)]
+    assert disagreement_deg(up, planes) == pytest.approx(np.sqrt(18.0), abs=1e-6)
