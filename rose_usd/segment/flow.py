@@ -13,8 +13,10 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
    boundary, with the other tracks' pixels as sure background. Each track keeps its whole shape
    from its last clear view and moves it rigidly by the median flow of what is seen of it, so a
    track hidden by the hand or passing behind another keeps its shape and is not absorbed by its
-   neighbor; where shapes overlap, the one standing lower in the image is in front. Confidence
-   is the visible fraction of the shape.
+   neighbor; where shapes overlap, the one standing lower in the image is in front. A track
+   that moved since the last frame takes no pixel of the static background (a still camera's
+   temporal median): what is carried is not what it leaves behind. Confidence is the visible
+   fraction of the shape.
 3. **Interactor** (rough: a 2D motion cue, no depth). What differs from the static background:
    the per-pixel temporal median of the video when the camera stands still (chroma weighted over
    lightness, so shadows count less), else the pixels whose flow departs from the camera's (a
@@ -36,6 +38,14 @@ from rose_usd.segment.prompts import check_prompts, parse_prompts
 from rose_usd.segment.segmenter import components, fill_holes
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
+
+MOVING_PX = 2.0
+"""A track whose shape moved by more than this between frames [px] is carried: the static
+background's pixels are not its (the tangram box under DeepAC's cat became part of the cat's
+shape while the cat was lifted off it, and held the track there when the cat left)."""
+
+FOREGROUND_LAB = 20.0
+"""A still camera's pixel is foreground this far from the temporal median (weighted Lab)."""
 
 _REACH = 0.35
 """A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""
@@ -131,23 +141,32 @@ class FlowTracker:
         gb = cv2.cvtColor(self.frame_of(b), cv2.COLOR_RGB2GRAY)
         return self.dis.calc(ga, gb, None)
 
-    def _moved(self, tr: Track2D, flow: np.ndarray) -> np.ndarray:
-        """The track's whole shape moved rigidly by the median flow of what was seen of it (a hand
-        over part of an object does not drag its shape along)."""
+    def _shift(self, tr: Track2D, flow: np.ndarray) -> np.ndarray:
+        """The median flow (dx, dy) of what was seen of the track (a hand over part of an object
+        does not drag its shape along) [px]."""
         seen = tr.last_visible if tr.last_visible is not None and tr.last_visible.sum() >= 20 else tr.mask
-        if not seen.any():
-            return tr.mask
-        dx, dy = np.median(flow[seen], axis=0)
-        shift = np.float32([[1, 0, dx], [0, 1, dy]])
-        return cv2.warpAffine(tr.mask.astype(np.uint8), shift, (self.w, self.h), flags=cv2.INTER_NEAREST).astype(bool)
+        return np.median(flow[seen], axis=0) if seen.any() else np.zeros(2)
 
-    def step(self, prev: int, t: int, tracks: list[Track2D], bg: np.ndarray) -> tuple[list[float], np.ndarray]:
+    def _moved(self, tr: Track2D, shift: np.ndarray) -> np.ndarray:
+        """The track's whole shape moved rigidly by ``shift`` (dx, dy) [px]."""
+        if not np.any(shift):
+            return tr.mask
+        warp = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+        return cv2.warpAffine(tr.mask.astype(np.uint8), warp, (self.w, self.h), flags=cv2.INTER_NEAREST).astype(bool)
+
+    def step(
+        self, prev: int, t: int, tracks: list[Track2D], bg: np.ndarray, static=None
+    ) -> tuple[list[float], np.ndarray]:
         """Move every track from frame ``prev`` to frame ``t``; returns each track's visible
-        fraction and the flow."""
+        fraction and the flow. ``static``: t -> bool image of the pixels that show the static
+        background (a still camera's temporal median), or None: a track that moved by more than
+        ``MOVING_PX`` takes none of them (what it carries is not the background behind it)."""
         flow = self.flow(prev, t)
         rgb = self.frame_of(t)
         idx = color_index(rgb)
-        moved = [self._moved(tr, flow) for tr in tracks]
+        shifts = [self._shift(tr, flow) for tr in tracks]
+        moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
+        still = static(t) if static is not None else None
         # ownership: every claimed pixel goes to the nearest moved shape within its reach
         dist = np.full((len(tracks), self.h, self.w), np.inf, np.float32)
         for k, (tr, m) in enumerate(zip(tracks, moved)):
@@ -171,6 +190,8 @@ class FlowTracker:
         for k, tr in enumerate(tracks):
             mine = reachable & (owner == k)
             claimed = mine & (tr.fg[idx] > bg[idx])
+            if still is not None and np.hypot(*shifts[k]) > MOVING_PX:
+                claimed &= ~still
             m = self._refine(bgr, claimed, mine, moved[k], [moved[j] for j in range(len(tracks)) if j != k])
             frac = float(m.sum()) / tr.typical_px
             visible.append(min(frac, 1.0))
@@ -240,13 +261,24 @@ class MotionForeground:
             stack = np.stack([cv2.cvtColor(tracker.frame_of(int(t)), cv2.COLOR_RGB2LAB) for t in picks])
             self.median = np.median(stack, axis=0).astype(np.float32)
 
+    def _distance(self, t: int) -> np.ndarray:
+        """How far each pixel of frame t lies from the temporal median (Lab, lightness weighted
+        by a quarter: shadows of the hands change it more than chroma; drift of exposure and white
+        balance removed). Static camera only."""
+        lab = cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
+        d = lab - self.median
+        d -= np.median(d.reshape(-1, 3), axis=0)
+        d[..., 0] *= 0.25
+        return np.linalg.norm(d, axis=2)
+
+    def background(self, t: int) -> np.ndarray | None:
+        """Pixels of frame t that surely show the static background (within half the foreground's
+        threshold of the median), or None when the camera moves."""
+        return self._distance(t) < 0.5 * FOREGROUND_LAB if self.static_camera else None
+
     def __call__(self, t: int, flow: np.ndarray | None) -> np.ndarray:
         if self.static_camera:
-            lab = cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
-            d = lab - self.median
-            d -= np.median(d.reshape(-1, 3), axis=0)  # exposure and white-balance drift
-            d[..., 0] *= 0.25  # shadows of the hands change lightness more than chroma
-            fg = np.linalg.norm(d, axis=2) > 20.0
+            fg = self._distance(t) > FOREGROUND_LAB
         elif flow is not None:
             h, w = flow.shape[:2]
             ys, xs = np.mgrid[0:h:8, 0:w:8]
@@ -309,7 +341,7 @@ def segment_video(
         if prev is None:  # the prompt frame itself
             fracs = [1.0] * len(tracks)
         else:
-            fracs, flow = tracker.step(prev, t, tracks, bg)
+            fracs, flow = tracker.step(prev, t, tracks, bg, motion.background if motion is not None else None)
         prev = t
         everything = np.zeros((tracker.h, tracker.w), bool)
         for tr, frac in zip(tracks, fracs):
