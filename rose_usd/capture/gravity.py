@@ -235,13 +235,8 @@ def gravity_from_planes(
     prior = camera_up_prior(world_from_camera)
     right = world_from_camera[:, :3, 0].mean(axis=0)
     right /= np.linalg.norm(right)
-    planes = fit_planes(
-        points,
-        world_from_camera[:, :3, 3].mean(axis=0),
-        min_points=min_points,
-        distance_m=distance_m,
-        connected_m=connected_m,
-    )
+    view = world_from_camera[:, :3, 3].mean(axis=0)
+    planes = fit_planes(points, view, min_points=min_points, distance_m=distance_m, connected_m=connected_m)
     choice = _horizontal_group(planes, prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
     flipped = _horizontal_group(planes, -prior, right, anchor, anchor_min_height_m, max_roll_deg, max_pitch_deg)
     if anchor is not None and upside_down_check:
