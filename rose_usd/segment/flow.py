@@ -158,15 +158,16 @@ class FlowTracker:
         self, prev: int, t: int, tracks: list[Track2D], bg: np.ndarray, static=None
     ) -> tuple[list[float], np.ndarray]:
         """Move every track from frame ``prev`` to frame ``t``; returns each track's visible
-        fraction and the flow. ``static``: t -> bool image of the pixels that show the static
-        background (a still camera's temporal median), or None: a track that moved by more than
-        ``MOVING_PX`` takes none of them (what it carries is not the background behind it)."""
+        fraction and the flow. ``static``: (t, prev) -> bool image of the pixels of frame t that
+        show the static background (``MotionForeground.background``), or None: a track that moved
+        by more than ``MOVING_PX`` takes none of them (what it carries is not the background
+        behind it)."""
         flow = self.flow(prev, t)
         rgb = self.frame_of(t)
         idx = color_index(rgb)
         shifts = [self._shift(tr, flow) for tr in tracks]
         moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
-        still = static(t) if static is not None else None
+        still = static(t, prev) if static is not None else None
         # ownership: every claimed pixel goes to the nearest moved shape within its reach
         dist = np.full((len(tracks), self.h, self.w), np.inf, np.float32)
         for k, (tr, m) in enumerate(zip(tracks, moved)):
@@ -261,24 +262,34 @@ class MotionForeground:
             stack = np.stack([cv2.cvtColor(tracker.frame_of(int(t)), cv2.COLOR_RGB2LAB) for t in picks])
             self.median = np.median(stack, axis=0).astype(np.float32)
 
-    def _distance(self, t: int) -> np.ndarray:
-        """How far each pixel of frame t lies from the temporal median (Lab, lightness weighted
-        by a quarter: shadows of the hands change it more than chroma; drift of exposure and white
-        balance removed). Static camera only."""
-        lab = cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
-        d = lab - self.median
+    def _lab(self, t: int) -> np.ndarray:
+        return cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
+
+    @staticmethod
+    def _apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Per-pixel distance of two Lab images, lightness weighted by a quarter (shadows of the
+        hands change it more than chroma), their mean difference (exposure and white balance
+        drift) removed."""
+        d = a - b
         d -= np.median(d.reshape(-1, 3), axis=0)
         d[..., 0] *= 0.25
         return np.linalg.norm(d, axis=2)
 
-    def background(self, t: int) -> np.ndarray | None:
-        """Pixels of frame t that surely show the static background (within half the foreground's
-        threshold of the median), or None when the camera moves."""
-        return self._distance(t) < 0.5 * FOREGROUND_LAB if self.static_camera else None
+    def background(self, t: int, prev: int) -> np.ndarray | None:
+        """Pixels of frame t that surely show the static background: within half the foreground's
+        threshold of the temporal median and of frame ``prev`` (unchanged since the last frame:
+        an object being set down where it will rest, and so where the median shows it, still
+        changes); None when the camera moves."""
+        if not self.static_camera:
+            return None
+        lab = self._lab(t)
+        return (self._apart(lab, self.median) < 0.5 * FOREGROUND_LAB) & (
+            self._apart(lab, self._lab(prev)) < 0.5 * FOREGROUND_LAB
+        )
 
     def __call__(self, t: int, flow: np.ndarray | None) -> np.ndarray:
         if self.static_camera:
-            fg = self._distance(t) > FOREGROUND_LAB
+            fg = self._apart(self._lab(t), self.median) > FOREGROUND_LAB
         elif flow is not None:
             h, w = flow.shape[:2]
             ys, xs = np.mgrid[0:h:8, 0:w:8]
