@@ -33,6 +33,19 @@ def test_flow_backend_needs_no_capture_and_follows_the_box(tmp_path, sample_case
     assert _mask_ious(gt.mask_dir("Box"), out / "masks" / "Box", gt.n_frames, min_fraction=0.5) >= 0.9
 
 
+def test_masks_alone_are_scored(tmp_path, sample_case):
+    """The benchmark scores a stage that has only the flow backend's masks (`bench run --until
+    segment` on rgb cases): mask IoU, and NaN for the cameras no capture stage recovered (it
+    failed on every case with "no camera at /World/Cameras/Camera")."""
+    from rose_usd.bench.evaluate import evaluate
+
+    out = tmp_path / "out"
+    Pipeline(sample_case, out, _flow()).run("segment")
+    score = evaluate(sample_case, out, scene=False, rest=False)
+    assert score.objects[0].mask_iou >= 0.9
+    assert np.isnan(score.camera_ape_translation_m) and np.isnan(score.gravity_error_deg)
+
+
 def test_flow_backend_without_a_prompt_fails_clearly(tmp_path, case_copy):
     toml = case_copy / "rose.toml"
     toml.write_text("\n".join(line for line in toml.read_text().splitlines() if not line.startswith("prompt")) + "\n")

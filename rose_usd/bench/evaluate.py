@@ -267,6 +267,22 @@ def _mask_ious(
     return float(np.mean(ious)) if ious else None
 
 
+def _camera_scores(gt: GroundTruth, track):
+    """(rec world -> true world, camera APE, RPE, gravity error [deg], path scale error) of the
+    recovered camera ``track`` against the truth."""
+    true_cams = gt.camera_poses()
+    align = metrics.align_poses(track.world_from_cv, true_cams)
+    cams = np.einsum("ij,njk->nik", align, track.world_from_cv)
+    up = align[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    true_up = -gt.gravity / np.linalg.norm(gt.gravity)
+    gravity_err = float(np.degrees(np.arccos(np.clip(up @ true_up, -1.0, 1.0))))
+    _, scale = metrics.umeyama_sim3(track.world_from_cv[:, :3, 3], true_cams[:, :3, 3])
+    centers = true_cams[:, :3, 3]
+    if np.sqrt(np.mean(np.sum((centers - centers.mean(axis=0)) ** 2, axis=1))) < 0.01:
+        scale = float("nan")  # a camera that hardly moves has no path to scale (a tripod)
+    return align, metrics.ape(cams, true_cams), metrics.rpe(cams, true_cams), gravity_err, scale
+
+
 def evaluate(
     case_dir, out_dir, *, frame_stride: int = 10, seed: int = 0, scene: bool = True, rest: bool = True
 ) -> CaseScore:
@@ -278,19 +294,11 @@ def evaluate(
     stage = open_stage(out_dir / "rose.usda")
     n = gt.n_frames
     true_cams = gt.camera_poses()
-    track = read_camera(stage, paths.CAMERA, n)
-
-    # ---------------------------------------------------------------- cameras and world
-    align = metrics.align_poses(track.world_from_cv, true_cams)  # rec world -> true world
-    cams = np.einsum("ij,njk->nik", align, track.world_from_cv)
-    cam_ape, cam_rpe = metrics.ape(cams, true_cams), metrics.rpe(cams, true_cams)
-    up = align[:3, :3] @ np.array([0.0, 0.0, 1.0])
-    true_up = -gt.gravity / np.linalg.norm(gt.gravity)
-    gravity_err = float(np.degrees(np.arccos(np.clip(up @ true_up, -1.0, 1.0))))
-    _, scale = metrics.umeyama_sim3(track.world_from_cv[:, :3, 3], true_cams[:, :3, 3])
-    centers = true_cams[:, :3, 3]
-    if np.sqrt(np.mean(np.sum((centers - centers.mean(axis=0)) ** 2, axis=1))) < 0.01:
-        scale = float("nan")  # a camera that hardly moves has no path to scale (a tripod)
+    if stage.GetPrimAtPath(paths.CAMERA):
+        align, cam_ape, cam_rpe, gravity_err, scale = _camera_scores(gt, read_camera(stage, paths.CAMERA, n))
+    else:  # no capture stage (the flow masks need none): nothing else needs the world either
+        align, gravity_err, scale = np.eye(4), float("nan"), float("nan")
+        cam_ape = cam_rpe = metrics.PoseErrors(np.full(1, np.nan), np.full(1, np.nan))
 
     # ---------------------------------------------------------------- scene
     rv, rf = _meshes(stage, paths.SCENE_VISUAL)  # empty when the scene stage has not run
