@@ -167,7 +167,8 @@ class FlowTracker:
         idx = color_index(rgb)
         shifts = [self._shift(tr, flow) for tr in tracks]
         moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
-        still = static(t, prev) if static is not None else None
+        carried = [static is not None and np.hypot(*d) > MOVING_PX for d in shifts]
+        still = static(t, prev) if any(carried) else None
         # ownership: every claimed pixel goes to the nearest moved shape within its reach
         dist = np.full((len(tracks), self.h, self.w), np.inf, np.float32)
         for k, (tr, m) in enumerate(zip(tracks, moved)):
@@ -191,7 +192,7 @@ class FlowTracker:
         for k, tr in enumerate(tracks):
             mine = reachable & (owner == k)
             claimed = mine & (tr.fg[idx] > bg[idx])
-            if still is not None and np.hypot(*shifts[k]) > MOVING_PX:
+            if carried[k] and still is not None:  # None: the camera moves
                 claimed &= ~still
             m = self._refine(bgr, claimed, mine, moved[k], [moved[j] for j in range(len(tracks)) if j != k])
             frac = float(m.sum()) / tr.typical_px
@@ -258,12 +259,18 @@ class MotionForeground:
             shifts.append(float(np.median(np.linalg.norm(f, axis=2))))
         self.static_camera = bool(np.median(shifts) < 1.0) if shifts else True
         self.median = None
+        self._labs: dict[int, np.ndarray] = {}
         if self.static_camera:
             stack = np.stack([cv2.cvtColor(tracker.frame_of(int(t)), cv2.COLOR_RGB2LAB) for t in picks])
             self.median = np.median(stack, axis=0).astype(np.float32)
 
     def _lab(self, t: int) -> np.ndarray:
-        return cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
+        """Frame t in Lab (float32); the last two asked are kept (a frame is asked as the current
+        one, for the interactor, and as the previous one of the next)."""
+        if t not in self._labs:
+            self._labs = {k: v for k, v in self._labs.items() if k in (t - 1, t + 1)}
+            self._labs[t] = cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
+        return self._labs[t]
 
     @staticmethod
     def _apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:
