@@ -267,10 +267,9 @@ def _mask_ious(
     return float(np.mean(ious)) if ious else None
 
 
-def _camera_scores(gt: GroundTruth, track):
+def _camera_scores(gt: GroundTruth, true_cams: np.ndarray, track):
     """(rec world -> true world, camera APE, RPE, gravity error [deg], path scale error) of the
-    recovered camera ``track`` against the truth."""
-    true_cams = gt.camera_poses()
+    recovered camera ``track`` against the true cameras ``true_cams`` (gt.camera_poses())."""
     align = metrics.align_poses(track.world_from_cv, true_cams)
     cams = np.einsum("ij,njk->nik", align, track.world_from_cv)
     up = align[:3, :3] @ np.array([0.0, 0.0, 1.0])
@@ -295,7 +294,7 @@ def evaluate(
     n = gt.n_frames
     true_cams = gt.camera_poses()
     if stage.GetPrimAtPath(paths.CAMERA):
-        align, cam_ape, cam_rpe, gravity_err, scale = _camera_scores(gt, read_camera(stage, paths.CAMERA, n))
+        align, cam_ape, cam_rpe, gravity_err, scale = _camera_scores(gt, true_cams, read_camera(stage, paths.CAMERA, n))
     else:  # no capture stage (the flow masks need none): nothing else needs the world either
         align, gravity_err, scale = np.eye(4), float("nan"), float("nan")
         cam_ape = cam_rpe = metrics.PoseErrors(np.full(1, np.nan), np.full(1, np.nan))

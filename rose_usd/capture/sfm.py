@@ -372,7 +372,7 @@ unit away): COLMAP's points from a hand-held video scatter by about 1 % of their
 MAP_PATCH_STEP = 0.05
 """A plane is its largest patch of inliers joined in steps of this many map units
 (``fit_planes``'s ``connected_m``). On 7-Scenes' kitchen (200 frames, sensor K) the gravity error
-in the cameras' frames: 9.0 deg without patches (band 0.01), 3.0 deg with them (band 0.02; with
+in the first camera's frame: 9.6 deg without patches (band 0.01), 3.0 deg with them (band 0.02; with
 0.015 or 0.025, 7.6 and 4.8 deg: the map's planes are that noisy, and the uncertainty recorded
 is their scatter, ``disagreement_deg``)."""
 

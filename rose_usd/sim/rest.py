@@ -105,9 +105,8 @@ def _keep_near(newton, builder, bounds: tuple[np.ndarray, np.ndarray], near_m: f
 def _body_corners(stage: Usd.Stage, object_paths: dict[str, str]) -> dict[str, np.ndarray]:
     """Each object's bounding-box corners in its body frame (the prim frame: Newton bodies are the
     rigid-body prims)."""
-    corners = {}
+    corners, bbox = {}, _bbox_cache()
     for name, path in object_paths.items():
-        bbox = _bbox_cache()
         box = bbox.ComputeUntransformedBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
         lo, hi = np.asarray(box.GetMin()), np.asarray(box.GetMax())
         corners[name] = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
