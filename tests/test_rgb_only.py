@@ -45,8 +45,6 @@ def _camera(height_m: float, pitch_deg: float, roll_deg: float = 0.0, position_x
 def test_gravity_from_the_lines_of_a_synthetic_room():
     """A room's vertical edges and a table's two sets of horizontal edges give up within 1 deg."""
     pose = _camera(0.5, 25.0, roll_deg=4.0)
-    cam_from_world = se3.invert(pose)
-    image = np.full((H, W), 90, np.uint8)
     segments = []
     for x in np.linspace(-0.6, 0.6, 5):  # vertical edges (cupboards, a door) 1.2 m ahead
         segments.append(([x, 0.9, -0.2], [x, 0.9, 0.5]))
@@ -54,14 +52,39 @@ def test_gravity_from_the_lines_of_a_synthetic_room():
         segments.append(([-0.5, y, 0.0], [0.5, y, 0.0]))
     for x in np.linspace(-0.4, 0.4, 5):
         segments.append(([x, 0.05, 0.0], [x, 0.8, 0.0]))
+    est = up_from_lines(_draw(segments, pose), K)
+    assert est is not None
+    true_up = pose[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    assert np.degrees(np.arccos(np.clip(est.up_cam @ true_up, -1, 1))) < 1.0
+    assert est.uncertainty_deg < 2.0  # clear lines, one frame: the bootstrap agrees
+
+
+def _draw(segments, pose: np.ndarray) -> np.ndarray:
+    """A grey image with the 3D segments (world points) drawn as the camera ``pose`` sees them."""
+    cam_from_world = se3.invert(pose)
+    image = np.full((H, W), 90, np.uint8)
     for a, b in segments:
         pts = se3.transform_points(cam_from_world, np.array([a, b], float))
         uv = np.column_stack([K[0, 0] * pts[:, 0] / pts[:, 2] + K[0, 2], K[1, 1] * pts[:, 1] / pts[:, 2] + K[1, 2]])
         cv2.line(image, tuple(np.round(uv[0]).astype(int)), tuple(np.round(uv[1]).astype(int)), 230, 3)
-    est = up_from_lines(image, K)
+    return image
+
+
+def test_competing_line_groups_give_an_uncertainty_that_covers_the_error():
+    """No vertical edge; the table's edges along x, half as many along y, and as many again on a
+    board leaning 40 deg (its edges along x and up its slope): two frames' up compete, 40 deg
+    apart. Whichever wins, the recorded uncertainty must cover its error (at most 2 sigma)."""
+    pose = _camera(0.5, 35.0)
+    slope = np.array([0.0, np.cos(np.radians(40.0)), np.sin(np.radians(40.0))])
+    segments = [([-0.4, y, 0.0], [0.4, y, 0.0]) for y in np.linspace(0.1, 0.5, 5)]
+    segments += [([x, 0.05, 0.0], [x, 0.45, 0.0]) for x in np.linspace(-0.45, -0.15, 3)]
+    base = np.array([0.0, 0.55, 0.0])
+    segments += [(base + [x, 0, 0], base + [x, 0, 0] + 0.35 * slope) for x in np.linspace(0.1, 0.4, 3)]
+    est = up_from_lines(_draw(segments, pose), K)
     assert est is not None
     true_up = pose[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-    assert np.degrees(np.arccos(np.clip(est.up_cam @ true_up, -1, 1))) < 1.0
+    error = np.degrees(np.arccos(np.clip(est.up_cam @ true_up, -1, 1)))
+    assert error <= 2.0 * est.uncertainty_deg, (error, est)
 
 
 def test_the_metric_scale_from_a_size_prior_on_a_synthetic_view():

@@ -277,11 +277,9 @@ def _level(spec, mask, K, gravity, world_from_track, world_units, poses, ref: in
     if not np.allclose(tilt, np.eye(4)):
         world_from_track = tilt @ world_from_track
         world_units = np.einsum("ij,njk->nik", world_from_track, poses)
-        angle = float(np.degrees(np.arccos(np.clip(tilt[2, 2], -1, 1))))
-        # the refined up keeps its source; its sigma is not measured: no more than the source's,
-        # no less than 2 deg, and the tilt applied when that is smaller
-        sigma = float(min(gravity.uncertainty_deg, max(2.0, angle)))
-        gravity = GravityEstimate(world_from_track[2, :3], gravity.source, None, [], sigma)
+        # the refined up keeps its source and its sigma: a primitive's fit to one silhouette can
+        # sit sharply in a wrong minimum (a can's, 38 deg off), so it narrows nothing
+        gravity = GravityEstimate(world_from_track[2, :3], gravity.source, None, [], gravity.uncertainty_deg)
     return world_from_track, world_units, gravity
 
 
@@ -375,6 +373,10 @@ MAP_PATCH_STEP = 0.05
 in the first camera's frame: 9.6 deg without patches (band 0.01), 3.0 deg with them (band 0.02; with
 0.015 or 0.025, 7.6 and 4.8 deg: the map's planes are that noisy, and the uncertainty recorded
 is their scatter, ``disagreement_deg``)."""
+MAP_PLANE_MIN_SIGMA_DEG = 1.0
+"""The least uncertainty of gravity from the map's plane [deg]: the map's own rotations and
+self-calibrated focal length are off by about this much (the benchmark's realistic rgb cases: 0.5
+and 1.2 deg off where one plane's least squares claimed 0.23)."""
 
 
 def _map_gravity(ctx: StageContext, gravity, poses, points, K: np.ndarray, spec, ref: int, record: dict):
@@ -393,7 +395,10 @@ def _map_gravity(ctx: StageContext, gravity, poses, points, K: np.ndarray, spec,
                 distance_m=MAP_PLANE_BAND,
                 connected_m=MAP_PATCH_STEP,
             )
-            gravity, support = est, est.support
+            gravity, support = (
+                replace(est, uncertainty_deg=max(est.uncertainty_deg, MAP_PLANE_MIN_SIGMA_DEG)),
+                est.support,
+            )
         except InputError as exc:
             record["plane_gravity"] = exc.message
     if gravity is None:

@@ -17,8 +17,11 @@ the segment's homogeneous image line); a 3D direction ``d`` the segment may lie 
    Newton on SO(3)); without a second horizontal direction, the vertical and the first; without a
    vertical group, up is the cross product of two horizontal directions.
 
-The uncertainty is the angle's standard error over the vertical group's segments, at least 1 deg
-(correlated errors: lens distortion, leaning objects), more when no vertical group is found.
+The uncertainty is the larger of two: the angle's standard error over the vertical group's
+segments, at least 1 deg (correlated errors: lens distortion, leaning objects), 3 deg without a
+vertical group; and the spread of the answer over bootstrap resamplings of the segments, which is
+large where two line groups' frames compete (a few short lines on a small image, pens laid at
+random beside a keyboard).
 """
 
 from __future__ import annotations
@@ -68,31 +71,24 @@ def _null_direction(normals: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.linalg.eigh(m)[1][:, 0]
 
 
-def _ransac(normals, weights, candidates, accept, *, iterations: int = 600, seed: int = 0):
+def _ransac(normals, weights, candidates, reject, *, iterations: int = 600, seed: int = 0):
     """The direction (unit 3-vector) supported by the most segment length among ``candidates``
-    (indices), drawn from pairs of them, that ``accept(d)`` allows; and its inliers (bool over
-    all segments). None when nothing is accepted."""
-    rng = np.random.default_rng(seed)
-    tol = np.sin(np.radians(INLIER_DEG))
-    best, best_score = None, 0.0
+    (indices), drawn from pairs of them, that ``reject`` (bool over rows of directions) allows;
+    and its inliers (bool over all segments). None when nothing is allowed."""
     if len(candidates) < 2:
         return None, None
-    for _ in range(iterations):
-        i, j = rng.choice(candidates, size=2, replace=False)
-        d = np.cross(normals[i], normals[j])
-        norm = np.linalg.norm(d)
-        if norm < 1e-6:
-            continue
-        d /= norm
-        d = accept(d)
-        if d is None:
-            continue
-        inl = np.abs(normals[candidates] @ d) < tol
-        score = float(weights[candidates][inl].sum())
-        if score > best_score:
-            best, best_score = d, score
-    if best is None:
+    rng = np.random.default_rng(seed)
+    tol = np.sin(np.radians(INLIER_DEG))
+    pairs = np.array([rng.choice(candidates, size=2, replace=False) for _ in range(iterations)])
+    d = np.cross(normals[pairs[:, 0]], normals[pairs[:, 1]])
+    norm = np.linalg.norm(d, axis=1)
+    ok = norm >= 1e-6
+    d = d[ok] / norm[ok, None]
+    d = d[~reject(d)]
+    if not len(d):
         return None, None
+    score = weights[candidates] @ (np.abs(normals[candidates] @ d.T) < tol)
+    best = d[int(np.argmax(score))]
     for _ in range(3):  # refit on the inliers
         inliers = np.zeros(len(normals), bool)
         inliers[candidates] = np.abs(normals[candidates] @ best) < tol
@@ -143,10 +139,12 @@ def _directions(normals, weights, min_segments: int, directions: int) -> tuple[l
     rest = np.ones(len(normals), bool)
     for k in range(directions):
 
-        def fresh(d):
-            return None if any(_angle_deg(d, f) < 5.0 for f in found) else d
+        def known(d):  # within 5 deg of a direction already found
+            if not found:
+                return np.zeros(len(d), bool)
+            return (np.abs(d @ np.array(found).T) > np.cos(np.radians(5.0))).any(axis=1)
 
-        d, inl = _ransac(normals, weights, np.flatnonzero(rest), fresh, seed=k)
+        d, inl = _ransac(normals, weights, np.flatnonzero(rest), known, seed=k)
         if d is None or inl.sum() < min_segments:
             break
         found.append(d)
@@ -214,6 +212,35 @@ def _sigma_deg(normals: np.ndarray, v_in: np.ndarray, u: np.ndarray) -> float:
     return 3.0
 
 
+def _candidate(segments: np.ndarray, K: np.ndarray, plausible, min_segments: int, directions: int):
+    """The winning up candidate of these segments, before refinement: (up, along, across, found,
+    groups, normals, weights, support), or None when they give none."""
+    normals = plane_normals(segments, K)
+    length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+    weights = length / length.max()
+    found, groups = _directions(normals, weights, min_segments, directions)
+    if not found:
+        return None
+    support = np.array([weights[g].sum() for g in groups])
+    best = _best_candidate(found, support, plausible)
+    if best is None:
+        return None
+    return best[1], best[2], best[3], found, groups, normals, weights, support
+
+
+def _bootstrap_deg(segments, K, up, plausible, min_segments: int, directions: int, resamples: int) -> float:
+    """RMS angle [deg] between ``up`` and the candidates won by ``resamples`` resamplings (with
+    replacement) of the segments; a resampling that gives no candidate counts as 90 deg."""
+    rng = np.random.default_rng(0)
+    angles = []
+    for _ in range(resamples):
+        found = _candidate(
+            segments[rng.integers(0, len(segments), len(segments))], K, plausible, min_segments, directions
+        )
+        angles.append(90.0 if found is None else _angle_deg(found[0], up))
+    return float(np.sqrt(np.mean(np.square(angles))))
+
+
 def up_from_lines(
     gray: np.ndarray,
     K: np.ndarray,
@@ -223,6 +250,7 @@ def up_from_lines(
     max_tilt_up_deg: float = 10.0,
     min_segments: int = 4,
     directions: int = 6,
+    resamples: int = 24,
 ) -> UpEstimate | None:
     """The up direction of a single view from its line segments, None when its lines give none.
 
@@ -234,24 +262,21 @@ def up_from_lines(
     most ``max_roll_deg``. The plausible candidate whose Manhattan frame explains the most segment
     length (directions along it or perpendicular to it, within 5 deg) wins, and is refined with
     them (``_manhattan``). A camera looking steeply down at a table sees few vertical edges, but
-    two perpendicular sets of horizontal ones (cards, a keyboard) whose cross product is up."""
+    two perpendicular sets of horizontal ones (cards, a keyboard) whose cross product is up.
+
+    The uncertainty is at least the RMS angle to the winners of ``resamples`` bootstrap
+    resamplings of the segments: where another line group's frame nearly ties, the choice flips
+    and the spread shows it."""
     segments = line_segments(gray)
     if len(segments) < min_segments:
         return None
-    normals = plane_normals(segments, K)
-    length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
-    weights = length / length.max()
-    found, groups = _directions(normals, weights, min_segments, directions)
-    if not found:
-        return None
-    support = np.array([weights[g].sum() for g in groups])
     plausible = partial(
         _plausible, max_pitch_deg=max_pitch_deg, max_roll_deg=max_roll_deg, max_tilt_up_deg=max_tilt_up_deg
     )
-    best = _best_candidate(found, support, plausible)
-    if best is None:
+    won = _candidate(segments, K, plausible, min_segments, directions)
+    if won is None:
         return None
-    _, chosen, along, across = best
+    chosen, along, across, found, groups, normals, weights, support = won
     v_in = np.zeros(len(segments), bool)
     for i in along:
         v_in |= groups[i]
@@ -260,7 +285,8 @@ def up_from_lines(
     if _angle_deg(u, chosen) > 5.0 or plausible(u) is None:  # the refinement ran off: keep the candidate
         u = chosen
     h_count = int(sum(groups[i].sum() for i in across))
-    return UpEstimate(u, _sigma_deg(normals, v_in, u), int(v_in.sum()), h_count, how)
+    spread = _bootstrap_deg(segments, K, u, plausible, min_segments, directions, resamples) if resamples else 0.0
+    return UpEstimate(u, max(_sigma_deg(normals, v_in, u), spread), int(v_in.sum()), h_count, how)
 
 
 def upright_prior(pitch_deg: float = 30.0) -> np.ndarray:
