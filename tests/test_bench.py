@@ -36,6 +36,7 @@ def test_oracle_targets_on_every_task(small_results):
         assert score["ssim_mean"] > 0.98, case["case"]
         assert score["gate_passed"], case["case"]
         assert score["camera_ape_translation_m"] < 1e-4 and score["gravity_error_deg"] < 1e-3
+        assert score["gravity_uncertainty_deg"] is not None and score["scale_uncertainty"] is not None
         for obj in score["objects"]:
             assert obj["chamfer_m"] < 0.001 and obj["shape_chamfer_m"] < 0.001, (case["case"], obj["name"])
             assert obj["ape_translation_m"] < 0.001 and obj["rpe_rotation_deg"] < 0.01, (case["case"], obj["name"])

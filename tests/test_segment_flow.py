@@ -44,6 +44,7 @@ def test_masks_alone_are_scored(tmp_path, sample_case):
     score = evaluate(sample_case, out, scene=False, rest=False)
     assert score.objects[0].mask_iou >= 0.9
     assert np.isnan(score.camera_ape_translation_m) and np.isnan(score.gravity_error_deg)
+    assert score.gravity_uncertainty_deg is None and score.scale_uncertainty is None
 
 
 def test_flow_backend_without_a_prompt_fails_clearly(tmp_path, case_copy):

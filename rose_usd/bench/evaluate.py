@@ -79,6 +79,10 @@ class CaseScore:
     gate_passed: bool | None
     interactor_iou: float | None = None
     """Mean interactor mask IoU over the frames where the true interactor covers at least 0.5 % of the image."""
+    gravity_uncertainty_deg: float | None = None
+    """The world layer's own gravity sigma (None: no capture stage), to set beside the error."""
+    scale_uncertainty: float | None = None
+    """The world layer's relative scale sigma (0 for metric depth; None: no capture stage)."""
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -433,4 +437,18 @@ def evaluate(
             n,
             min_pixels=int(0.005 * gt.width * gt.height),
         ),
+        **_claimed(stage),
     )
+
+
+def _claimed(stage: Usd.Stage) -> dict:
+    """The world layer's gravity and scale sigmas (None without a world prim)."""
+    world = stage.GetPrimAtPath(paths.WORLD)
+    if not world:
+        return {"gravity_uncertainty_deg": None, "scale_uncertainty": None}
+    gravity = world.GetAttribute(tokens.WORLD_GRAVITY_UNCERTAINTY_DEG).Get()
+    scale = world.GetAttribute(tokens.WORLD_SCALE_UNCERTAINTY).Get()
+    return {
+        "gravity_uncertainty_deg": None if gravity is None else float(gravity),
+        "scale_uncertainty": None if scale is None else float(scale),
+    }
