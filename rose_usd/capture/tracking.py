@@ -16,11 +16,12 @@ directions: the smallest eigenvalue of their scatter matrix, relative to the lar
 Moving parts (the object, the hand) and invalid depth are outliers for the robust losses and the
 depth-difference gate; pixels can also be masked out explicitly.
 
-``track_on_one_cpu`` runs the tracking in a fresh process bound to one CPU before Open3D starts
-its thread pool: Open3D's odometry sums its normal equations in parallel (TBB) in an order that
+``track_on_one_cpu`` runs the tracking in a fresh process bound to one CPU until Open3D has
+started its thread pool: Open3D's odometry sums its normal equations in parallel in an order that
 changes from run to run, and the poses differed by about 1e-5 per call, enough to move every
-later stage; on one CPU they repeat bit for bit. (Binding the running process does not do it:
-Open3D's pool keeps the size it started with.)
+later stage; with one thread they repeat bit for bit. (Binding the running process does not do
+it: Open3D's pool keeps the size it started with.) The process then gets its CPUs back, and a
+second thread reads and decodes the next frames while Open3D registers this one.
 """
 
 from __future__ import annotations
@@ -278,8 +279,11 @@ def _child() -> None:
     import sys
 
     cpu, case, frames, K, params, out = pickle.load(sys.stdin.buffer)
+    cpus = os.sched_getaffinity(0)
     _bind_cpu(cpu)  # before Open3D starts its threads
     try:
+        _start_open3d_pool()
+        os.sched_setaffinity(0, cpus)  # Open3D keeps its one thread; the reader may use another CPU
         result = (True, _track_frames(case, frames, K, params))
     except Exception as exc:  # noqa: BLE001 - handed to the parent, which raises it
         result = (False, exc)
@@ -301,9 +305,42 @@ def _bind_cpu(cpu: int | None) -> None:
     os.sched_setaffinity(0, {cpu if cpu in cpus else min(cpus)})
 
 
+def _start_open3d_pool() -> None:
+    """One small odometry call, so that Open3D sizes its thread pool now (to the CPUs allowed)."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    rgb = np.zeros((16, 16, 3), np.uint8)
+    depth = np.ones((16, 16), np.float32)
+    image = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(o3c.Tensor(rgb)), o3d.t.geometry.Image(o3c.Tensor(depth)))
+    K = o3c.Tensor(np.array([[16.0, 0, 8], [0, 16.0, 8], [0, 0, 1]]), o3c.Dtype.Float64)
+    odo = o3d.t.pipelines.odometry
+    try:
+        odo.rgbd_odometry_multi_scale(
+            image, image, K, o3c.Tensor(np.eye(4)), 1.0, 3.0, [odo.OdometryConvergenceCriteria(1)]
+        )
+    except RuntimeError:  # a flat blank image's system is singular: the pool has run all the same
+        pass
+
+
 def _track_frames(case, frames: list[int], K, params: TrackingParams) -> TrackResult:
+    """Track ``frames`` of ``case``, each frame read (on a second thread) while the last registers."""
+    from concurrent.futures import ThreadPoolExecutor
+
     tracker = RgbdTracker(K, case.width, case.height, params)
-    return tracker.track(len(frames), lambda i: (case.rgb(frames[i]), case.depth_m(frames[i]), None))
+
+    def read(i: int):
+        return case.rgb(frames[i]), case.depth_m(frames[i]), None
+
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        ahead = {0: reader.submit(read, 0)}
+
+        def load(i: int):
+            if i + 1 < len(frames):
+                ahead[i + 1] = reader.submit(read, i + 1)
+            return ahead.pop(i).result()
+
+        return tracker.track(len(frames), load)
 
 
 if __name__ == "__main__":
