@@ -373,10 +373,6 @@ MAP_PATCH_STEP = 0.05
 in the first camera's frame: 9.6 deg without patches (band 0.01), 3.0 deg with them (band 0.02; with
 0.015 or 0.025, 7.6 and 4.8 deg: the map's planes are that noisy, and the uncertainty recorded
 is their scatter, ``disagreement_deg``)."""
-MAP_PLANE_MIN_SIGMA_DEG = 1.0
-"""The least uncertainty of gravity from the map's plane [deg]: the map's own rotations and
-self-calibrated focal length are off by about this much (the benchmark's realistic rgb cases: 0.5
-and 1.2 deg off where one plane's least squares claimed 0.23)."""
 
 
 def _map_gravity(ctx: StageContext, gravity, poses, points, K: np.ndarray, spec, ref: int, record: dict):
@@ -395,10 +391,7 @@ def _map_gravity(ctx: StageContext, gravity, poses, points, K: np.ndarray, spec,
                 distance_m=MAP_PLANE_BAND,
                 connected_m=MAP_PATCH_STEP,
             )
-            gravity, support = (
-                replace(est, uncertainty_deg=max(est.uncertainty_deg, MAP_PLANE_MIN_SIGMA_DEG)),
-                est.support,
-            )
+            gravity, support = est, est.support
         except InputError as exc:
             record["plane_gravity"] = exc.message
     if gravity is None:
