@@ -26,6 +26,21 @@ def test_every_task_runs(small_results):
     assert [c.get("error") for c in summary["cases"]] == [None] * len(TASK_ORDER)
 
 
+def test_the_score_reads_the_worlds_own_claims():
+    """The score sets beside the errors the gravity and scale sigmas the world layer records."""
+    from pxr import Sdf, Usd
+
+    from rose_usd.bench.evaluate import _claimed
+    from rose_usd.usd import paths, tokens
+
+    stage = Usd.Stage.CreateInMemory()
+    assert _claimed(stage) == {"gravity_uncertainty_deg": None, "scale_uncertainty": None}
+    world = stage.DefinePrim(paths.WORLD)
+    world.CreateAttribute(tokens.WORLD_GRAVITY_UNCERTAINTY_DEG, Sdf.ValueTypeNames.Float).Set(7.5)
+    world.CreateAttribute(tokens.WORLD_SCALE_UNCERTAINTY, Sdf.ValueTypeNames.Float).Set(0.125)
+    assert _claimed(stage) == {"gravity_uncertainty_deg": 7.5, "scale_uncertainty": 0.125}
+
+
 def test_oracle_targets_on_every_task(small_results):
     """Scene Chamfer < 2 mm, object Chamfer < 1 mm, object APE < 1 mm, SSIM > 0.98, gate passed."""
     _, summary = small_results
@@ -36,7 +51,7 @@ def test_oracle_targets_on_every_task(small_results):
         assert score["ssim_mean"] > 0.98, case["case"]
         assert score["gate_passed"], case["case"]
         assert score["camera_ape_translation_m"] < 1e-4 and score["gravity_error_deg"] < 1e-3
-        assert score["gravity_uncertainty_deg"] is not None and score["scale_uncertainty"] is not None
+        assert score["gravity_uncertainty_deg"] == 0.0 and score["scale_uncertainty"] == 0.0  # exact worlds
         for obj in score["objects"]:
             assert obj["chamfer_m"] < 0.001 and obj["shape_chamfer_m"] < 0.001, (case["case"], obj["name"])
             assert obj["ape_translation_m"] < 0.001 and obj["rpe_rotation_deg"] < 0.01, (case["case"], obj["name"])

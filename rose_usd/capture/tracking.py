@@ -248,8 +248,8 @@ def can_bind_cpu() -> bool:
 
 def track_on_one_cpu(case, frames: list[int], K: np.ndarray, params: TrackingParams) -> TrackResult:
     """``RgbdTracker(K, case.width, case.height, params).track`` over ``frames`` of ``case`` (a
-    ``Case``: colour and metric depth as it reads them), in a fresh process bound to the CPU this
-    one runs on, so that the result repeats bit for bit. The process is ``python -m
+    ``Case``: colour and metric depth as it reads them), in a fresh process whose Open3D thread
+    pool starts on the one CPU this process runs on, so that the result repeats bit for bit. The process is ``python -m
     rose_usd.capture.tracking`` (the job pickled on its stdin, the result into a file): unlike a
     multiprocessing child it never imports the caller's script, so a script that calls
     ``rose_usd.reconstruct`` needs no ``if __name__ == "__main__"`` guard."""
@@ -274,7 +274,8 @@ def track_on_one_cpu(case, frames: list[int], K: np.ndarray, params: TrackingPar
 
 
 def _child() -> None:
-    """``python -m rose_usd.capture.tracking``: bind to the CPU given, track, write the result."""
+    """``python -m rose_usd.capture.tracking``: bound to the CPU given, start Open3D's pool (one
+    thread), take every CPU back, track, write the result."""
     import pickle
     import sys
 
@@ -306,21 +307,20 @@ def _bind_cpu(cpu: int | None) -> None:
 
 
 def _start_open3d_pool() -> None:
-    """One small odometry call, so that Open3D sizes its thread pool now (to the CPUs allowed)."""
+    """One small odometry call (a textured, wavy surface: a regular system), so that Open3D sizes
+    its thread pool now, to the CPUs allowed."""
     import open3d as o3d
     import open3d.core as o3c
 
-    rgb = np.zeros((16, 16, 3), np.uint8)
-    depth = np.ones((16, 16), np.float32)
+    rgb = np.random.default_rng(0).integers(0, 255, (32, 32, 3), dtype=np.uint8)
+    yy, xx = np.mgrid[0:32, 0:32]
+    depth = (1.0 + 0.2 * np.sin(xx / 4.0) + 0.2 * np.cos(yy / 5.0)).astype(np.float32)
     image = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(o3c.Tensor(rgb)), o3d.t.geometry.Image(o3c.Tensor(depth)))
-    K = o3c.Tensor(np.array([[16.0, 0, 8], [0, 16.0, 8], [0, 0, 1]]), o3c.Dtype.Float64)
+    K = o3c.Tensor(np.array([[32.0, 0, 16], [0, 32.0, 16], [0, 0, 1]]), o3c.Dtype.Float64)
     odo = o3d.t.pipelines.odometry
-    try:
-        odo.rgbd_odometry_multi_scale(
-            image, image, K, o3c.Tensor(np.eye(4)), 1.0, 3.0, [odo.OdometryConvergenceCriteria(1)]
-        )
-    except RuntimeError:  # a flat blank image's system is singular: the pool has run all the same
-        pass
+    odo.rgbd_odometry_multi_scale(
+        image, image, K, o3c.Tensor(np.eye(4)), 1.0, 3.0, [odo.OdometryConvergenceCriteria(1)]
+    )
 
 
 def _track_frames(case, frames: list[int], K, params: TrackingParams) -> TrackResult:

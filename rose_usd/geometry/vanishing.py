@@ -234,10 +234,10 @@ def _bootstrap_deg(segments, K, up, plausible, min_segments: int, directions: in
     rng = np.random.default_rng(0)
     angles = []
     for _ in range(resamples):
-        found = _candidate(
+        won = _candidate(
             segments[rng.integers(0, len(segments), len(segments))], K, plausible, min_segments, directions
         )
-        angles.append(90.0 if found is None else _angle_deg(found[0], up))
+        angles.append(90.0 if won is None else _angle_deg(won[0], up))
     return float(np.sqrt(np.mean(np.square(angles))))
 
 
