@@ -307,20 +307,14 @@ def _bind_cpu(cpu: int | None) -> None:
 
 
 def _start_open3d_pool() -> None:
-    """One small odometry call (a textured, wavy surface: a regular system), so that Open3D sizes
-    its thread pool now, to the CPUs allowed."""
-    import open3d as o3d
-    import open3d.core as o3c
-
+    """One registration of a small textured, wavy surface with itself (a regular system), so that
+    Open3D sizes its thread pool now, to the CPUs allowed."""
     rgb = np.random.default_rng(0).integers(0, 255, (32, 32, 3), dtype=np.uint8)
     yy, xx = np.mgrid[0:32, 0:32]
-    depth = (1.0 + 0.2 * np.sin(xx / 4.0) + 0.2 * np.cos(yy / 5.0)).astype(np.float32)
-    image = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(o3c.Tensor(rgb)), o3d.t.geometry.Image(o3c.Tensor(depth)))
-    K = o3c.Tensor(np.array([[32.0, 0, 16], [0, 32.0, 16], [0, 0, 1]]), o3c.Dtype.Float64)
-    odo = o3d.t.pipelines.odometry
-    odo.rgbd_odometry_multi_scale(
-        image, image, K, o3c.Tensor(np.eye(4)), 1.0, 3.0, [odo.OdometryConvergenceCriteria(1)]
-    )
+    depth = 1.0 + 0.2 * np.sin(xx / 4.0) + 0.2 * np.cos(yy / 5.0)
+    tracker = RgbdTracker(np.array([[32.0, 0, 16], [0, 32.0, 16], [0, 0, 1]]), 32, 32, TrackingParams(downscale=1))
+    image = tracker._image(rgb, depth, None)
+    tracker._register(image, image, np.eye(4))
 
 
 def _track_frames(case, frames: list[int], K, params: TrackingParams) -> TrackResult:
