@@ -214,6 +214,32 @@ def test_a_mug_seen_into_over_its_rim_is_an_open_vessel_and_a_can_is_not():
     assert how == "revolution"
 
 
+def test_a_solid_of_revolution_seen_from_one_side_is_revolved_whole():
+    """A can seen by one camera shows its near wall (here 150 deg of it) and its lid: the far half,
+    never seen, is revolved too, so the solid is as deep as it is wide (it was cut where the seen
+    points end: realistic rotate-mug came out a half cylinder, 3.5 cm deep for 8.2 cm wide)."""
+    import trimesh
+
+    from rose_usd.object.fusion import mesh_from_solid, solid_from_points
+
+    rng = np.random.default_rng(5)
+    eye = np.array([0.45, 0.0, 0.12])
+    radius, height = 0.0439, 0.0836
+    wall = _wall(radius, height, (-75, 75), rng, n=5000)
+    lid = rng.uniform(-radius, radius, (3000, 2))
+    lid = lid[(np.hypot(*lid.T) < radius) & (lid[:, 0] > 0.015)]  # its near part, as a low camera sees it
+    points = np.concatenate([wall, np.column_stack([lid, np.full(len(lid), height)])])
+    toward = (eye - points) / np.linalg.norm(eye - points, axis=1, keepdims=True)
+    assert points[:, 0].min() > 0.01  # nothing of the far half is seen
+    solid, lo, step, how = solid_from_points(points, step_m=0.002, band_m=0.008, tolerance=0.05, toward=toward)
+    assert how == "revolution"
+    v, f = mesh_from_solid(solid, lo, step, 8000)
+    mesh = trimesh.Trimesh(v, f)
+    assert mesh.is_watertight
+    np.testing.assert_allclose(mesh.extents[:2], 2 * 0.0439, atol=0.003)
+    assert abs(mesh.volume / (np.pi * 0.0439**2 * 0.0836) - 1) < 0.08, mesh.volume
+
+
 def test_flying_pixels_above_a_top_face_are_carved_and_the_face_is_kept():
     """A top face at z = 5 cm seen from several cameras, with a strip of points 4-10 mm above its
     edge (a sensor's flying pixels fused over a rest): views see past the strip, not past the face."""

@@ -308,13 +308,17 @@ def solid_from_points(
     to 0 over two voxels, so that its 0.5 level lies where the surface is, not on a voxel face."""
 
     top = float(points[:, 2].max())
-    lo = np.array([*(points[:, :2].min(axis=0) - 3 * step_m), 0.0])
-    hi = np.array([*(points[:, :2].max(axis=0) + 3 * step_m), top + step_m])
+    rev = revolution_profile(points, band_m, tolerance, toward=toward)
+    xy_lo, xy_hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
+    if rev is not None:  # the far side, never seen, is revolved too: the grid holds the whole solid
+        xy_lo = np.minimum(xy_lo, rev[0] - rev[2].max())
+        xy_hi = np.maximum(xy_hi, rev[0] + rev[2].max())
+    lo = np.array([*(xy_lo - 3 * step_m), 0.0])
+    hi = np.array([*(xy_hi + 3 * step_m), top + step_m])
     shape = tuple(np.ceil((hi - lo) / step_m).astype(int))
     centers = [lo[a] + (np.arange(shape[a]) + 0.5) * step_m for a in range(3)]
     x, y = np.meshgrid(centers[0], centers[1], indexing="ij")
     z = centers[2]
-    rev = revolution_profile(points, band_m, tolerance, toward=toward)
     idx = np.clip(np.floor((points - lo) / step_m).astype(int), 0, np.array(shape) - 1)
     grid = (x, y, z)
     if rev is not None:
