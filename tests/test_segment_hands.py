@@ -104,3 +104,39 @@ def test_what_is_off_the_object_surface_is_found():
     assert off[finger].all()
     assert not off[on_face & ~finger].any()
     assert off[beside].all() and off[:, :2].all() and off[:, -2:].all()
+    # without ``outside`` (an arm followed, no hand found) only what is in front of the face is off
+    off[ys, xs] = off_surface(points, pose, K, depth, ys, xs, 0.01, outside=False)
+    assert off[finger].all()
+    assert not off[on_face & ~finger].any() and not off[beside].any()
+
+
+def test_sensor_holes_in_a_sleeve_are_bridged_and_nothing_else():
+    """A sleeve in front of the table whose depth has holes every few pixels (dark cloth) is one
+    region once bridged; a table pixel with depth between the sleeve and a blob 3 px away keeps its
+    own answer (it is not foreground), so the blob is not joined through it; a hand with a few
+    holes at its edge gets none added."""
+    from rose_usd.segment.regions import components
+    from rose_usd.segment.segmenter import bridge_holes
+
+    depth = np.full((H, W), 0.8, np.float32)
+    fg = np.zeros((H, W), bool)
+    fg[40:60, 10:100] = True
+    holes = np.zeros((H, W), bool)
+    holes[40:60, 12:98:4] = True  # every 4th column inside the sleeve has no depth
+    depth[holes] = 0.0
+    fg &= ~holes
+    assert components(fg)[0] - 1 > 1  # specks
+    bridged = bridge_holes(fg, depth)
+    assert components(bridged)[0] - 1 == 1 and bridged[holes].all()
+    blob = np.zeros((H, W), bool)
+    blob[40:60, 103:110] = True  # beyond the table pixels at columns 100-102, which have depth
+    joined = bridge_holes(fg | blob, depth)
+    assert not joined[40:60, 100:103].any()
+    # a hand seen whole, with the sensor's shadow (no depth) in a notch of its outline: the
+    # shadow is background seen past the hand, not bridged
+    depth = np.full((H, W), 0.8, np.float32)
+    hand = np.zeros((H, W), bool)
+    hand[30:70, 20:80] = True
+    hand[49:52, 76:80] = False
+    depth[49:52, 76:80] = 0.0
+    assert np.array_equal(bridge_holes(hand, depth), hand)

@@ -15,7 +15,7 @@ from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
 from rose_usd.segment.colors import color_index, histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, interactor_mask
+from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, following_arm, interactor_mask
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
@@ -59,8 +59,12 @@ def run(ctx: StageContext) -> None:
             tracks = [tr.copy() for _, tr in starts]
         active = [k for k, (f, _) in enumerate(starts) if direction < 0 or f <= t]
         found = hand_mask(found_hands[t], (case.height, case.width)) if found_hands and found_hands[t] else None
-        arm = arm_mask(seg, t, found) if found is not None else None
-        out = seg.step(t, [tracks[k] for k in active], hand_hist, found, arm)
+        arm = (
+            arm_mask(seg, t, found)
+            if found is not None
+            else following_arm(seg, t, hands[t - direction] if 0 <= t - direction < n else None)
+        )
+        out = seg.step(t, [tracks[k] for k in active], hand_hist, found, arm, arm_found=found is not None)
         objs = [np.zeros((case.height, case.width), bool) for _ in specs]
         for k, m in zip(active, out):
             objs[k] = m

@@ -138,11 +138,14 @@ def off_surface(
     ys: np.ndarray,
     xs: np.ndarray,
     tol_m: float,
+    *,
+    outside: bool = True,
 ) -> np.ndarray:
     """Whether pixels (ys, xs) are not on the surface that ``points`` (world, (N, 3): an object's
     predicted points) show in this view: no point projects within 2 px of them (outside its
-    predicted silhouette), or they are nearer the camera than the nearest such point by more
-    than ``tol_m`` (something in front of it: a finger). Pixels without depth are on it."""
+    predicted silhouette; counted only with ``outside``), or they are nearer the camera than the
+    nearest such point by more than ``tol_m`` (something in front of it: a finger). Pixels
+    without depth are on it."""
     h, w = depth.shape
     u, v, z = pixels_of(points, world_from_cv, K, w, h, min_z=0.05)
     near = np.full((h, w), np.inf, np.float32)
@@ -150,7 +153,8 @@ def off_surface(
     np.minimum.at(near, (v[seen], u[seen]), z[seen].astype(np.float32))
     near = cv2.erode(near, np.ones((5, 5), np.uint8), borderType=cv2.BORDER_REPLICATE)  # min over 5 x 5 px
     d = depth[ys, xs]
-    return (d > 0) & (d < near[ys, xs] - tol_m)
+    off = (d > 0) & (d < near[ys, xs] - tol_m)
+    return off if outside else off & np.isfinite(near[ys, xs])
 
 
 def separate(

@@ -26,7 +26,10 @@ under it (``geometry.support``: the table as the video sees it, which may bend a
    and it is depth-connected to a core of pixels within ``core_m`` of the moved points. Pixels
    connected to a found hand (its fingers, its arm, what it holds) are the object's only within
    ``core_m`` of the moved points, inside the silhouette they show and not in front of their
-   surface by more than ``occluder_m`` (fingers wrapped around it). A pixel belongs to one
+   surface by more than ``occluder_m`` (fingers wrapped around it). With no hand found, the
+   interactor's region of the frame before, followed into this one (``following_arm``), is
+   taken as the arm, by the same rule save the silhouette (a part the points never covered may
+   join: a lying can's end cap beside the thumb). A pixel belongs to one
    object at most. Color models are updated as the object turns. The motion
    between frames is rigid: translation-only ICP of the seen points first (not the shift of
    their mean, which occlusion moves), then a turn where it fits clearly better (a cup turned in
@@ -35,7 +38,8 @@ under it (``geometry.support``: the table as the video sees it, which may bend a
    hand). When the object is hidden (the hand covers it), its last points are kept and the
    search widens until it reappears.
 3. **Interactor.** Pixels nearer than the static world (geometry.background) by more than
-   ``foreground_m``, minus the objects, in regions of at least ``min_region_px`` pixels.
+   ``foreground_m`` (with the sensor's holes between them bridged: a dark sleeve), minus the
+   objects, in regions of at least ``min_region_px`` pixels.
 """
 
 from __future__ import annotations
@@ -414,10 +418,16 @@ class Segmenter:
         hand_hist: np.ndarray | None,
         exclude: np.ndarray | None = None,
         arm: np.ndarray | None = None,
+        *,
+        arm_found: bool = True,
     ) -> list[np.ndarray]:
         """Masks of every track in frame t (updating the tracks). Pixels of ``arm`` (what stands in
         front of the static world connected to a found hand: the arm, and the object the hand
-        holds) belong to an object only when they are within ``core_m`` of its predicted points.
+        holds) belong to an object only when they are within ``core_m`` of its predicted points,
+        not in front of the surface those show and, with ``arm_found``, inside their silhouette.
+        Without ``arm_found`` (an arm followed from the interactor's last mask, no hand found) a
+        part the points never covered stays (a lying can's end cap beside the thumb), and a track
+        hidden in the frame before is not held to its stale points at all.
         Pixels of ``exclude`` (a hand found by its landmarks) belong to no object without a skin
         model; with one (``skin``), they are taken as the arm's are, and the fingers on the object
         are peeled off its mask by their color (``peel_skin``)."""
@@ -443,7 +453,9 @@ class Segmenter:
                 continue
             ys, xs, d = found
             core_m = p.core_m + 0.5 * track.motion_m()
-            if arm is None:
+            if arm is None or (track.hidden and not arm_found):
+                # a followed arm's region holds what it hid: an object coming out from under the
+                # hand, whose last points are stale, is searched as widely as it was hidden
                 ok = np.ones(len(d), bool)
             else:
                 # what is connected to a hand is the object's near its points and on the surface
@@ -457,6 +469,7 @@ class Segmenter:
                     ys,
                     xs,
                     p.occluder_m + 0.25 * track.motion_m(),
+                    outside=arm_found,
                 )
                 ok = ~arm[ys, xs] | ((d < core_m) & ~off)
             better = ok & (d < best[ys, xs])
@@ -631,6 +644,42 @@ def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
     return keep[labels] & ~hand
 
 
+def bridge_holes(fg: np.ndarray, depth: np.ndarray, *, px: int = 5, speckled: float = 0.2) -> np.ndarray:
+    """``fg`` with its sensor holes bridged where it comes in specks: a dark sleeve reflects too
+    little for the sensor, and its foreground is specks among pixels without depth (realistic
+    place-mug's interactor IoU 0.60 without this, 0.85 with). A closing over ``px`` pixels joins
+    them; its pixels without depth are kept in the regions where they are at least ``speckled`` of
+    the closed region. Elsewhere (a hand with a sensor's shadow beside it) nothing is added:
+    there the holes are background seen past the hand's edge."""
+    closed = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((px, px), np.uint8)).astype(bool)
+    added = closed & ~fg & (depth <= 0)
+    if not added.any():
+        return fg
+    n, labels, areas = components(closed)
+    holes = np.bincount(labels[added], minlength=n)
+    keep = holes >= speckled * np.maximum(areas, 1)
+    keep[0] = False
+    return fg | (added & keep[labels])
+
+
+def following_arm(seg: Segmenter, t: int, last: np.ndarray | None) -> np.ndarray | None:
+    """Without a found hand: what stands in front of the static world (geometry.background) in
+    frame t, in regions that overlap ``last`` (the interactor's mask in the frame before): the
+    interactor followed from frame to frame, with what it now holds (``arm_mask``'s role). Sensor
+    holes on a dark sleeve break the region into specks: they are bridged first (``bridge_holes``)."""
+    if last is None or not last.any():
+        return None
+    depth = seg.frame(t).depth
+    fg, _ = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
+    joined = bridge_holes(fg, depth)
+    n, labels, _ = components(joined)
+    near_last = cv2.dilate(last.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    keep = np.zeros(n, bool)
+    keep[np.unique(labels[near_last & joined])] = True
+    keep[0] = False
+    return keep[labels] & fg
+
+
 def interactor_mask(
     seg: Segmenter, t: int, objects: list[np.ndarray], hand_hist: np.ndarray | None = None
 ) -> np.ndarray:
@@ -643,7 +692,8 @@ def interactor_mask(
     for m in objects:
         taken |= m
     taken = cv2.dilate(taken.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    fg = cv2.morphologyEx((fg & ~taken).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+    fg = bridge_holes(fg, depth) & ~taken
+    fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
     n, labels, areas = components(fg)
     big = np.zeros(n, bool)
     big[1:] = areas[1:] >= MIN_REGION_PX * seg.scale_px
