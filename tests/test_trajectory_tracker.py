@@ -41,6 +41,27 @@ def test_icp_recovers_a_known_motion_from_the_visible_side():
     assert se3.rotation_angle_deg(err[:3, :3]) < 0.1
 
 
+def test_points_in_front_of_the_fitted_object_are_left_out():
+    """A camera 0.6 m above the box sees its top face, a finger lying 1.5 cm above it and, 5 cm
+    beside it, points the box may have moved to: the finger's points are left out, the face's and
+    those beside the box's silhouette stay."""
+    from rose_usd.trajectory.tracker import _unoccluded
+
+    _, model = _box_model()  # top face at z = 0.06, x 0.04..0.16, y -0.04..0.04
+    world_from_cv = se3.look_at((0.1, 0.0, 0.6), (0.1, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+
+    def grid(x0, x1, y0, y1, z):
+        xs, ys = np.meshgrid(np.linspace(x0, x1, 20), np.linspace(y0, y1, 10))
+        return np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, z)])
+
+    face = grid(0.05, 0.15, -0.03, 0.03, 0.06)
+    finger = grid(0.08, 0.12, -0.005, 0.005, 0.075)
+    beside = grid(0.21, 0.25, -0.02, 0.02, 0.075)
+    kept = _unoccluded(model, np.concatenate([face, finger, beside]), np.eye(4), world_from_cv, K, (240, 320))
+    np.testing.assert_array_equal(kept, np.concatenate([face, beside]))
+
+
 def test_icp_on_one_face_without_a_prior_does_not_fail():
     """Only the box's top face seen and no prior (re-acquisition): the point-to-plane system is
     singular (a plane leaves three directions free). The fit moves along none of them and

@@ -24,6 +24,11 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    rotation comes out noisier. Where the matched normals leave a direction free (``weak_axis``:
    a can seen only by its wall, a hand on its top), the pose is slid along it to where fitness
    plus silhouette IoU is best (``slide``, within ``slide_span_m``; off by default, see it).
+   Observed points more than ``OCCLUDER_M`` in front of the fitted model's surface are a hand
+   on it that its mask took (a palm over a lying mug: realistic place-mug's track was lost as it
+   was lifted, APE 57.6 mm, 17.9 mm without them): the fit is made again, from itself, without
+   them. Not from the prediction: a mug turned in the hand shows its handle in front of where
+   it was predicted, and the turn is lost with it.
 4. **Confidence.** The fraction of observed points within 5 mm of the model after ICP. A frame
    with fewer than ``min_points`` observed points, or a fit under ``min_fitness``, is lost: the pose
    holds, confidence 0. When the object shows again it is re-acquired: ICP from the last pose
@@ -57,7 +62,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import backproject, silhouette
+from rose_usd.core.pinhole import backproject, pixels_of, silhouette
 from rose_usd.core.watertight import is_closed
 from rose_usd.errors import InputError
 from rose_usd.geometry.contact import touches
@@ -72,6 +77,11 @@ SCHEDULE = ((0.03, 6), (0.015, 6), (0.008, 8))
 """(correspondence radius [m], Gauss-Newton iterations) of each ICP level."""
 INLIER_M = 0.005
 """An observed point within this distance of the model after ICP counts toward fitness [m]."""
+OCCLUDER_M = 0.01
+"""An observed point nearer the camera than the fitted model's surface by more than this is on
+something in front of it (a finger), and the fit is made again without it [m]."""
+MIN_LEFT = 30
+"""... unless fewer points than this would remain."""
 
 
 @dataclass
@@ -221,6 +231,34 @@ def _observed(
         pick = np.linspace(0, len(v) - 1, max_points).astype(int)
         v, u = v[pick], u[pick]
     return se3.transform_points(world_from_cv, backproject(u, v, depth[v, u], K))
+
+
+def _unoccluded(
+    model: Model,
+    observed: np.ndarray,
+    motion: np.ndarray,
+    world_from_cv: np.ndarray,
+    K: np.ndarray,
+    shape: tuple[int, int],
+    *,
+    tol_m: float = OCCLUDER_M,
+) -> np.ndarray:
+    """``observed`` without the points nearer the camera than the model's surface at ``motion`` by
+    more than ``tol_m``, where the model shows (within 3 px): a palm and fingers on the object
+    that its mask took. Points beside the model's silhouette stay (it may have moved there). All
+    are kept when fewer than ``MIN_LEFT`` would remain."""
+    h, w = shape
+    u, v, z = pixels_of(se3.transform_points(motion, model.points), world_from_cv, K, w, h, min_z=0.05)
+    near = np.full((h, w), np.inf, np.float32)
+    seen = u >= 0
+    np.minimum.at(near, (v[seen], u[seen]), z[seen].astype(np.float32))
+    near = cv2.erode(near, np.ones((7, 7), np.uint8), borderType=cv2.BORDER_REPLICATE)  # min over 7 x 7 px
+    ou, ov, oz = pixels_of(observed, world_from_cv, K, w, h, min_z=0.05)
+    inside = ou >= 0
+    front = np.zeros(len(observed), bool)
+    surface = near[ov[inside], ou[inside]]
+    front[inside] = np.isfinite(surface) & (oz[inside] < surface - tol_m)
+    return observed if np.count_nonzero(~front) < MIN_LEFT else observed[~front]
 
 
 def _predict(motions: list[np.ndarray], damping: float = 0.7) -> np.ndarray:
@@ -384,6 +422,10 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
             steady = t >= 2 and tracked[t - 1] and tracked[t - 2]
             fit, moved = _registered(model, observed, cam[:3, 3], motions, t, cfg, score, steady=steady)
             slid += moved
+            if t:  # a hand on it, taken into its mask, stands in front of where it was fitted
+                clear = _unoccluded(model, observed, fit.motion, cam, K, shape)
+                if len(clear) < len(observed):
+                    fit = register(model, clear, cam[:3, 3], fit.motion, prior_weight=cfg.prior_weight)
         if t == 0:
             iou0 = silhouette_iou(model, fit.motion, mask, occluders(0), cam, K)
         if fit.fitness < cfg.min_fitness:
