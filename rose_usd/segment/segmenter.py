@@ -453,25 +453,7 @@ class Segmenter:
                 continue
             ys, xs, d = found
             core_m = p.core_m + 0.5 * track.motion_m()
-            if arm is None or (track.hidden and not arm_found):
-                # a followed arm's region holds what it hid: an object coming out from under the
-                # hand, whose last points are stale, is searched as widely as it was hidden
-                ok = np.ones(len(d), bool)
-            else:
-                # what is connected to a hand is the object's near its points and on the surface
-                # they show: within its predicted silhouette, not in front of it (fingers wrapped
-                # around it are within core_m of its points)
-                off = off_surface(
-                    pred,
-                    self.cam.world_from_cv[t],
-                    self.cam.K[t],
-                    self.frame(t).depth,
-                    ys,
-                    xs,
-                    p.occluder_m + 0.25 * track.motion_m(),
-                    outside=arm_found,
-                )
-                ok = ~arm[ys, xs] | ((d < core_m) & ~off)
+            ok = self._arm_allows(t, track, pred, found, core_m, arm, arm_found)
             better = ok & (d < best[ys, xs])
             best[ys[better], xs[better]] = d[better]
             owner[ys[better], xs[better]] = k
@@ -498,6 +480,29 @@ class Segmenter:
                 mask &= ~(shared & (others_own | ((owner < 0) & earlier)))
             self._update(track, t, mask)
         return masks
+
+    def _arm_allows(self, t, track, pred, found, core_m: float, arm, arm_found: bool) -> np.ndarray:
+        """Which candidate pixels ``found`` (rows, cols, distances) of ``track`` the arm leaves it
+        (``step``): all when there is no arm, or when a followed arm's track was hidden (its region
+        holds what it hid: an object coming out from under the hand, whose last points are stale,
+        is searched as widely as it was hidden); else those off the arm, and those on it near the
+        track's points and on the surface they show: within its predicted silhouette (with
+        ``arm_found``), not in front of it (fingers wrapped around it are within core_m of its
+        points)."""
+        ys, xs, d = found
+        if arm is None or (track.hidden and not arm_found):
+            return np.ones(len(d), bool)
+        off = off_surface(
+            pred,
+            self.cam.world_from_cv[t],
+            self.cam.K[t],
+            self.frame(t).depth,
+            ys,
+            xs,
+            self.config.occluder_m + 0.25 * track.motion_m(),
+            outside=arm_found,
+        )
+        return ~arm[ys, xs] | ((d < core_m) & ~off)
 
     def _candidates(
         self, t: int, track: ObjectTrack, pred: np.ndarray, valid: np.ndarray, hand_hist: np.ndarray | None
