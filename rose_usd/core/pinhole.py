@@ -53,6 +53,18 @@ def pixels_of(
     return u, v, z
 
 
+def nearest_depth(
+    points_world: np.ndarray, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, window_px: int
+) -> np.ndarray:
+    """The depth (H, W) of the nearest of ``points_world`` that falls within a ``window_px``-wide
+    square around each pixel (a point cloud's visible surface, its gaps closed); inf where none."""
+    u, v, z = pixels_of(points_world, world_from_cv, K, width, height, min_z=0.05)
+    near = np.full((height, width), np.inf, np.float32)
+    seen = u >= 0
+    np.minimum.at(near, (v[seen], u[seen]), z[seen].astype(np.float32))
+    return cv2.erode(near, np.ones((window_px, window_px), np.uint8), borderType=cv2.BORDER_REPLICATE)
+
+
 def sample_at(image: np.ndarray, u: np.ndarray, v: np.ndarray, fill=0):
     """``image`` at the pixels (u, v) from ``pixels_of``, ``fill`` where u = -1."""
     inside = u >= 0

@@ -35,7 +35,7 @@ from rose_usd.errors import InputError
 from rose_usd.progress import progress
 from rose_usd.segment.colors import color_index, histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import components, fill_holes
+from rose_usd.segment.segmenter import components, fill_holes, touching
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
@@ -238,11 +238,7 @@ class FlowTracker:
         out[y0:y1, x0:x1] = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
         out &= mine
         # keep the parts that overlap where the track was carried
-        n, labels, _ = components(out)
-        keep = np.zeros(n, bool)
-        keep[np.unique(labels[out & cv2.dilate(moved.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)])] = True
-        keep[0] = False
-        return fill_holes(keep[labels], max_hole_px=int(0.05 * out.sum()) + 1)
+        return fill_holes(touching(out, moved, grow_px=4), max_hole_px=int(0.05 * out.sum()) + 1)
 
 
 # ----------------------------------------------------------------------------- interactor

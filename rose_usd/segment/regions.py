@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rose_usd.core.pinhole import pixels_of
+from rose_usd.core.pinhole import nearest_depth
 from rose_usd.segment.colors import histogram
 from rose_usd.segment.motion import diameter, subsample
 
@@ -17,6 +17,17 @@ def components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     """4-connected components: count, labels (H, W) and the area of each label."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=4)
     return n, labels, stats[:, cv2.CC_STAT_AREA]
+
+
+def touching(region: np.ndarray, seed: np.ndarray, *, grow_px: int = 0) -> np.ndarray:
+    """The 4-connected parts of ``region`` that hold a pixel of ``seed`` grown by ``grow_px``."""
+    n, labels, _ = components(region)
+    if grow_px:
+        seed = cv2.dilate(seed.astype(np.uint8), np.ones((2 * grow_px + 1,) * 2, np.uint8)).astype(bool)
+    keep = np.zeros(n, bool)
+    keep[np.unique(labels[seed])] = True
+    keep[0] = False
+    return keep[labels]
 
 
 def fill_holes(mask: np.ndarray, max_hole_px: int) -> np.ndarray:
@@ -147,11 +158,7 @@ def off_surface(
     nearest such point by more than ``tol_m`` (something in front of it: a finger). Pixels
     without depth are on it."""
     h, w = depth.shape
-    u, v, z = pixels_of(points, world_from_cv, K, w, h, min_z=0.05)
-    near = np.full((h, w), np.inf, np.float32)
-    seen = u >= 0
-    np.minimum.at(near, (v[seen], u[seen]), z[seen].astype(np.float32))
-    near = cv2.erode(near, np.ones((5, 5), np.uint8), borderType=cv2.BORDER_REPLICATE)  # min over 5 x 5 px
+    near = nearest_depth(points, world_from_cv, K, w, h, window_px=5)
     d = depth[ys, xs]
     off = (d > 0) & (d < near[ys, xs] - tol_m)
     return off if outside else off & np.isfinite(near[ys, xs])

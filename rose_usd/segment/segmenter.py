@@ -69,6 +69,7 @@ from rose_usd.segment.regions import (
     off_surface,
     peel_skin,
     separate,
+    touching,
 )
 
 
@@ -150,6 +151,11 @@ class Segmenter:
         self.scale_px = self.width * self.height / (640 * 480)
         self.frame = functools.lru_cache(maxsize=5)(self._frame)
         """The ``Frame`` t (the last few are cached)."""
+        self.foreground = functools.lru_cache(maxsize=2)(self._foreground)
+        """(foreground, static) of frame t (``StaticBackground.foreground`` at ``foreground_m``;
+        read-only: the peel, the arm and the interactor of a frame share it)."""
+        self.bridged = functools.lru_cache(maxsize=2)(self._bridged)
+        """Frame t's foreground with a dark sleeve's sensor holes bridged (``bridge_holes``; read-only)."""
         self.lift = config.min_height_m
         """A pixel stands on the support when its point is this high above the support under it [m]
         (``measure_lift``: at least ``min_height_m``, more where the depth is noisy)."""
@@ -162,6 +168,12 @@ class Segmenter:
         pts = world_points(depth, self.cam.K[t], self.cam.world_from_cv[t])
         height = pts[..., 2] if self.support is None else self.support.height_above(pts).astype(np.float32)
         return Frame(rgb, depth, pts, depth_edges(depth), color_index(rgb), height)
+
+    def _foreground(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.bg.foreground(t, self.frame(t).depth, tau_m=self.config.foreground_m)
+
+    def _bridged(self, t: int) -> np.ndarray:
+        return bridge_holes(self.foreground(t)[0], self.frame(t).depth)
 
     def measure_lift(self, t: int, box: tuple[int, int, int, int] | None = None) -> float:
         """Set and return ``lift`` from frame t: the support pixels' (within 3 cm of the plane,
@@ -463,9 +475,9 @@ class Segmenter:
         max_hole = int(200 * self.scale_px)
         front = None
         if peel:
-            front, _ = self.bg.foreground(t, depth, tau_m=p.foreground_m)
+            front = self.foreground(t)[0]
             if exclude is not None:
-                front |= exclude
+                front = front | exclude
         for k, track in enumerate(tracks):
             mask = self._mask_of(t, k, track, owner, cores[k], hand_hist, max_hole, front)
             masks.append(mask if exclude is None or peel else mask & ~exclude)
@@ -639,14 +651,7 @@ class Segmenter:
 def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
     """What stands in front of the static world (geometry.background) in frame t and connects to
     ``hand`` (pixels of a hand found by its landmarks): the arm, and whatever the hand holds."""
-    depth = seg.frame(t).depth
-    fg, _ = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
-    n, labels, _ = components(fg | hand)
-    touched = np.unique(labels[cv2.dilate(hand.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)])
-    keep = np.zeros(n, bool)
-    keep[touched] = True
-    keep[0] = False
-    return keep[labels] & ~hand
+    return touching(seg.foreground(t)[0] | hand, hand, grow_px=2) & ~hand
 
 
 def bridge_holes(fg: np.ndarray, depth: np.ndarray, *, px: int = 5, speckled: float = 0.2) -> np.ndarray:
@@ -674,15 +679,7 @@ def following_arm(seg: Segmenter, t: int, last: np.ndarray | None) -> np.ndarray
     holes on a dark sleeve break the region into specks: they are bridged first (``bridge_holes``)."""
     if last is None or not last.any():
         return None
-    depth = seg.frame(t).depth
-    fg, _ = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
-    joined = bridge_holes(fg, depth)
-    n, labels, _ = components(joined)
-    near_last = cv2.dilate(last.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    keep = np.zeros(n, bool)
-    keep[np.unique(labels[near_last & joined])] = True
-    keep[0] = False
-    return keep[labels] & fg
+    return touching(seg.bridged(t), last, grow_px=2) & seg.foreground(t)[0]
 
 
 def interactor_mask(
@@ -692,12 +689,12 @@ def interactor_mask(
     of the hand, it grows through hand-colored pixels connected to it whose depth is missing or
     disagrees with the static world (too near for the sensor, or misregistered at the rim)."""
     rgb, depth, pts, edges, cidx, _ = seg.frame(t)
-    fg, static = seg.bg.foreground(t, depth, tau_m=seg.config.foreground_m)
+    fg, static = seg.foreground(t)
     taken = np.zeros_like(fg)
     for m in objects:
         taken |= m
     taken = cv2.dilate(taken.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    fg = bridge_holes(fg, depth) & ~taken
+    fg = seg.bridged(t) & ~taken
     fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
     n, labels, areas = components(fg)
     big = np.zeros(n, bool)
@@ -706,9 +703,5 @@ def interactor_mask(
     if hand_hist is not None and hand.any() and static.any():
         bg_hist = histogram(cidx[static][:: max(1, int(static.sum()) // 20000)])
         maybe = (hand_hist[cidx] > 2.0 * bg_hist[cidx]) & ~static & ~taken
-        n, labels, _ = components(hand | maybe)
-        keep = np.zeros(n, bool)
-        keep[np.unique(labels[hand])] = True
-        keep[0] = False
-        hand = keep[labels]
+        hand = touching(hand | maybe, hand)
     return hand

@@ -62,7 +62,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import backproject, pixels_of, silhouette
+from rose_usd.core.pinhole import backproject, nearest_depth, pixels_of, silhouette
 from rose_usd.core.watertight import is_closed
 from rose_usd.errors import InputError
 from rose_usd.geometry.contact import touches
@@ -248,11 +248,7 @@ def _unoccluded(
     that its mask took. Points beside the model's silhouette stay (it may have moved there). All
     are kept when fewer than ``MIN_LEFT`` would remain."""
     h, w = shape
-    u, v, z = pixels_of(se3.transform_points(motion, model.points), world_from_cv, K, w, h, min_z=0.05)
-    near = np.full((h, w), np.inf, np.float32)
-    seen = u >= 0
-    np.minimum.at(near, (v[seen], u[seen]), z[seen].astype(np.float32))
-    near = cv2.erode(near, np.ones((7, 7), np.uint8), borderType=cv2.BORDER_REPLICATE)  # min over 7 x 7 px
+    near = nearest_depth(se3.transform_points(motion, model.points), world_from_cv, K, w, h, window_px=7)
     ou, ov, oz = pixels_of(observed, world_from_cv, K, w, h, min_z=0.05)
     inside = ou >= 0
     front = np.zeros(len(observed), bool)
