@@ -89,3 +89,20 @@ def test_corners_of_a_shifted_texture_are_followed_and_put_on_the_object():
     np.testing.assert_allclose(se3.transform_points(moved_by, got.points)[:, 2], 0.5)
     assert flow.track_features((speckle, where, depth), shifted, (camera, K), (camera, K), moved_by,
                                region=np.zeros_like(where)) is None  # fmt: skip
+
+
+def test_a_solid_of_revolution_is_tracked_without_its_texture_flow():
+    """A can's or a cup's outline does not turn with it: the flow is off for those categories and
+    on for a mug (its handle) or an object of no known category."""
+    from types import SimpleNamespace
+
+    from rose_usd.trajectory.config import TrackerConfig
+    from rose_usd.trajectory.tracker import _settings_for
+
+    objects = [
+        SimpleNamespace(name=n, category=c) for n, c in [("A", "can"), ("B", "Cup"), ("C", "mug"), ("D", "thing")]
+    ]
+    ctx = SimpleNamespace(case=SimpleNamespace(config=SimpleNamespace(objects=objects)))
+    ctx.config = SimpleNamespace(tracker=TrackerConfig())
+    weights = {o.name: _settings_for(ctx, o.name).flow_weight for o in objects}
+    assert weights == {"A": 0.0, "B": 0.0, "C": 10.0, "D": 10.0}

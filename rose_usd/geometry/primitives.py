@@ -36,6 +36,9 @@ class Typical:
     sigma: float
     """Relative one-sigma of the category's size [-]."""
     source: str
+    revolution: bool = False
+    """A solid of revolution (a can, a cup; not a mug, whose handle breaks it): its outline does
+    not show it turning about its axis."""
 
     @property
     def size_m(self) -> float:
@@ -49,6 +52,7 @@ TYPICAL: dict[str, Typical] = {
         0.15,
         "16 oz plastic party cup (Dart Solo P16R): 12.1 cm tall, 9.4 cm rim, 6.0 cm base, the manufacturer's"
         " spec sheet; paper coffee cups (8-16 oz) are 9-14 cm tall",
+        revolution=True,
     ),
     "mug": Typical(
         PrimitiveKind.CYLINDER,
@@ -62,12 +66,14 @@ TYPICAL: dict[str, Typical] = {
         (0.033, 0.122),
         0.08,
         "12 fl oz (355 ml) beverage can: 12.2 cm tall, 6.6 cm across (Ball Corporation's 211/202 can spec)",
+        revolution=True,
     ),
     "bottle": Typical(
         PrimitiveKind.CYLINDER,
         (0.033, 0.21),
         0.2,
         "0.5 l PET water bottle: about 21 cm tall and 6.5 cm across (retail bottles, 0.33-0.75 l: 17-25 cm)",
+        revolution=True,
     ),
     "marker": Typical(
         PrimitiveKind.LYING_CYLINDER,
@@ -75,18 +81,22 @@ TYPICAL: dict[str, Typical] = {
         0.1,
         "permanent marker (Sharpie Fine Point): 13.8 cm long with its cap, 1.6 cm across (manufacturer's"
         " product data); whiteboard markers are 12-14 cm",
+        revolution=True,
     ),
     "pen": Typical(
         PrimitiveKind.LYING_CYLINDER,
         (0.005, 0.145),
         0.1,
         "ballpoint pen: 14-15 cm long, about 1 cm across (BIC Cristal: 14.9 cm)",
+        revolution=True,
     ),
     "book": Typical(PrimitiveKind.BOX, (0.15, 0.23, 0.03), 0.25, "paperback / A5-B5 book: 15 x 23 cm, 2-4 cm thick"),
     "block": Typical(PrimitiveKind.BOX, (0.04, 0.04, 0.04), 0.4, "toy wooden building block: 3-5 cm"),
     "box": Typical(PrimitiveKind.BOX, (0.12, 0.08, 0.06), 0.5, "small carton: no typical size, a wide guess"),
-    "bowl": Typical(PrimitiveKind.FRUSTUM, (0.04, 0.075, 0.07), 0.25, "cereal bowl: 15 cm across, 7 cm tall"),
-    "fruit": Typical(PrimitiveKind.CYLINDER, (0.04, 0.08), 0.2, "apple or orange: about 8 cm across"),
+    "bowl": Typical(
+        PrimitiveKind.FRUSTUM, (0.04, 0.075, 0.07), 0.25, "cereal bowl: 15 cm across, 7 cm tall", revolution=True
+    ),
+    "fruit": Typical(PrimitiveKind.CYLINDER, (0.04, 0.08), 0.2, "apple or orange: about 8 cm across", revolution=True),
     "toy": Typical(PrimitiveKind.BOX, (0.10, 0.06, 0.06), 0.5, "small toy: no typical size, a wide guess"),
     "generic": Typical(PrimitiveKind.BOX, (0.10, 0.08, 0.08), 0.6, "unknown category: a wide guess"),
 }

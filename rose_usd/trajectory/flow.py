@@ -24,6 +24,8 @@ CAUCHY_PX = 2.0
 """Reprojection residuals are down-weighted beyond about this [px]."""
 MIN_FEATURES = 8
 """Fewer tracked corners than this are no constraint."""
+QUALITY = 0.01
+"""Corners weaker than this fraction of the frame's strongest are not taken."""
 WINDOW_PX = 15
 """Lucas-Kanade's window [px]."""
 
@@ -66,7 +68,7 @@ def track_features(
     None when fewer than ``MIN_FEATURES`` survive."""
     gray_prev, where_prev, depth_prev = prev
     corners = cv2.goodFeaturesToTrack(
-        gray_prev, maxCorners=max_corners, qualityLevel=0.01, minDistance=5, mask=where_prev.astype(np.uint8)
+        gray_prev, maxCorners=max_corners, qualityLevel=QUALITY, minDistance=5, mask=where_prev.astype(np.uint8)
     )
     if corners is None or len(corners) < MIN_FEATURES:
         return None
@@ -85,7 +87,7 @@ def track_features(
     if ok.sum() < MIN_FEATURES:
         return None
     world_from_cv_prev, K_prev = view_prev
-    cam_points = backproject(pu[ok].astype(float), pv[ok].astype(float), z[ok], K_prev)
+    cam_points = backproject(uv[ok, 0].astype(float), uv[ok, 1].astype(float), z[ok], K_prev)  # where the corner is
     on_object = se3.transform_points(se3.invert(motion_prev) @ world_from_cv_prev, cam_points)
     world_from_cv, K = view
     return Features(on_object, moved[ok].astype(float), se3.invert(world_from_cv), K)

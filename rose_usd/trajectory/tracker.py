@@ -21,13 +21,14 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    coordinates, a fraction of the depth's mean stiffness: weak on position, strong on the turn
    of a small object (its rotation terms are ~size^2 smaller), a filter on the turn rate.
    Damping each coordinate by its own stiffness instead filters the turn far less, and the
-   rotation comes out noisier. With ``flow_weight`` > 0 (off by default), the object's texture
-   measures what depth leaves free (``flow``): corners of the previous frame's object, clear of
-   the hand and within 1 cm of the mesh there, followed into this frame by Lucas-Kanade, add
-   their reprojection errors to the ICP, each weighing ``flow_weight`` depth points. At 10:
-   realistic place-mug APE 18.1 -> 11.0 mm, 34 -> 14 deg, rotate-mug 47 -> 18 deg; the default
-   suite's plain cans 5.2 -> 12.9 deg (lift-can) and 2.4 -> 5.4 deg (place-can): corners on an
-   untextured can's outline slide round it as it spins.
+   rotation comes out noisier. The object's texture measures what depth leaves free
+   (``flow``): corners of the previous frame's object, their Lucas-Kanade window clear of the
+   hand (whose moving edge drags them) and their depth within 1 cm of the mesh, followed into
+   this frame, add their reprojection errors to the ICP, each weighing ``flow_weight`` depth
+   points (realistic place-mug, lying in a palm: APE 18.1 -> 3.0 mm; rotate-mug's turn 47 -> 19
+   deg; default place-mug, flat-coloured under a moving camera, 3.1 -> 6.2 deg: its corners are
+   on its outline, whose window takes in the background). Not for a category that is a solid of
+   revolution (can, cup, ...): corners on its outline do not turn with it (lift-can 5.5 -> 14 deg).
    Observed points more than ``OCCLUDER_M`` in front of the fitted model's surface are a hand
    on it that its mask took (a palm over a lying mug: realistic place-mug's track was lost as it
    was lifted, APE 57.6 mm, 17.9 mm without them): the fit is made again, from itself, without
@@ -62,6 +63,7 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -77,6 +79,7 @@ from rose_usd.core.pinhole import backproject, nearest_depth, pixels_of, silhoue
 from rose_usd.core.watertight import is_closed
 from rose_usd.errors import InputError
 from rose_usd.geometry.contact import touches
+from rose_usd.geometry.primitives import typical
 from rose_usd.layers.masks import INTERACTOR, read_masks
 from rose_usd.layers.objects import default_pose, visual_mesh
 from rose_usd.layers.world import metric_depth_reader, read_cameras
@@ -393,16 +396,29 @@ def settle_along_gravity(
     return slide(model, observed, here, np.array([0.0, 0.0, 1.0]), score, span_m=span_m, step_m=step_m, margin=margin)
 
 
+def _settings_for(ctx: StageContext, name: str):
+    """The tracker's settings for object ``name``: no texture flow for a solid of revolution
+    (its category's): corners on its outline do not turn with it (a can's spin went 5 -> 14 deg)."""
+    category = next((o.category for o in ctx.case.config.objects if o.name == name), "generic")
+    cfg = ctx.config.tracker
+    return dataclasses.replace(cfg, flow_weight=0.0) if typical(category)[0].revolution else cfg
+
+
 class _Texture:
     """The object's corners followed from one tracked frame to the next (module step 3, ``flow``)."""
 
-    def __init__(self, ctx: StageContext, cameras, model: Model, occluders):
-        self.case, self.cameras, self.model, self.occluders = ctx.case, cameras, model, occluders
-        self.cfg = ctx.config.tracker
+    def __init__(self, ctx: StageContext, cfg, cameras, model: Model, occluders):
+        self.case, self.cfg, self.cameras, self.model, self.occluders = ctx.case, cfg, cameras, model, occluders
 
     @functools.lru_cache(maxsize=2)  # noqa: B019 - one tracker's frames, dropped with it
     def gray(self, t: int) -> np.ndarray:
         return cv2.cvtColor(self.case.rgb(t), cv2.COLOR_RGB2GRAY)
+
+    def near_others(self, t: int) -> np.ndarray:
+        """Where a corner's Lucas-Kanade window would take in a hand or another object: their
+        moving edges drag it along."""
+        grown = cv2.dilate(self.occluders(t).astype(np.uint8), np.ones((flow.WINDOW_PX,) * 2, np.uint8))
+        return grown.astype(bool)
 
     def features(self, seen, t: int, mask: np.ndarray, motion_prev: np.ndarray) -> flow.Features | None:
         """The corners of ``seen`` = (frame, the object's mask, depth) at pose ``motion_prev``,
@@ -412,8 +428,8 @@ class _Texture:
             return None
         s, mask_s, depth_s = seen
         cams, box = self.cameras, np.ones((2 * self.cfg.erode_px + 1,) * 2, np.uint8)
-        where = cv2.erode(mask_s.astype(np.uint8), box).astype(bool) & ~self.occluders(s)
-        region = cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & ~self.occluders(t)
+        where = cv2.erode(mask_s.astype(np.uint8), box).astype(bool) & ~self.near_others(s)
+        region = cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & ~self.near_others(t)
         views = (cams.world_from_cv[s], cams.K[s]), (cams.world_from_cv[t], cams.K[t])
         got = flow.track_features((self.gray(s), where, depth_s), self.gray(t), *views, motion_prev, region=region)
         return got and got.subset(self.model.tree.query(got.points)[0] < 2 * INLIER_M)
@@ -421,7 +437,7 @@ class _Texture:
 
 def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tuple[np.ndarray, np.ndarray, dict]:
     """Motions D_t (N, 4, 4), confidence (N,) and facts of object ``name``."""
-    cfg, n = ctx.config.tracker, ctx.time_info.n_frames
+    cfg, n = _settings_for(ctx, name), ctx.time_info.n_frames
     shape = (ctx.case.height, ctx.case.width)
     layer = read_masks(ctx.stage, n, shape)
     layer.require(name)
@@ -439,7 +455,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
 
     motions, tracked, fitness = [np.eye(4)], np.zeros(n, bool), np.zeros(n)
     lost_since, reacquired, iou0, last_touch, moved_untouched, settled, slid = None, 0, float("nan"), -n, 0, 0, 0
-    texture = _Texture(ctx, cameras, model, occluders)
+    texture = _Texture(ctx, cfg, cameras, model, occluders)
     seen = None  # the last tracked frame, its mask and depth (for the texture's corners)
     for t in progress(range(n), f"trajectory {name}: tracking", total=n):
         mask = layer.mask(name, t)
@@ -492,7 +508,7 @@ def track(ctx: StageContext, name: str, model: Model, cameras, depth_of) -> tupl
         else:
             motions[0] = fit.motion
         tracked[t], fitness[t], seen = True, fit.fitness, (t, mask, depth)
-    counts = {"reacquired": reacquired, "moved_untouched": moved_untouched}
+    counts = {"reacquired": reacquired, "moved_untouched": moved_untouched, "flow_weight": cfg.flow_weight}
     counts |= {"settled_along_gravity": settled, "slid_along_weak_axis": slid}
     return _finish(name, np.stack(motions), tracked, fitness, cfg, counts, iou0, layer.where(name))
 
