@@ -17,8 +17,9 @@ class GateConfig:
     """How the stage is checked (default auto)."""
     ssim_threshold: float = field(default=0.75, metadata=limits(0.0, 1.0))
     """Mean SSIM needed to pass [-] (default 0.75; the paper's real videos score 0.71-0.80)."""
-    spp: int = 8
-    """Samples per pixel of the re-render (anti-aliasing; shading is noise-free) (default 8)."""
+    spp: int = 4
+    """Samples per pixel of the re-render: anti-aliasing only, shading is noise-free; 8 moves
+    the SSIM by under 0.001 for 25 % more render time (default 4)."""
     frame_stride: int = 1
     """Re-render every k-th frame (default 1: all frames)."""
     exclude_interactor: bool = True
