@@ -32,8 +32,9 @@ class TrackerConfig:
     """Pull toward the constant-velocity prediction, a fraction of the depth's mean stiffness
     (trace of the ICP Hessian / 6) [-] (default 0.001)."""
     flow_weight: float = field(default=10.0, metadata=limits(0.0))
-    """Each corner of the object's texture followed from the previous frame (Lucas-Kanade) weighs
-    this many masked depth points in the registration; 0 turns it off. Not used for categories
+    """Each coordinate of a corner of the object's texture followed from the previous frame
+    (Lucas-Kanade) weighs as much as this many masked depth points in the registration; 0 turns
+    it off. Not used for categories
     that are solids of revolution (can, cup, bottle, ...) [-] (default 10)."""
     smooth_window: int = 5
     """Frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""

@@ -117,7 +117,7 @@ def terms(features: Features, motion: np.ndarray, center: np.ndarray, weight: fl
     proj[:, 0, 0], proj[:, 0, 2] = fx / z, -fx * q[:, 0] / z**2
     proj[:, 1, 1], proj[:, 1, 2] = fy / z, -fy * q[:, 1] / z**2
     J = (proj @ dq).reshape(-1, 6)
-    scale = np.repeat(z / fx, 2)  # pixels -> meters at the point's depth
+    scale = np.stack([z / fx, z / fy], axis=1).ravel()  # pixels -> meters at the point's depth
     wt = weight / (1.0 + (r / CAUCHY_PX) ** 2)
     J, r = J * scale[:, None], r * scale
     return (J * wt[:, None]).T @ J, (J * wt[:, None]).T @ r

@@ -24,8 +24,8 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    rotation comes out noisier. The object's texture measures what depth leaves free
    (``flow``): corners of the previous frame's object, their Lucas-Kanade window clear of the
    hand (whose moving edge drags them) and their depth within 1 cm of the mesh, followed into
-   this frame, add their reprojection errors to the ICP, each weighing ``flow_weight`` depth
-   points (realistic place-mug, lying in a palm: APE 18.1 -> 3.0 mm; rotate-mug's turn 47 -> 19
+   this frame, add their reprojection errors to the ICP, each coordinate weighing as much as
+   ``flow_weight`` depth points (realistic place-mug, lying in a palm: APE 18.1 -> 3.0 mm; rotate-mug's turn 47 -> 19
    deg; default place-mug, flat-coloured under a moving camera, 3.1 -> 6.2 deg: its corners are
    on its outline, whose window takes in the background). Not for a category that is a solid of
    revolution (can, cup, ...): corners on its outline do not turn with it (lift-can 5.5 -> 14 deg).
@@ -409,14 +409,18 @@ class _Texture:
 
     def __init__(self, ctx: StageContext, cfg, cameras, model: Model, occluders):
         self.case, self.cfg, self.cameras, self.model, self.occluders = ctx.case, cfg, cameras, model, occluders
+        self._gray: dict[int, np.ndarray] = {}
 
-    @functools.lru_cache(maxsize=2)  # noqa: B019 - one tracker's frames, dropped with it
     def gray(self, t: int) -> np.ndarray:
-        return cv2.cvtColor(self.case.rgb(t), cv2.COLOR_RGB2GRAY)
+        """Frame t in grey, the last two kept."""
+        if t not in self._gray:
+            self._gray = {k: v for k, v in self._gray.items() if k == t - 1}
+            self._gray[t] = cv2.cvtColor(self.case.rgb(t), cv2.COLOR_RGB2GRAY)
+        return self._gray[t]
 
     def near_others(self, t: int) -> np.ndarray:
-        """Where a corner's Lucas-Kanade window would take in a hand or another object: their
-        moving edges drag it along."""
+        """Where a corner's Lucas-Kanade window (at full resolution; the coarser pyramid levels
+        see farther) would take in a hand or another object: their moving edges drag it along."""
         grown = cv2.dilate(self.occluders(t).astype(np.uint8), np.ones((flow.WINDOW_PX,) * 2, np.uint8))
         return grown.astype(bool)
 
@@ -563,8 +567,9 @@ def _registered(model: Model, observed: np.ndarray, view, motions: list, t: int,
     frames before were not both tracked: the step from a held or re-acquired pose is no velocity);
     made again without the points in front of the fit (a hand on the object, taken into its
     mask); where depth then leaves a direction free, slid along it to where ``score()`` (fitness
-    plus silhouette IoU) is best (module step 3). ``view``: the frame's camera pose, K and image
-    shape. Returns the fit and whether the slide moved it."""
+    plus silhouette IoU) is best (module step 3). ``view``: the frame's camera pose, K, image
+    shape and the texture's corners followed from the frame before (``flow.Features`` or None).
+    Returns the fit and whether the slide moved it."""
     cam, K, shape, features = view
     start = (_predict(motions) if steady else motions[-1]) if t else np.eye(4)
     solve = functools.partial(register, prior_weight=cfg.prior_weight, features=features, flow_weight=cfg.flow_weight)
