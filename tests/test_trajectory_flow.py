@@ -8,6 +8,7 @@ import numpy as np
 import trimesh
 
 from rose_usd.core import se3
+from rose_usd.core.pinhole import project
 from rose_usd.trajectory import flow
 from rose_usd.trajectory.config import TrackerConfig
 from rose_usd.trajectory.tracker import Model, _exp, register
@@ -16,8 +17,7 @@ K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
 
 
 def _project(world_from_cv: np.ndarray, points: np.ndarray) -> np.ndarray:
-    q = se3.transform_points(se3.invert(world_from_cv), points)
-    return np.stack([K[0, 0] * q[:, 0] / q[:, 2] + K[0, 2], K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]], axis=1)
+    return np.stack(project(se3.transform_points(se3.invert(world_from_cv), points), K), axis=1)
 
 
 def test_the_gauss_newton_terms_are_the_residuals_derivative():
@@ -99,7 +99,7 @@ def test_corners_of_a_shifted_texture_are_followed_and_put_on_the_object():
     assert got is not None and len(got) >= 50
     seen_prev = se3.transform_points(se3.invert(camera), se3.transform_points(moved_by, got.points))
     np.testing.assert_allclose(seen_prev[:, 2], 0.5)  # on the previous depth, in the previous camera
-    start = np.stack([450.0 * seen_prev[:, 0] / 0.5 + K[0, 2], K[1, 1] * seen_prev[:, 1] / 0.5 + K[1, 2]], axis=1)
+    start = np.stack(project(seen_prev, K_prev), axis=1)
     np.testing.assert_allclose(np.median(got.pixels - start, axis=0), [3.0, -2.0], atol=0.1)
     assert flow.track_features((speckle, where, depth), shifted, (camera, K), (camera, K), moved_by,
                                region=np.zeros_like(where)) is None  # fmt: skip
@@ -110,7 +110,6 @@ def test_a_solid_of_revolution_is_tracked_without_its_texture_flow():
     on for a mug (its handle) or an object of no known category."""
     from types import SimpleNamespace
 
-    from rose_usd.trajectory.config import TrackerConfig
     from rose_usd.trajectory.tracker import _settings_for
 
     objects = [

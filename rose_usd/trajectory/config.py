@@ -34,8 +34,8 @@ class TrackerConfig:
     flow_weight: float = field(default=10.0, metadata=limits(0.0))
     """Each coordinate of a corner of the object's texture followed from the previous frame
     (Lucas-Kanade) weighs as much as this many masked depth points in the registration; 0 turns
-    it off. Not used for categories
-    that are solids of revolution (can, cup, bottle, ...) [-] (default 10)."""
+    it off. Not used for categories that are solids of revolution (can, cup, bottle, ...) [-]
+    (default 10)."""
     smooth_window: int = 5
     """Frames in the centered SE(3) smoothing window; below 3 no smoothing (default 5)."""
     release_frames: int = field(default=10, metadata=limits(0))

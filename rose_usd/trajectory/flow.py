@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import backproject
+from rose_usd.core.pinhole import backproject, project
 
 FB_PX = 0.5
 """A corner tracked into the next frame and back must land within this of where it started [px]."""
@@ -105,7 +105,7 @@ def terms(features: Features, motion: np.ndarray, center: np.ndarray, weight: fl
     z = q[:, 2]
     K = features.K
     fx, fy = K[0, 0], K[1, 1]
-    pred = np.stack([fx * q[:, 0] / z + K[0, 2], fy * q[:, 1] / z + K[1, 2]], axis=1)
+    pred = np.stack(project(q, K), axis=1)
     r = (pred - features.pixels).ravel()
     # d world / d xi: the model-side step moves a point by -(w x a + v), carried to the world by R
     skew = np.zeros((len(a), 3, 3))

@@ -25,10 +25,11 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    (``flow``): corners of the previous frame's object, their Lucas-Kanade window clear of the
    hand (whose moving edge drags them) and their depth within 1 cm of the mesh, followed into
    this frame, add their reprojection errors to the ICP, each coordinate weighing as much as
-   ``flow_weight`` depth points (realistic place-mug, lying in a palm: APE 18.1 -> 3.0 mm; rotate-mug's turn 47 -> 19
-   deg; default place-mug, flat-coloured under a moving camera, 3.1 -> 6.2 deg: its corners are
-   on its outline, whose window takes in the background). Not for a category that is a solid of
-   revolution (can, cup, ...): corners on its outline do not turn with it (lift-can 5.5 -> 14 deg).
+   ``flow_weight`` depth points (realistic place-mug, lying in a palm: APE 18.1 -> 3.0 mm;
+   rotate-mug's turn 47 -> 19 deg; default place-mug, flat-coloured under a moving camera,
+   3.1 -> 6.2 deg: its corners are on its outline, whose window takes in the background). Not
+   for a category that is a solid of revolution (can, cup, ...): corners on its outline do not
+   turn with it (lift-can 5.5 -> 14 deg).
    Observed points more than ``OCCLUDER_M`` in front of the fitted model's surface are a hand
    on it that its mask took (a palm over a lying mug: realistic place-mug's track was lost as it
    was lifted, APE 57.6 mm, 17.9 mm without them): the fit is made again, from itself, without
@@ -150,7 +151,8 @@ def register(
     ``start``; ``camera`` is the frame's camera center (for the facing test). ``prior_weight``
     pulls toward ``start``, as a fraction of the depth's mean stiffness (trace / 6). Returns the
     motion, the inlier fraction and the inliers' RMS distance. ``features``: the object's texture
-    tracked from the previous frame (``flow``), each corner weighing ``flow_weight`` depth points."""
+    tracked from the previous frame (``flow``), each corner's coordinates weighing as much as
+    ``flow_weight`` depth points each."""
     c = model.center
     # work on the model side: observed points pulled back by the inverse motion, centered at c
     inv = se3.invert(start)
@@ -409,20 +411,17 @@ class _Texture:
 
     def __init__(self, ctx: StageContext, cfg, cameras, model: Model, occluders):
         self.case, self.cfg, self.cameras, self.model, self.occluders = ctx.case, cfg, cameras, model, occluders
-        self._gray: dict[int, np.ndarray] = {}
+        self._frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-    def gray(self, t: int) -> np.ndarray:
-        """Frame t in grey, the last two kept."""
-        if t not in self._gray:
-            self._gray = {k: v for k, v in self._gray.items() if k == t - 1}
-            self._gray[t] = cv2.cvtColor(self.case.rgb(t), cv2.COLOR_RGB2GRAY)
-        return self._gray[t]
-
-    def near_others(self, t: int) -> np.ndarray:
-        """Where a corner's Lucas-Kanade window (at full resolution; the coarser pyramid levels
-        see farther) would take in a hand or another object: their moving edges drag it along."""
-        grown = cv2.dilate(self.occluders(t).astype(np.uint8), np.ones((flow.WINDOW_PX,) * 2, np.uint8))
-        return grown.astype(bool)
+    def frame(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame t in grey, and where a corner's Lucas-Kanade window (at full resolution; the
+        coarser pyramid levels see farther) would take in a hand or another object, whose moving
+        edges drag it along. Made once: frame t is the later frame, then the earlier one."""
+        if t not in self._frames:
+            self._frames = {k: v for k, v in self._frames.items() if k == t - 1}
+            near = cv2.dilate(self.occluders(t).astype(np.uint8), np.ones((flow.WINDOW_PX,) * 2, np.uint8))
+            self._frames[t] = cv2.cvtColor(self.case.rgb(t), cv2.COLOR_RGB2GRAY), near.astype(bool)
+        return self._frames[t]
 
     def features(self, seen, t: int, mask: np.ndarray, motion_prev: np.ndarray) -> flow.Features | None:
         """The corners of ``seen`` = (frame, the object's mask, depth) at pose ``motion_prev``,
@@ -431,11 +430,12 @@ class _Texture:
         if seen is None or self.cfg.flow_weight <= 0:
             return None
         s, mask_s, depth_s = seen
+        (gray_s, near_s), (gray_t, near_t) = self.frame(s), self.frame(t)
         cams, box = self.cameras, np.ones((2 * self.cfg.erode_px + 1,) * 2, np.uint8)
-        where = cv2.erode(mask_s.astype(np.uint8), box).astype(bool) & ~self.near_others(s)
-        region = cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & ~self.near_others(t)
+        where = cv2.erode(mask_s.astype(np.uint8), box).astype(bool) & ~near_s
+        region = cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & ~near_t
         views = (cams.world_from_cv[s], cams.K[s]), (cams.world_from_cv[t], cams.K[t])
-        got = flow.track_features((self.gray(s), where, depth_s), self.gray(t), *views, motion_prev, region=region)
+        got = flow.track_features((gray_s, where, depth_s), gray_t, *views, motion_prev, region=region)
         return got and got.subset(self.model.tree.query(got.points)[0] < 2 * INLIER_M)
 
 
