@@ -114,6 +114,15 @@ def test_depth_is_z_depth():
     )
     depth, _ = scene.depth_and_labels(world_from_cv, K_OFFCENTER, W, H)
     np.testing.assert_allclose(depth, 1.5, atol=1e-5)
+    # the pixel rays are kept per camera model: a new pose, and a new size and K, are followed
+    higher = se3.make_pose(se3.rotation_about(np.array([1.0, 0.0, 0.0]), 0.2) @ world_from_cv[:3, :3], [0, 0, 2.0])
+    depth, _ = scene.depth_and_labels(higher, K_OFFCENTER, W, H)
+    u, v = (int(round(K_OFFCENTER[i, 2])) for i in (0, 1))  # the optical axis: z-depth 2 m / cos(tilt)
+    assert abs(depth[v, u] - 2.0 / np.cos(0.2)) < 0.005
+    K_small = np.array([[150.0, 0.0, 80.37], [0.0, 150.0, 59.71], [0.0, 0.0, 1.0]])  # no ray along a diagonal
+    depth, labels = scene.depth_and_labels(world_from_cv, K_small, 160, 120)
+    assert depth.shape == labels.shape == (120, 160)
+    np.testing.assert_allclose(depth, 1.5, atol=1e-5)
 
 
 @pytest.mark.parametrize(

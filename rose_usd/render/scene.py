@@ -112,6 +112,7 @@ class RenderScene:
             self.integrator.shadow_scene = mi.load_dict(shadow_dict)
             self.shadow_params = mi.traverse(self.integrator.shadow_scene)
         self._shapes = {shape.id(): shape for shape in self.scene.shapes()}
+        self._rays = None  # (camera model, pixel directions, z per unit length): see _pixel_rays
 
     # ------------------------------------------------------------------ building
     def _mesh(self, item: RenderItem):
@@ -243,36 +244,57 @@ class RenderScene:
         self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, with_albedo: bool = False
     ) -> "Surface":
         """What one ray per pixel center sees: z-depth, labels and (optionally) albedo and the
-        cosine between the surface normal and the ray (for sensor models)."""
+        cosine between the surface normal and the ray (for sensor models). One kernel computes
+        them all (each buffer read on its own would trace the rays again), from pixel directions
+        made once per camera model."""
         mi, dr = self.mi, self.dr
         if not self.variant.startswith(("llvm", "cuda")):
             raise EnvironmentProblem(
                 f"depth rendering needs a vectorized Mitsuba variant, not {self.variant}",
                 hint="install Debian's libllvm19 (./dev.sh does) so the llvm_ad_rgb variant works",
             )
-        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1).reshape(-1, 3)
-        norm = np.linalg.norm(d_cam, axis=1)
-        d_world = (d_cam / norm[:, None]) @ np.asarray(world_from_cv)[:3, :3].T
-        origin = np.broadcast_to(np.asarray(world_from_cv)[:3, 3], d_world.shape)
-        ray = mi.Ray3f(mi.Point3f(origin.T.astype(np.float32).copy()), mi.Vector3f(d_world.T.astype(np.float32).copy()))
+        d_cam, z_per_t = self._pixel_rays(K, width, height)
+        pose = np.asarray(world_from_cv, dtype=np.float64)
+        d_world = (d_cam @ pose[:3, :3].T).astype(np.float32)
+        origin = np.empty((3, len(d_cam)), np.float32)
+        origin[:] = pose[:3, 3, None]
+        ray = mi.Ray3f(mi.Point3f(origin), mi.Vector3f(np.ascontiguousarray(d_world.T)))
         si = self.scene.ray_intersect(ray)
-        hit = np.asarray(si.is_valid())
-        t = np.asarray(si.t, dtype=np.float64)
-        depth = np.where(hit, t / norm, 0.0).reshape(height, width).astype(np.float32)
+        valid = si.is_valid()
+        depth = dr.select(valid, si.t * z_per_t, 0.0)
         labels = dr.zeros(mi.UInt32, width * height)
         for name, item in self.items.items():
             if item.label:
                 labels = dr.select(si.shape == mi.ShapePtr(self._shapes[name]), item.label, labels)
-        out = Surface(depth=depth, labels=np.asarray(labels, dtype=np.uint8).reshape(height, width))
+        buffers = [depth, labels]
         if with_albedo:
-            valid = si.is_valid()
-            albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
-            cos = dr.abs(dr.dot(si.n, ray.d))
+            buffers += [
+                si.bsdf(ray).eval_diffuse_reflectance(si, valid),
+                dr.select(valid, dr.abs(dr.dot(si.n, ray.d)), 0.0),
+            ]
+        dr.eval(*buffers)
+        out = Surface(
+            depth=np.asarray(depth, dtype=np.float32).reshape(height, width),
+            labels=np.asarray(labels, dtype=np.uint8).reshape(height, width),
+        )
+        if with_albedo:
             # a Color3f of N lanes converts to a (3, N) array
-            out.albedo = np.asarray(albedo, dtype=np.float32).reshape(3, -1).T.reshape(height, width, 3)
-            out.cos_incidence = np.where(hit, np.asarray(cos, dtype=np.float32), 0.0).reshape(height, width)
+            out.albedo = np.asarray(buffers[2], dtype=np.float32).reshape(3, -1).T.reshape(height, width, 3)
+            out.cos_incidence = np.asarray(buffers[3], dtype=np.float32).reshape(height, width)
         return out
+
+    def _pixel_rays(self, K: np.ndarray, width: int, height: int):
+        """Unit ray directions through the pixel centers in camera axes ((N, 3) float64) and, per
+        lane, the z-depth per unit of ray length (a Dr.Jit Float), made once per camera model."""
+        K = np.asarray(K, dtype=np.float64)
+        key = (int(width), int(height), K.tobytes())
+        if self._rays is None or self._rays[0] != key:
+            u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+            d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1).reshape(-1, 3)
+            norm = np.linalg.norm(d, axis=1)
+            z_per_t = self.mi.Float((1.0 / norm).astype(np.float32))
+            self._rays = (key, d / norm[:, None], z_per_t)
+        return self._rays[1], self._rays[2]
 
 
 @dataclass
