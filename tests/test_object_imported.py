@@ -52,6 +52,18 @@ def test_a_closed_mesh_has_the_same_silhouette_from_its_camera_facing_triangles(
         assert np.count_nonzero(full != culled) <= 0.002 * full.sum()  # pixel centers on an edge seen edge-on
 
 
+def test_a_silhouette_window_holds_the_whole_images_pixels():
+    """``window``: the pixels of the whole image's silhouette inside it, also for a mesh that runs
+    past the window's edge."""
+    mesh = trimesh.creation.annulus(r_min=0.03, r_max=0.05, height=0.08)
+    cam = se3.look_at((0.4, -0.3, 0.25), (0.0, 0.0, 0.0))
+    full = silhouette(mesh.vertices, mesh.faces, cam, K, 640, 480, closed=True)
+    ys, xs = np.nonzero(full)
+    for x0, y0, x1, y1 in ((xs.min(), ys.min(), xs.max() + 1, ys.max() + 1), (300, 200, 350, 260), (0, 0, 640, 480)):
+        part = silhouette(mesh.vertices, mesh.faces, cam, K, 640, 480, closed=True, window=(x0, y0, x1, y1))
+        np.testing.assert_array_equal(part, full[y0:y1, x0:x1])
+
+
 def _box_seen_by_three_cameras(rho: float, yaw: float, xy: np.ndarray):
     """A TRELLIS-like unit box (Y-up, longest side 1) standing as a box ``rho`` m long, yawed and
     placed, seen by three cameras: its up-aligned vertices, faces, the seen surface points above

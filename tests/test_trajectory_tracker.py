@@ -234,3 +234,27 @@ def test_a_re_acquisition_turns_the_object_no_faster_than_a_hand_can():
     fast = _reacquire(model, seen, camera, np.eye(4), score, max_turn_deg=24.0)
     assert se3.rotation_angle_deg((se3.invert(turn) @ slow.motion)[:3, :3]) < 1.0
     assert se3.rotation_angle_deg(fast.motion[:3, :3]) <= 24.0
+
+
+def test_silhouette_iou_counts_the_whole_image():
+    """The IoU drawn in the window the model projects into is the whole image's, the ignored pixels
+    left out, also for a model partly out of the image; a model of many triangles is drawn from at
+    most SILHOUETTE_FACES of them."""
+    from rose_usd.trajectory.tracker import SILHOUETTE_FACES
+
+    ball = trimesh.creation.icosphere(subdivisions=5, radius=0.04)
+    model = Model.from_mesh(ball.vertices, ball.faces, 3000)
+    assert len(ball.faces) > SILHOUETTE_FACES >= len(model.faces) and model.closed
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    cam = se3.look_at((0.35, -0.25, 0.2), (0.0, 0.0, 0.0))
+    rng = np.random.default_rng(3)
+    mask = np.zeros((480, 640), bool)
+    mask[200:300, 250:380] = True
+    ignore = np.zeros_like(mask)
+    ignore[260:330, 300:420] = True
+    for shift in ((0.0, 0.0, 0.0), (0.01, -0.02, 0.0), (0.0, 0.0, 0.25)):  # the last runs off the image
+        motion = se3.make_pose(se3.rotation_about(rng.normal(size=3), 0.3), shift)
+        sil = silhouette(se3.transform_points(motion, model.vertices), model.faces, cam, K, 640, 480, closed=True)
+        keep = ~ignore
+        expected = np.sum(sil & mask & keep) / np.sum((sil | mask) & keep)
+        assert silhouette_iou(model, motion, mask, ignore, cam, K) == pytest.approx(expected, abs=1e-12)

@@ -110,23 +110,29 @@ def silhouette(
     *,
     min_z: float = 1e-3,
     closed: bool = False,
+    window: tuple[int, int, int, int] | None = None,
 ) -> np.ndarray:
     """The mesh's silhouette in a camera: a (height, width) bool image of the pixels whose
     centers some triangle covers. Triangles with a vertex not in front of ``min_z`` are left out
     (an object is never that close to the camera). A ``closed`` mesh (watertight, faces wound
     outward) is drawn by its camera-facing triangles only: the first surface a pixel's ray meets
-    faces the camera, so the silhouette is the same at half the triangles."""
+    faces the camera, so the silhouette is the same at half the triangles. With ``window`` (x0,
+    y0, x1, y1), only those pixels of it: a (y1 - y0, x1 - x0) image, the same pixels as the
+    whole image's there."""
     cam = se3.transform_points(se3.invert(world_from_cv), vertices_world)
     u, v = project(np.where(cam[:, 2:3] > min_z, cam, 1.0), K)
     tri = faces[np.all(cam[faces, 2] > min_z, axis=1)]
     if closed:
         a, b, c = cam[tri[:, 0]], cam[tri[:, 1]], cam[tri[:, 2]]
         tri = tri[np.einsum("ij,ij->i", np.cross(b - a, c - a), a) < 0.0]  # normal toward the camera
-    # fixed point with 4 fractional bits: cv2 rasterizes pixel centers at integers
-    pts = np.round(np.stack([u, v], axis=-1) * 16).astype(np.int32)[tri]
+    x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
+    # fixed point with 4 fractional bits: cv2 rasterizes pixel centers at integers (a window moves
+    # them by whole pixels, so it rasterizes the same)
+    pts = np.round(np.stack([u, v], axis=-1) * 16).astype(np.int32)[tri] - np.array([16 * x0, 16 * y0], np.int32)
     lo, hi = pts.min(axis=1), pts.max(axis=1)
-    onscreen = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < 16 * width) & (lo[:, 1] < 16 * height)
-    out = np.zeros((height, width), np.uint8)
+    w, h = x1 - x0, y1 - y0
+    onscreen = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < 16 * w) & (lo[:, 1] < 16 * h)
+    out = np.zeros((h, w), np.uint8)
     for p in pts[onscreen]:
         cv2.fillConvexPoly(out, p, 1, lineType=cv2.LINE_8, shift=4)
     return out.astype(bool)
