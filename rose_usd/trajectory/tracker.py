@@ -37,7 +37,8 @@ no pose files are given (the paper's FoundationPose role, with no learned model)
    it was predicted, and the turn is lost with it. Then, where the matched normals leave a
    direction free (``weak_axis``: a can or a cup seen only by its wall, a hand on its top), the
    pose is slid along it to where fitness plus silhouette IoU is best (``slide``, within
-   ``slide_span_m``): a real cup seen by its wall slid 5 cm along its axis in ten frames
+   ``slide_span_m``; silhouettes drawn from ``SILHOUETTE_FACES`` triangles of the model, in the
+   window it projects into): a real cup seen by its wall slid 5 cm along its axis in ten frames
    without it. After the refit, not before: slid by a mask with a palm in it, the lying mug's
    track went from 17.8 to 38 mm.
 4. **Confidence.** The fraction of observed points within 5 mm of the model after ICP. A frame
