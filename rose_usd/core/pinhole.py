@@ -100,6 +100,32 @@ def view_counts(
     return through, near, observed
 
 
+def projected_box(
+    vertices_world: np.ndarray,
+    world_from_cv: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    *,
+    min_z: float = 1e-3,
+) -> tuple[float, float, float, float] | None:
+    """The bounding box (x0, y0, x1, y1) [px, pixel centers at integers] of the vertices in front
+    of ``min_z`` as a camera sees them, clipped to the ``width`` x ``height`` image; None when no
+    vertex is in front or the box misses the image."""
+    cam = se3.transform_points(se3.invert(world_from_cv), vertices_world)
+    cam = cam[cam[:, 2] > min_z]
+    if not len(cam):
+        return None
+    u, v = project(cam, K)
+    box = (
+        max(0.0, float(u.min())),
+        max(0.0, float(v.min())),
+        min(float(width), float(u.max())),
+        min(float(height), float(v.max())),
+    )
+    return box if box[2] > box[0] and box[3] > box[1] else None
+
+
 def silhouette(
     vertices_world: np.ndarray,
     faces: np.ndarray,

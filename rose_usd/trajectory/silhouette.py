@@ -30,7 +30,7 @@ import trimesh
 from scipy.spatial import ConvexHull
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import silhouette
+from rose_usd.core.pinhole import projected_box, silhouette
 from rose_usd.geometry.mesh import decimate
 from rose_usd.geometry.silhouette import ColorPosterior, View, crop_view, fit_free, fit_standing, iou, is_convex
 from rose_usd.layers.masks import read_masks
@@ -94,14 +94,7 @@ def run(ctx: StageContext) -> None:
 
 def _projected_box(pose: np.ndarray, v: np.ndarray, cameras, t: int, width: int, height: int):
     """The bounding box (x0, y0, x1, y1) of the posed mesh's projected vertices, clipped to the image."""
-    cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
-    cam = cam[cam[:, 2] > 1e-3]
-    if not len(cam):
-        return None
-    k = cameras.K[t]
-    u, w = k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]
-    box = (max(0.0, u.min()), max(0.0, w.min()), min(float(width), u.max()), min(float(height), w.max()))
-    return box if box[2] > box[0] and box[3] > box[1] else None
+    return projected_box(se3.transform_points(pose, v), cameras.world_from_cv[t], cameras.K[t], width, height)
 
 
 def _target(mask, posterior, color_weight: float):

@@ -77,7 +77,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import backproject, nearest_depth, pixels_of, project, silhouette
+from rose_usd.core.pinhole import backproject, nearest_depth, pixels_of, projected_box, silhouette
 from rose_usd.core.watertight import is_closed
 from rose_usd.errors import InputError
 from rose_usd.geometry.contact import touches
@@ -231,18 +231,15 @@ def silhouette_iou(
     other objects: they may hide the object) left out."""
     h, w = mask.shape
     vertices = se3.transform_points(motion, model.vertices)
-    cam = se3.transform_points(se3.invert(world_from_cv), vertices)
-    ahead = cam[:, 2] > 1e-3
-    seen = np.count_nonzero(mask & ~ignore)
-    if not ahead.any():
+    box = projected_box(vertices, world_from_cv, K, w, h)
+    if box is None:
         return 0.0
-    # the silhouette is drawn only in the window its vertices project into (the same pixels)
-    u, v = project(cam[ahead], K)
-    x0, y0 = max(0, int(np.floor(u.min())) - 1), max(0, int(np.floor(v.min())) - 1)
-    x1, y1 = min(w, int(np.ceil(u.max())) + 2), min(h, int(np.ceil(v.max())) + 2)
-    if x1 <= x0 or y1 <= y0:
-        return 0.0
+    # the silhouette is drawn only in the window its vertices project into (the same pixels): a
+    # vertex is drawn at its rounded pixel, a pixel's margin either side
+    x0, y0 = max(0, int(np.floor(box[0])) - 1), max(0, int(np.floor(box[1])) - 1)
+    x1, y1 = min(w, int(np.ceil(box[2])) + 2), min(h, int(np.ceil(box[3])) + 2)
     sil = silhouette(vertices, model.faces, world_from_cv, K, w, h, closed=model.closed, window=(x0, y0, x1, y1))
+    seen = np.count_nonzero(mask & ~ignore)
     sil &= ~ignore[y0:y1, x0:x1]
     in_mask = mask[y0:y1, x0:x1]
     inter = np.count_nonzero(sil & in_mask)
