@@ -167,3 +167,100 @@ def test_a_carried_object_leaves_the_background_behind():
         truth = silhouette(mesh.vertices @ pose[:3, :3].T + pose[:3, 3], mesh.faces, np.eye(4), K, w, h, closed=True)
         ious.append((masks["Cat"][t] & truth).sum() / max(1, (masks["Cat"][t] | truth).sum()))
     assert np.mean(ious) >= 0.75 and min(ious) >= 0.4, np.round(ious, 2)
+
+
+RED, BLUE = np.array([200, 40, 30], np.uint8), np.array([40, 60, 200], np.uint8)
+
+
+def _patchwork(h: int = 120, w: int = 160) -> np.ndarray:
+    """A still camera's view of a patchwork of four dull colors, one of them a blue."""
+    rng = np.random.default_rng(0)
+    palette = np.array([[120, 120, 110], [150, 160, 90], [90, 110, 80], [50, 70, 170]], np.uint8)
+    return palette[rng.integers(0, 4, (h // 8, w // 8))].repeat(8, 0).repeat(8, 1)
+
+
+def _turning_block(n: int = 30):
+    """A block moves right 3 px a frame over the patchwork and turns: the prompt frame shows its
+    red face, then its blue face comes into view from the left and covers it from frame 12 on.
+    Returns frames and true masks."""
+    frames, truth = [], []
+    for t in range(n):
+        image, mask = _patchwork(), np.zeros((120, 160), bool)
+        x0, side = 20 + 3 * t, 36
+        mask[40 : 40 + side, x0 : x0 + side] = True
+        image[mask] = RED
+        image[40 : 40 + side, x0 : x0 + int(round(side * min(1.0, t / 12)))] = BLUE
+        frames.append(image)
+        truth.append(mask)
+    return frames, truth
+
+
+def _surface_look() -> np.ndarray:
+    from rose_usd.segment.colors import surface_histogram
+
+    return surface_histogram(np.concatenate([np.tile(RED, (500, 1)), np.tile(BLUE, (500, 1))]))
+
+
+def _block_ious(frames, truth, box, looks) -> np.ndarray:
+    from rose_usd.segment.flow import segment_video
+
+    h, w = truth[0].shape
+    masks, _, _ = segment_video(lambda t: frames[t], len(frames), (w, h), [("Block", 0, box, None)], looks=looks)
+    return np.array([(m & g).sum() / (m | g).sum() for m, g in zip(masks["Block"], truth)])
+
+
+def test_a_mesh_texture_keeps_the_faces_the_prompt_frame_did_not_show():
+    """The prompt frame's colors alone lose a block whose other face turns into view (its blue
+    is nearer the background's blue than the red it was learned on: IoU 0 from frame 11); with
+    the colors of its mesh's surface (``looks``) the track keeps all of it."""
+    frames, truth = _turning_block()
+    box = (16, 36, 60, 80)
+    assert _block_ious(frames, truth, box, None)[12:].max() < 0.2
+    kept = _block_ious(frames, truth, box, {"Block": _surface_look()})
+    assert kept.min() >= 0.9 and kept.mean() >= 0.98
+
+
+def test_the_motion_rule_leaves_a_resting_object_whole_where_something_crosses_it():
+    """A block rests, its red face to the camera (its mesh's colors, red and blue, given: the
+    motion rule applies); a blue slab slides down over its right edge, 4 px a frame. Pixels that
+    moved relative to the block are not its, but the flow's blur across the slab's edges must not
+    cut the block: IoU with its visible part >= 0.9 in every frame."""
+    frames, truth = [], []
+    for t in range(30):
+        image, mask = _patchwork(), np.zeros((120, 160), bool)
+        mask[40:76, 40:76] = True
+        image[mask] = RED
+        y0 = 4 * t - 20
+        image[max(0, y0) : y0 + 30, 66:96] = BLUE  # the slab, in front of the block
+        mask[max(0, y0) : y0 + 30, 66:96] = False
+        frames.append(image)
+        truth.append(mask)
+    assert _block_ious(frames, truth, (36, 36, 80, 80), {"Block": _surface_look()}).min() >= 0.9
+
+
+def test_surface_colors_of_a_textured_and_a_vertex_colored_mesh(tmp_path):
+    """`surface_colors` reads what the file gives: an OBJ textured half red, half blue (UVs, MTL,
+    PNG) gives the two colors in proportion to the area they cover; a PLY's vertex colors are
+    interpolated; a mesh without colors gives None."""
+    import trimesh
+    from PIL import Image
+
+    from rose_usd.io.meshfile import read_mesh_file, surface_colors, write_obj
+
+    texture = np.zeros((64, 64, 3), np.uint8)
+    texture[:, :16] = (220, 30, 20)  # u < 0.25 red, the rest blue
+    texture[:, 16:] = (20, 40, 210)
+    Image.fromarray(texture).save(tmp_path / "tex.png")
+    box = trimesh.creation.box((1.0, 1.0, 1.0))
+    uv = np.where(box.vertices[:, :1] > 0, 0.9, 0.1) * [1.0, 0.0] + [0.0, 0.5]  # x < 0 red, x > 0 blue
+    write_obj(tmp_path / "box.obj", box.vertices, box.faces, uv=uv, texture_file="tex.png")
+    colors = surface_colors(read_mesh_file(tmp_path / "box.obj")).astype(int)
+    red = np.abs(colors - (220, 30, 20)).sum(axis=1) < 30
+    blue = np.abs(colors - (20, 40, 210)).sum(axis=1) < 30
+    assert red.sum() + blue.sum() > 0.95 * len(colors) and 0.1 < red.mean() < 0.5
+
+    painted = trimesh.Trimesh(box.vertices, box.faces, vertex_colors=np.tile([10, 200, 30, 255], (8, 1)))
+    painted.export(tmp_path / "box.ply")
+    assert np.all(np.abs(surface_colors(read_mesh_file(tmp_path / "box.ply")).astype(int) - (10, 200, 30)) <= 1)
+    trimesh.creation.box().export(tmp_path / "plain.stl")
+    assert surface_colors(read_mesh_file(tmp_path / "plain.stl")) is None

@@ -79,3 +79,20 @@ def check_vertices(mesh: trimesh.Trimesh, path: Path) -> None:
     faces = np.asarray(mesh.faces)
     if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
         raise MeshError("the mesh's faces index vertices it does not have", path=path, hint="export it again")
+
+
+def surface_colors(mesh: trimesh.Trimesh, count: int = 20000) -> np.ndarray | None:
+    """sRGB8 colors (count, 3) of points spread evenly over the mesh's surface (its texture at
+    their UVs, or its vertex colors); None when the file gave it no colors."""
+    visual = mesh.visual
+    try:
+        if visual.kind == "texture" and getattr(visual.material, "image", None) is not None:
+            _, _, colors = trimesh.sample.sample_surface(mesh, count, sample_color=True, seed=0)
+            return np.asarray(colors)[:, :3].astype(np.uint8)
+        if visual.kind == "vertex":
+            _, faces, bary = trimesh.sample.sample_surface(mesh, count, return_barycentric=True, seed=0)
+            per_vertex = np.asarray(visual.vertex_colors)[:, :3].astype(float)
+            return np.einsum("nk,nkc->nc", bary, per_vertex[mesh.faces[faces]]).round().astype(np.uint8)
+    except Exception:  # a material trimesh cannot sample: no colors rather than no mesh  # noqa: BLE001
+        return None
+    return None

@@ -20,6 +20,18 @@ def histogram(idx: np.ndarray) -> np.ndarray:
     return (hist + 1e-3) / (hist.sum() + 1e-3 * hist.size)
 
 
+SHADES = (1.0, 0.8, 0.6)
+"""Brightness factors a surface's own colors are seen at: a mesh's texture is lit evenly, the
+object's faces turned from the light are darker in the video."""
+
+
+def surface_histogram(colors8: np.ndarray) -> np.ndarray:
+    """The color model of a surface from its own colors (sRGB8, (N, 3): a mesh's texture sampled
+    over its area), as seen at each of ``SHADES``."""
+    shaded = np.concatenate([np.clip(colors8.astype(np.float64) * s, 0, 255) for s in SHADES])
+    return histogram(color_index(shaded.astype(np.uint8)))
+
+
 def object_colored(
     color: np.ndarray,
     idx: np.ndarray,

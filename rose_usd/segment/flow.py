@@ -4,7 +4,9 @@ No learned model and no capture stage: it needs a prompt box (or point) per obje
 a working resolution whose long side is at most ``segment.flow.max_side_px``.
 
 1. **Start.** GrabCut inside the prompt box gives the object; its color model is learned against
-   the ring of pixels around the box. Regions elsewhere in the prompt frame that the object's
+   the ring of pixels around the box, half and half with the colors of its whole surface where its
+   mesh (rose.toml's ``mesh``, ``perception/``) has a texture or vertex colors: the faces a hand
+   turns up later are not in the prompt frame. Regions elsewhere in the prompt frame that the object's
    color model also claims (other red cups in a shell game) become *look-alikes*: they are
    tracked with the objects, so that when they touch, every pixel goes to the track it came from.
 2. **Propagate** (forward from the prompt frame, then backward). Dense optical flow (OpenCV's DIS)
@@ -15,7 +17,9 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
    track hidden by the hand or passing behind another keeps its shape and is not absorbed by its
    neighbor; where shapes overlap, the one standing lower in the image is in front. A track
    that moved since the last frame takes no pixel of the static background (a still camera's
-   temporal median): what is carried is not what it leaves behind. Confidence is the visible
+   temporal median): what is carried is not what it leaves behind. A track resting while its
+   color model is broad (a mesh's texture) takes no pixel that moved relative to it (backward
+   flow): the mug carried past the resting cube. Confidence is the visible
    fraction of the shape.
 3. **Interactor** (rough: a 2D motion cue, no depth). What differs from the static background:
    the per-pixel temporal median of the video when the camera stands still (chroma weighted over
@@ -32,8 +36,9 @@ import cv2
 import numpy as np
 
 from rose_usd.errors import InputError
+from rose_usd.io.meshfile import read_mesh_file, surface_colors
 from rose_usd.progress import progress
-from rose_usd.segment.colors import color_index, histogram
+from rose_usd.segment.colors import color_index, histogram, surface_histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
 from rose_usd.segment.segmenter import components, fill_holes, touching
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
@@ -46,6 +51,16 @@ shape while the cat was lifted off it, and held the track there when the cat lef
 
 FOREGROUND_LAB = 20.0
 """A still camera's pixel is foreground this far from the temporal median (weighted Lab)."""
+
+LOOK_WEIGHT = 0.5
+"""Share of a given mesh's texture in an object's color model (the rest: what the prompt frame
+shows of it). The prompt frame shows one side; a hand turns up the others."""
+
+MOVER_PX = 3.0
+"""A pixel that moved this much more than a resting track since the last frame is not the track's,
+where the track's color model is broad (``Track2D.broad``). Not for every track: in sam2-cups the
+shape of a cup pushed by a hand lags it, the cup's own pixels then look like movers (its visible
+fraction fell from 0.82 to 0.68)."""
 
 _REACH = 0.35
 """A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""
@@ -61,6 +76,9 @@ class Track2D:
     typical_px: float
     """The track's area when fully visible."""
     is_object: bool = True
+    broad: bool = False
+    """Its color model holds colors the prompt frame did not show (a mesh's texture): it claims
+    other things' colors too (the browns and blues of a mug carried past a textured cube)."""
     last_visible: np.ndarray | None = None
     """What was seen of it in the last frame (empty when hidden)."""
 
@@ -85,9 +103,16 @@ class FlowTracker:
 
     # ----------------------------------------------------------------- start
     def start(
-        self, name: str, t: int, box: tuple[int, int, int, int] | None, point: tuple[int, int] | None
+        self,
+        name: str,
+        t: int,
+        box: tuple[int, int, int, int] | None,
+        point: tuple[int, int] | None,
+        look: np.ndarray | None = None,
     ) -> tuple[Track2D, np.ndarray]:
-        """GrabCut of the prompt; returns the track and the background color model of its surroundings."""
+        """GrabCut of the prompt; returns the track and the background color model of its
+        surroundings. ``look``: the color model of the object's whole surface (its mesh's
+        texture, ``surface_histogram``), mixed into the track's by ``LOOK_WEIGHT``."""
         rgb = self.frame_of(t)
         if box is None:  # a point: a box around it, a tenth of the image wide
             r = max(self.w, self.h) // 20
@@ -111,7 +136,10 @@ class FlowTracker:
         ring[max(0, y0 - bh) : y1 + bh, max(0, x0 - bw) : x1 + bw] = True
         ring &= ~cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
         idx = color_index(rgb)
-        return Track2D(name, mask, histogram(idx[mask]), float(mask.sum())), histogram(idx[ring])
+        fg = histogram(idx[mask])
+        if look is not None:
+            fg = (1.0 - LOOK_WEIGHT) * fg + LOOK_WEIGHT * look
+        return Track2D(name, mask, fg, float(mask.sum()), broad=look is not None), histogram(idx[ring])
 
     def look_alikes(self, t: int, tracks: list[Track2D], bg: np.ndarray) -> list[Track2D]:
         """Regions of frame t outside the tracks that their color models claim, as large as them."""
@@ -168,6 +196,11 @@ class FlowTracker:
         shifts = [self._shift(tr, flow) for tr in tracks]
         moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
         carried = [static is not None and np.hypot(*d) > MOVING_PX for d in shifts]
+        resting = [tr.broad and np.hypot(*d) <= MOVING_PX for tr, d in zip(tracks, shifts)]
+        # how each pixel of frame t moved since frame prev: for a resting track with a broad color
+        # model, what moved by more than MOVER_PX relative to it (a mug carried past a cube at
+        # rest, the hand reaching for it) is something else
+        motion = -self.flow(t, prev) if any(resting) else None
         still = static(t, prev) if any(carried) else None
         # ownership: every claimed pixel goes to the nearest moved shape within its reach
         dist = np.full((len(tracks), self.h, self.w), np.inf, np.float32)
@@ -194,7 +227,12 @@ class FlowTracker:
             claimed = mine & (tr.fg[idx] > bg[idx])
             if carried[k] and still is not None:  # None: the camera moves
                 claimed &= ~still
-            m = self._refine(bgr, claimed, mine, moved[k], [moved[j] for j in range(len(tracks)) if j != k])
+            others = [moved[j] for j in range(len(tracks)) if j != k]
+            if resting[k] and tr.broad:
+                movers = np.linalg.norm(motion - shifts[k], axis=2) > MOVER_PX
+                claimed &= ~movers
+                others.append(movers)
+            m = self._refine(bgr, claimed, mine, moved[k], others)
             frac = float(m.sum()) / tr.typical_px
             visible.append(min(frac, 1.0))
             if 0.85 < frac < 1.3 and not touching[k]:
@@ -320,11 +358,13 @@ def segment_video(
     prompts: list[tuple[str, int, tuple | None, tuple | None]],
     *,
     interactor: bool = True,
+    looks: dict[str, np.ndarray] | None = None,
 ):
     """Masks of each prompted object and of the interactor over ``n`` frames (working resolution).
 
     ``prompts``: (name, frame, box, point) with box/point in working-resolution pixels. Returns
     ({name: [mask per frame]}, [interactor mask per frame], {name: visible fraction per frame}).
+    ``looks``: {name: color model of the object's surface} for objects whose mesh has colors.
 
     GrabCut's color models start from OpenCV's random generator (per thread, shared with anything
     else that ran before): it is reset here, so the masks depend on the video alone."""
@@ -332,7 +372,7 @@ def segment_video(
     tracker = FlowTracker(frame_of, size)
     starts = []
     for name, t, box, point in prompts:
-        track, bg = tracker.start(name, t, box, point)
+        track, bg = tracker.start(name, t, box, point, (looks or {}).get(name))
         starts.append((t, track, bg))
     t0 = min(t for t, _, _ in starts)
     bg = np.mean([b for _, _, b in starts], axis=0)
@@ -343,7 +383,7 @@ def segment_video(
     hands: list[np.ndarray | None] = [None] * n
 
     def fresh():
-        tracks = [Track2D(tr.name, tr.mask.copy(), tr.fg.copy(), tr.typical_px) for _, tr, _ in starts]
+        tracks = [Track2D(tr.name, tr.mask.copy(), tr.fg.copy(), tr.typical_px, broad=tr.broad) for _, tr, _ in starts]
         return tracks + tracker.look_alikes(t0, tracks, bg)
 
     order = [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
@@ -374,6 +414,18 @@ def segment_video(
     return masks, hands, visible
 
 
+def _looks(case, specs) -> dict[str, np.ndarray]:
+    """The color model of every object whose mesh (rose.toml's ``mesh``, ``perception/``) has a
+    texture or vertex colors."""
+    looks = {}
+    for spec in specs:
+        path = case.mesh_file(spec)
+        colors = surface_colors(read_mesh_file(path)) if path is not None else None
+        if colors is not None:
+            looks[spec.name] = surface_histogram(colors)
+    return looks
+
+
 def run(ctx: StageContext) -> None:
     case = ctx.case
     n = ctx.time_info.n_frames
@@ -401,7 +453,7 @@ def run(ctx: StageContext) -> None:
         box = tuple(v * s for v in p.box) if p.box is not None else None
         point = tuple(v * s for v in p.point) if p.point is not None else None
         prompts.append((spec.name, p.frame, box, point))
-    masks, hands, visible = segment_video(frame_of, n, (w, h), prompts)
+    masks, hands, visible = segment_video(frame_of, n, (w, h), prompts, looks=_looks(case, specs))
 
     def full(frames):
         for m in frames:
