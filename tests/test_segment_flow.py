@@ -239,9 +239,10 @@ def test_the_motion_rule_leaves_a_resting_object_whole_where_something_crosses_i
 
 
 def test_surface_colors_of_a_textured_and_a_vertex_colored_mesh(tmp_path):
-    """`surface_colors` reads what the file gives: an OBJ textured half red, half blue (UVs, MTL,
-    PNG) gives the two colors in proportion to the area they cover; a PLY's vertex colors are
-    interpolated; a mesh without colors gives None."""
+    """`surface_colors` reads what the file gives: an OBJ textured red and blue (UVs, MTL, PNG)
+    gives the two colors in proportion to the area they cover, and so does the same box as a
+    TRELLIS GLB (a PBR material); a PLY's vertex colors are interpolated; a mesh without colors
+    gives None."""
     import trimesh
     from PIL import Image
 
@@ -262,5 +263,11 @@ def test_surface_colors_of_a_textured_and_a_vertex_colored_mesh(tmp_path):
     painted = trimesh.Trimesh(box.vertices, box.faces, vertex_colors=np.tile([10, 200, 30, 255], (8, 1)))
     painted.export(tmp_path / "box.ply")
     assert np.all(np.abs(surface_colors(read_mesh_file(tmp_path / "box.ply")).astype(int) - (10, 200, 30)) <= 1)
+    from rose_usd.io import trellis  # glTF: a PBR material's baseColorTexture
+
+    uv_box = box.copy()
+    trellis.write_trellis_glb(tmp_path / "box.glb", 0.5 * uv_box.vertices, uv_box.faces, uv, texture)
+    glb = surface_colors(read_mesh_file(tmp_path / "box.glb")).astype(int)
+    assert np.mean(np.abs(glb - (220, 30, 20)).sum(axis=1) < 30) == pytest.approx(red.mean(), abs=0.05)
     trimesh.creation.box().export(tmp_path / "plain.stl")
     assert surface_colors(read_mesh_file(tmp_path / "plain.stl")) is None

@@ -81,18 +81,28 @@ def check_vertices(mesh: trimesh.Trimesh, path: Path) -> None:
         raise MeshError("the mesh's faces index vertices it does not have", path=path, hint="export it again")
 
 
+def texture_image(mesh: trimesh.Trimesh):
+    """The base color texture (PIL image) of a mesh's material, or None: a simple material's
+    image (OBJ's map_Kd) or a PBR material's baseColorTexture (glTF)."""
+    material = getattr(mesh.visual, "material", None)
+    image = getattr(material, "image", None)
+    return image if image is not None else getattr(material, "baseColorTexture", None)
+
+
 def surface_colors(mesh: trimesh.Trimesh, count: int = 20000) -> np.ndarray | None:
     """sRGB8 colors (count, 3) of points spread evenly over the mesh's surface (its texture at
     their UVs, or its vertex colors); None when the file gave it no colors."""
     visual = mesh.visual
     try:
-        if visual.kind == "texture" and getattr(visual.material, "image", None) is not None:
-            _, _, colors = trimesh.sample.sample_surface(mesh, count, sample_color=True, seed=0)
+        _, faces, bary = trimesh.sample.sample_surface(mesh, count, return_barycentric=True, seed=0)
+        corners = mesh.faces[faces]
+        if visual.kind == "texture" and getattr(visual, "uv", None) is not None and texture_image(mesh) is not None:
+            uv = np.einsum("nk,nkc->nc", bary, np.asarray(visual.uv, float)[corners])
+            colors = trimesh.visual.color.uv_to_interpolated_color(uv, texture_image(mesh))
             return np.asarray(colors)[:, :3].astype(np.uint8)
         if visual.kind == "vertex":
-            _, faces, bary = trimesh.sample.sample_surface(mesh, count, return_barycentric=True, seed=0)
             per_vertex = np.asarray(visual.vertex_colors)[:, :3].astype(float)
-            return np.einsum("nk,nkc->nc", bary, per_vertex[mesh.faces[faces]]).round().astype(np.uint8)
+            return np.einsum("nk,nkc->nc", bary, per_vertex[corners]).round().astype(np.uint8)
     except Exception:  # a material trimesh cannot sample: no colors rather than no mesh  # noqa: BLE001
         return None
     return None
