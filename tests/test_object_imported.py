@@ -291,7 +291,7 @@ def test_imported_trellis_box_gets_its_scale_and_pose(imported_out):
     case, out, info = imported_out
     facts = read_provenance(layer_file(out, "object"))["results"]["objects"]["Box"]
     assert facts["rho"] == pytest.approx(info["scale_m_per_unit"], rel=0.03)
-    assert facts["silhouette_iou"] > 0.87
+    assert facts["silhouette_iou"] > 0.87 and facts["colors"] == "file"
     score = evaluate(case, out)
     assert score.objects[0].chamfer_m < 0.0035
     assert abs(score.objects[0].size_error) < 0.03
@@ -320,6 +320,16 @@ def test_a_mesh_in_millimeters_is_scaled_with_a_warning(tmp_path, case_copy):
     assert facts["rho"] == 0.001 and facts["scale"] == "file units (millimeters)"
     assert any("millimeters" in w for w in prov["warnings"])
     assert evaluate(case_copy, out).objects[0].chamfer_m < 0.004
+    # the file has no colors: the box takes the video's, on a mesh fine enough to show them
+    assert facts["colors"] == "video"
+    from rose_usd.layers.objects import visual_mesh
+    from rose_usd.usd.stage import open_stage
+
+    mesh = visual_mesh(open_stage(out / "rose.usda"), "Box")
+    albedo = np.array(next(o for o in gt.objects if o.name == "Box").appearance.color_linear)
+    seen = np.median(mesh.vertex_colors, axis=0)  # the albedo as lit in the video: its hue, darker
+    cosine = seen @ albedo / np.linalg.norm(seen) / np.linalg.norm(albedo)
+    assert len(mesh.faces) >= 2000 and cosine > 0.99 and 0.3 < seen.sum() / albedo.sum() < 1.2, (seen, albedo)
 
 
 def test_a_category_typo_is_an_error_and_an_unknown_category_a_warning():

@@ -25,6 +25,11 @@ GLB, a scan or CAD model as GLB/OBJ/PLY/STL), brought to metric scale and posed 
    FoundationPose's pose of that frame when ``perception/ob_in_cam`` has one) and are refined on
    the same cost by a pattern search.
 
+5. **Colors**: the file's texture or vertex colors; a file without them (an STL; an OBJ whose
+   materials have no color: trimesh's placeholder gray) is colored from the video, each vertex its median color
+   over the rest frames where it faces the camera inside the mask, on the mesh subdivided within
+   ``max_triangles`` (the object's ``colors`` fact says which).
+
 The object's frame is the mesh's own, scaled to meters, so FoundationPose poses (made for the
 same mesh) compose with the cameras unchanged. Priors, mass and collider as object.fusion."""
 
@@ -56,6 +61,7 @@ from rose_usd.object.meshes import (  # noqa: F401  (re-exported: the backend's 
     find_mesh,
     read_imported,
     up_candidates,
+    vertex_colors,
     world_from_up,
 )
 from rose_usd.object.rest import level_rotation, resting_clouds, support_height
@@ -470,9 +476,10 @@ def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, c
             f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); "
             f"check that {path.name} is this object"
         )
-    model = _scaled_model(ctx, spec, imp, best, up_rot)
+    model, colors = _scaled_model(ctx, spec, imp, best, up_rot, cloud, cameras)
     facts = {
         "mesh_file": str(path),
+        "colors": colors,
         "scale": how,
         "rho0": round(float(rho0 if search else d_image / d_mesh), 6),
         "rho": round(float(best.rho), 6),
@@ -495,18 +502,27 @@ def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, c
     return model, facts
 
 
-def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray) -> ObjectModel:
-    """The imported mesh at the fitted scale, decimated, coloured, with its physics and pose."""
+def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud, cameras) -> tuple[ObjectModel, str]:
+    """The imported mesh at the fitted scale, decimated, coloured, with its physics and pose; and
+    where its colors came from: the file's texture or vertex colors ("file"), else the video
+    ("video": each vertex's median color over up to 12 rest frames, ``vertex_colors``, on the
+    mesh subdivided while it stays within ``object.max_triangles``, so that a box's twelve
+    triangles can show its print)."""
     local = best.rho * imp.vertices
     tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), ctx.config.max_triangles)
     vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
-    colors = transfer_colors(vertices, local, imp.colors) if imp.colors is not None else None
-    mesh = MeshData(
-        vertices=vertices, faces=faces, vertex_colors=colors, color=None if colors is not None else (0.5, 0.5, 0.5)
-    )
-    physics, mass = physics_for(spec, vertices, faces, ctx)
     pose = best.world_from_up_frame() @ se3.make_pose(up_rot, np.zeros(3))
-    return ObjectModel(spec.name, mesh, pose, mass, physics)
+    if imp.colors is not None:
+        colors, source = transfer_colors(vertices, local, imp.colors), "file"
+    else:
+        while 4 * len(faces) <= ctx.config.max_triangles:
+            vertices, faces = trimesh.remesh.subdivide(vertices, faces)
+        picked = [cloud.frames[i] for i in np.unique(np.linspace(0, len(cloud.frames) - 1, 12).astype(int))]
+        world = se3.transform_points(pose, vertices)
+        colors, source = vertex_colors(world, faces, picked, ctx.case.rgb, cloud.masks, cameras), "video"
+    mesh = MeshData(vertices=vertices, faces=faces, vertex_colors=colors)
+    physics, mass = physics_for(spec, vertices, faces, ctx)
+    return ObjectModel(spec.name, mesh, pose, mass, physics), source
 
 
 def run(ctx: StageContext) -> None:

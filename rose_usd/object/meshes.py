@@ -9,9 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from rose_usd.case.config import ObjectSpec
 from rose_usd.case.layout import Case
+from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
@@ -57,12 +59,18 @@ def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
     visual = mesh.visual
     try:
         if visual.kind == "texture" and getattr(visual, "uv", None) is not None:
-            return np.asarray(visual.to_color().vertex_colors)[:, :3]
+            return _unless_placeholder(np.asarray(visual.to_color().vertex_colors)[:, :3])
         if visual.kind == "vertex":
-            return np.asarray(visual.vertex_colors)[:, :3]
+            return _unless_placeholder(np.asarray(visual.vertex_colors)[:, :3])
     except Exception:  # a material trimesh cannot sample: no colors rather than no mesh  # noqa: BLE001
         return None
     return None
+
+
+def _unless_placeholder(colors8: np.ndarray) -> np.ndarray | None:
+    """None when every vertex has trimesh's placeholder gray: the file's materials gave no color
+    (visp-desk's cube.obj: six materials without Kd or texture, merged into one gray)."""
+    return None if np.all(colors8 == np.asarray(trimesh.visual.DEFAULT_COLOR[:3])) else colors8
 
 
 def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
@@ -235,3 +243,36 @@ def choose_unit(rho0: float, tolerance: float = 0.25) -> tuple[float | None, str
 def axis_name(axis: np.ndarray) -> str:
     k = int(np.argmax(np.abs(axis)))
     return ("-" if axis[k] < 0 else "+") + "xyz"[k]
+
+
+def vertex_colors(vertices_world, faces, frames, rgb_of, masks, cameras) -> np.ndarray:
+    """Linear RGB per vertex: its median color over the frames where it faces the camera and
+    falls inside the object's mask; vertices never seen take their nearest seen vertex's."""
+    tm = trimesh.Trimesh(vertices_world, faces, process=False)
+    normals = tm.vertex_normals
+    samples = [[] for _ in range(len(vertices_world))]
+    for t in frames:
+        pose, K = cameras.world_from_cv[t], cameras.K[t]
+        cam = se3.transform_points(se3.invert(pose), vertices_world)
+        toward = pose[:3, 3] - vertices_world
+        facing = np.einsum("ij,ij->i", normals, toward) > 0
+        z = np.maximum(cam[:, 2], 1e-6)
+        u = np.round(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(int)
+        v = np.round(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(int)
+        h, w = masks[t].shape
+        ok = facing & (cam[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        idx = np.flatnonzero(ok)
+        idx = idx[masks[t][v[idx], u[idx]]]
+        rgb = rgb_of(t)
+        for i, c in zip(idx, rgb[v[idx], u[idx]]):
+            samples[i].append(c)
+    seen = np.array([len(s) > 0 for s in samples])
+    colors = np.full((len(vertices_world), 3), 0.5)
+    if seen.any():
+        colors[seen] = srgb8_to_linear(
+            np.array([np.median(np.array(s), axis=0) for s in samples if s]).astype(np.uint8)
+        )
+        if not seen.all():
+            nearest = cKDTree(vertices_world[seen]).query(vertices_world[~seen])[1]
+            colors[~seen] = colors[seen][nearest]
+    return colors

@@ -36,10 +36,8 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
 
 from rose_usd.core import se3
-from rose_usd.core.color import srgb8_to_linear
 from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate
 from rose_usd.geometry.primitives import PrimitiveKind, largest_dimension, primitive_mesh, typical
@@ -58,7 +56,7 @@ from rose_usd.layers.masks import read_masks
 from rose_usd.layers.scene import support_heights
 from rose_usd.layers.world import read_cameras, read_scale
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
-from rose_usd.object.meshes import axis_name, read_imported, up_candidates, world_from_up
+from rose_usd.object.meshes import axis_name, read_imported, up_candidates, vertex_colors, world_from_up
 from rose_usd.object.rest import level_rotation
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext
@@ -92,39 +90,6 @@ def rest_frames(masks: list, *, min_iou: float, min_px: int = 50) -> list[int]:
 
 def _pick(frames: list[int], count: int) -> list[int]:
     return [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
-
-
-def vertex_colors(vertices_world, faces, frames, rgb_of, masks, cameras) -> np.ndarray:
-    """Linear RGB per vertex: its median color over the frames where it faces the camera and
-    falls inside the object's mask; vertices never seen take their nearest seen vertex's."""
-    tm = trimesh.Trimesh(vertices_world, faces, process=False)
-    normals = tm.vertex_normals
-    samples = [[] for _ in range(len(vertices_world))]
-    for t in frames:
-        pose, K = cameras.world_from_cv[t], cameras.K[t]
-        cam = se3.transform_points(se3.invert(pose), vertices_world)
-        toward = pose[:3, 3] - vertices_world
-        facing = np.einsum("ij,ij->i", normals, toward) > 0
-        z = np.maximum(cam[:, 2], 1e-6)
-        u = np.round(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(int)
-        v = np.round(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(int)
-        h, w = masks[t].shape
-        ok = facing & (cam[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        idx = np.flatnonzero(ok)
-        idx = idx[masks[t][v[idx], u[idx]]]
-        rgb = rgb_of(t)
-        for i, c in zip(idx, rgb[v[idx], u[idx]]):
-            samples[i].append(c)
-    seen = np.array([len(s) > 0 for s in samples])
-    colors = np.full((len(vertices_world), 3), 0.5)
-    if seen.any():
-        colors[seen] = srgb8_to_linear(
-            np.array([np.median(np.array(s), axis=0) for s in samples if s]).astype(np.uint8)
-        )
-        if not seen.all():
-            nearest = cKDTree(vertices_world[seen]).query(vertices_world[~seen])[1]
-            colors[~seen] = colors[seen][nearest]
-    return colors
 
 
 def _dense(vertices: np.ndarray, faces: np.ndarray, edge_m: float) -> tuple[np.ndarray, np.ndarray]:
