@@ -100,12 +100,29 @@ def pose_errors(stage, case, name: str, truth_dir: Path) -> dict:
     }
 
 
+CARRIED_WINDOW = 5
+"""A frame is in a carry when the object moves within this many frames of it (``silhouette_ious``)."""
+
+
+def carried_frames(poses: np.ndarray) -> np.ndarray:
+    """Frames (bool (n,)) within ``CARRIED_WINDOW`` of one where the object moves: between the
+    frames before and after it, by more than 2 mm or 2 deg (in the hand, not resting)."""
+    n = len(poses)
+    moving = np.zeros(n, bool)
+    for t in range(1, n - 1):
+        step = se3.invert(poses[t - 1]) @ poses[t + 1]
+        moving[t] = np.linalg.norm(step[:3, 3]) > 0.002 or se3.rotation_angle_deg(step[:3, :3]) > 2.0
+    return np.convolve(moving, np.ones(2 * CARRIED_WINDOW + 1), "same") > 0
+
+
 def silhouette_ious(stage, case, name: str) -> dict:
     """IoU of the object's rendered silhouette with its masks outside the interactor's, over every
-    frame with a mask and over those in which the object is off its frame-0 pose by more than 1 cm
-    or 5 deg (held, or carried)."""
+    frame with a mask, over those in which the object is off its frame-0 pose by more than 1 cm
+    or 5 deg ("held": moved from where it started), and over those in a carry ("carried",
+    ``carried_frames``: what issue 27 calls held)."""
     n = case.n_frames
     poses, cams = object_poses(stage, name, n), read_cameras(stage, n)
+    carried, in_carry = carried_frames(poses), []
     masks = read_masks(stage, n, (case.height, case.width))
     mesh = visual_mesh(stage, name)
     local = se3.transform_points(se3.invert(poses[0]), mesh.vertices)
@@ -124,12 +141,14 @@ def silhouette_ious(stage, case, name: str) -> dict:
         moved = se3.invert(poses[0]) @ poses[t]
         if np.linalg.norm(moved[:3, 3]) > 0.01 or se3.rotation_angle_deg(moved[:3, :3]) > 5.0:
             held.append(iou)
+        if carried[t]:
+            in_carry.append(iou)
 
     def stats(values):
         return {"frames": len(values), "mean": float(np.mean(values)) if values else None,
                 "median": float(np.median(values)) if values else None}  # fmt: skip
 
-    return {"all": stats(every), "held": stats(held)}
+    return {"all": stats(every), "held": stats(held), "carried": stats(in_carry)}
 
 
 def _cli(command: list[str], log: Path) -> tuple[int, float, str]:
@@ -323,9 +342,16 @@ def write_readme(result: dict, out: Path, argv: list[str], note: str | None) -> 
     if iou:
         a, h = iou["all"], iou["held"]
         fmt = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
+        carry = iou.get("carried")
         lines.append(
             f"- object silhouette vs its masks (outside the hand): mean IoU {fmt(a['mean'])} over {a['frames']}"
             f" frames; {fmt(h['mean'])} over the {h['frames']} frames it is off its first pose"
+            + (
+                f"; {fmt(carry['mean'])} (median {fmt(carry['median'])}) over the {carry['frames']} frames"
+                f" within {CARRIED_WINDOW} of one where it moves (carried)"
+                if carry
+                else ""
+            )
         )
     pe = result.get("pose_error")
     if pe:
