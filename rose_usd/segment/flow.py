@@ -76,11 +76,17 @@ class Track2D:
     typical_px: float
     """The track's area when fully visible."""
     is_object: bool = True
-    broad: bool = False
-    """Its color model holds colors the prompt frame did not show (a mesh's texture): it claims
-    other things' colors too (the browns and blues of a mug carried past a textured cube)."""
+    look: np.ndarray | None = None
+    """The color model of its whole surface (a mesh's texture), kept at ``LOOK_WEIGHT`` in ``fg``
+    as the track learns what it sees."""
     last_visible: np.ndarray | None = None
     """What was seen of it in the last frame (empty when hidden)."""
+
+    @property
+    def broad(self) -> bool:
+        """Its color model holds colors the prompt frame did not show (its ``look``): it claims
+        other things' colors too (the browns and blues of a mug carried past a textured cube)."""
+        return self.look is not None
 
     def __post_init__(self):
         if self.last_visible is None:
@@ -139,7 +145,7 @@ class FlowTracker:
         fg = histogram(idx[mask])
         if look is not None:
             fg = (1.0 - LOOK_WEIGHT) * fg + LOOK_WEIGHT * look
-        return Track2D(name, mask, fg, float(mask.sum()), broad=look is not None), histogram(idx[ring])
+        return Track2D(name, mask, fg, float(mask.sum()), look=look), histogram(idx[ring])
 
     def look_alikes(self, t: int, tracks: list[Track2D], bg: np.ndarray) -> list[Track2D]:
         """Regions of frame t outside the tracks that their color models claim, as large as them."""
@@ -238,7 +244,10 @@ class FlowTracker:
             if 0.85 < frac < 1.3 and not touching[k]:
                 # a clear, whole view: it becomes the shape, and teaches the look as it turns
                 tr.mask = m
-                tr.fg = 0.95 * tr.fg + 0.05 * histogram(idx[m])
+                seen = histogram(idx[m])
+                if tr.look is not None:  # the look keeps its share: the faces it has not seen yet
+                    seen = (1 - LOOK_WEIGHT) * seen + LOOK_WEIGHT * tr.look
+                tr.fg = 0.95 * tr.fg + 0.05 * seen
                 tr.typical_px = 0.95 * tr.typical_px + 0.05 * float(m.sum())
             else:  # partly hidden or touching another: its last whole shape, moved
                 tr.mask = moved[k]
@@ -383,7 +392,7 @@ def segment_video(
     hands: list[np.ndarray | None] = [None] * n
 
     def fresh():
-        tracks = [Track2D(tr.name, tr.mask.copy(), tr.fg.copy(), tr.typical_px, broad=tr.broad) for _, tr, _ in starts]
+        tracks = [Track2D(tr.name, tr.mask.copy(), tr.fg.copy(), tr.typical_px, look=tr.look) for _, tr, _ in starts]
         return tracks + tracker.look_alikes(t0, tracks, bg)
 
     order = [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
