@@ -89,6 +89,12 @@ def texture_image(mesh: trimesh.Trimesh):
     return image if image is not None else getattr(material, "baseColorTexture", None)
 
 
+def unless_placeholder(colors8: np.ndarray) -> np.ndarray | None:
+    """None when every color is trimesh's placeholder gray: the file's materials gave no color
+    (visp-desk's cube.obj: six materials without Kd or texture, merged into one gray)."""
+    return None if np.all(colors8 == np.asarray(trimesh.visual.DEFAULT_COLOR[:3])) else colors8
+
+
 def surface_colors(mesh: trimesh.Trimesh, count: int = 20000) -> np.ndarray | None:
     """sRGB8 colors (count, 3) of points spread evenly over the mesh's surface (its texture at
     their UVs, or its vertex colors); None when the file gave it no colors."""
@@ -101,8 +107,10 @@ def surface_colors(mesh: trimesh.Trimesh, count: int = 20000) -> np.ndarray | No
             colors = trimesh.visual.color.uv_to_interpolated_color(uv, texture_image(mesh))
             return np.asarray(colors)[:, :3].astype(np.uint8)
         if visual.kind == "vertex":
-            per_vertex = np.asarray(visual.vertex_colors)[:, :3].astype(float)
-            return np.einsum("nk,nkc->nc", bary, per_vertex[corners]).round().astype(np.uint8)
+            per_vertex = unless_placeholder(np.asarray(visual.vertex_colors)[:, :3])
+            if per_vertex is None:
+                return None
+            return np.einsum("nk,nkc->nc", bary, per_vertex.astype(float)[corners]).round().astype(np.uint8)
     except Exception:  # a material trimesh cannot sample: no colors rather than no mesh  # noqa: BLE001
         return None
     return None

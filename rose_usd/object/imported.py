@@ -27,8 +27,8 @@ GLB, a scan or CAD model as GLB/OBJ/PLY/STL), brought to metric scale and posed 
 
 5. **Colors**: the file's texture or vertex colors; a file without them (an STL; an OBJ whose
    materials have no color: trimesh's placeholder gray) is colored from the video, each vertex its median color
-   over the rest frames where it faces the camera inside the mask, on the mesh subdivided within
-   ``max_triangles`` (the object's ``colors`` fact says which).
+   over the rest frames where it faces the camera inside the mask, on the mesh subdivided to 8 mm
+   edges within ``max_triangles`` (the object's ``colors`` fact says which).
 
 The object's frame is the mesh's own, scaled to meters, so FoundationPose poses (made for the
 same mesh) compose with the cameras unchanged. Priors, mass and collider as object.fusion."""
@@ -502,12 +502,21 @@ def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, c
     return model, facts
 
 
+VIDEO_COLOR_EDGE_M = 0.008
+"""A mesh colored from the video is subdivided until its edges are this short (or it would pass
+``object.max_triangles``): the silhouette backend's primitives are colored at the same spacing."""
+
+
+def _longest_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
+    return float(np.max(np.linalg.norm(vertices[faces] - vertices[np.roll(faces, 1, axis=1)], axis=2)))
+
+
 def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud, cameras) -> tuple[ObjectModel, str]:
     """The imported mesh at the fitted scale, decimated, coloured, with its physics and pose; and
     where its colors came from: the file's texture or vertex colors ("file"), else the video
     ("video": each vertex's median color over up to 12 rest frames, ``vertex_colors``, on the
-    mesh subdivided while it stays within ``object.max_triangles``, so that a box's twelve
-    triangles can show its print)."""
+    mesh subdivided to ``VIDEO_COLOR_EDGE_M`` within ``object.max_triangles``, so that a box's
+    twelve triangles can show its print)."""
     local = best.rho * imp.vertices
     tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), ctx.config.max_triangles)
     vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
@@ -515,7 +524,7 @@ def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud,
     if imp.colors is not None:
         colors, source = transfer_colors(vertices, local, imp.colors), "file"
     else:
-        while 4 * len(faces) <= ctx.config.max_triangles:
+        while 4 * len(faces) <= ctx.config.max_triangles and _longest_edge(vertices, faces) > VIDEO_COLOR_EDGE_M:
             vertices, faces = trimesh.remesh.subdivide(vertices, faces)
         picked = [cloud.frames[i] for i in np.unique(np.linspace(0, len(cloud.frames) - 1, 12).astype(int))]
         world = se3.transform_points(pose, vertices)

@@ -20,7 +20,7 @@ from rose_usd.errors import InputError, MeshError
 from rose_usd.geometry.mesh import self_intersects
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import trellis
-from rose_usd.io.meshfile import read_mesh_file
+from rose_usd.io.meshfile import read_mesh_file, unless_placeholder
 
 UNITS = {"millimeters": 1e-3, "centimeters": 1e-2, "inches": 0.0254}
 """Units a metric-looking mesh may be in by mistake, and meters per unit."""
@@ -59,18 +59,12 @@ def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
     visual = mesh.visual
     try:
         if visual.kind == "texture" and getattr(visual, "uv", None) is not None:
-            return _unless_placeholder(np.asarray(visual.to_color().vertex_colors)[:, :3])
+            return unless_placeholder(np.asarray(visual.to_color().vertex_colors)[:, :3])
         if visual.kind == "vertex":
-            return _unless_placeholder(np.asarray(visual.vertex_colors)[:, :3])
+            return unless_placeholder(np.asarray(visual.vertex_colors)[:, :3])
     except Exception:  # a material trimesh cannot sample: no colors rather than no mesh  # noqa: BLE001
         return None
     return None
-
-
-def _unless_placeholder(colors8: np.ndarray) -> np.ndarray | None:
-    """None when every vertex has trimesh's placeholder gray: the file's materials gave no color
-    (visp-desk's cube.obj: six materials without Kd or texture, merged into one gray)."""
-    return None if np.all(colors8 == np.asarray(trimesh.visual.DEFAULT_COLOR[:3])) else colors8
 
 
 def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
