@@ -5,8 +5,9 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
 
 1. **Start.** GrabCut inside the prompt box gives the object; its color model is learned against
    the ring of pixels around the box, half and half with the colors of its whole surface where its
-   mesh (rose.toml's ``mesh``, ``perception/``) has a texture or vertex colors: the faces a hand
-   turns up later are not in the prompt frame. Regions elsewhere in the prompt frame that the object's
+   mesh (rose.toml's ``mesh``, ``perception/``) has a texture or vertex colors (the faces a hand
+   turns up later are not in the prompt frame; the share fades as the track learns, see
+   ``LOOK_WEIGHT``). Regions elsewhere in the prompt frame that the object's
    color model also claims (other red cups in a shell game) become *look-alikes*: they are
    tracked with the objects, so that when they touch, every pixel goes to the track it came from.
 2. **Propagate** (forward from the prompt frame, then backward). Dense optical flow (OpenCV's DIS)
@@ -53,8 +54,12 @@ FOREGROUND_LAB = 20.0
 """A still camera's pixel is foreground this far from the temporal median (weighted Lab)."""
 
 LOOK_WEIGHT = 0.5
-"""Share of a given mesh's texture in an object's color model (the rest: what the prompt frame
-shows of it). The prompt frame shows one side; a hand turns up the others."""
+"""Share of a given mesh's texture in an object's color model at the prompt frame (the rest: what
+that frame shows of it), which shows one side; a hand turns up the others. Each clear, whole view
+then mixes 5 % of what it sees into the model, so the texture's share fades (2 % after 60 such
+frames). Keeping it at this share for the whole video was worse on visp-cube-hand-rgb (the cube's
+silhouette vs masks IoU 0.80 -> 0.53, the gate failed): the texture's colors then claim the hand
+and the desk whenever they are near."""
 
 MOVER_PX = 3.0
 """A pixel that moved this much more than a resting track since the last frame is not the track's,
@@ -76,17 +81,11 @@ class Track2D:
     typical_px: float
     """The track's area when fully visible."""
     is_object: bool = True
-    look: np.ndarray | None = None
-    """The color model of its whole surface (a mesh's texture), kept at ``LOOK_WEIGHT`` in ``fg``
-    as the track learns what it sees."""
+    broad: bool = False
+    """Its color model holds colors the prompt frame did not show (a mesh's texture): it claims
+    other things' colors too (the browns and blues of a mug carried past a textured cube)."""
     last_visible: np.ndarray | None = None
     """What was seen of it in the last frame (empty when hidden)."""
-
-    @property
-    def broad(self) -> bool:
-        """Its color model holds colors the prompt frame did not show (its ``look``): it claims
-        other things' colors too (the browns and blues of a mug carried past a textured cube)."""
-        return self.look is not None
 
     def __post_init__(self):
         if self.last_visible is None:
@@ -145,7 +144,7 @@ class FlowTracker:
         fg = histogram(idx[mask])
         if look is not None:
             fg = (1.0 - LOOK_WEIGHT) * fg + LOOK_WEIGHT * look
-        return Track2D(name, mask, fg, float(mask.sum()), look=look), histogram(idx[ring])
+        return Track2D(name, mask, fg, float(mask.sum()), broad=look is not None), histogram(idx[ring])
 
     def look_alikes(self, t: int, tracks: list[Track2D], bg: np.ndarray) -> list[Track2D]:
         """Regions of frame t outside the tracks that their color models claim, as large as them."""
@@ -244,10 +243,7 @@ class FlowTracker:
             if 0.85 < frac < 1.3 and not touching[k]:
                 # a clear, whole view: it becomes the shape, and teaches the look as it turns
                 tr.mask = m
-                seen = histogram(idx[m])
-                if tr.look is not None:  # the look keeps its share: the faces it has not seen yet
-                    seen = (1 - LOOK_WEIGHT) * seen + LOOK_WEIGHT * tr.look
-                tr.fg = 0.95 * tr.fg + 0.05 * seen
+                tr.fg = 0.95 * tr.fg + 0.05 * histogram(idx[m])
                 tr.typical_px = 0.95 * tr.typical_px + 0.05 * float(m.sum())
             else:  # partly hidden or touching another: its last whole shape, moved
                 tr.mask = moved[k]
@@ -392,7 +388,7 @@ def segment_video(
     hands: list[np.ndarray | None] = [None] * n
 
     def fresh():
-        tracks = [Track2D(tr.name, tr.mask.copy(), tr.fg.copy(), tr.typical_px, look=tr.look) for _, tr, _ in starts]
+        tracks = [Track2D(tr.name, tr.mask.copy(), tr.fg.copy(), tr.typical_px, broad=tr.broad) for _, tr, _ in starts]
         return tracks + tracker.look_alikes(t0, tracks, bg)
 
     order = [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
