@@ -45,6 +45,11 @@ def faces_facing(vertices: np.ndarray, faces: np.ndarray, centers: np.ndarray) -
     return out
 
 
+def longest_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The longest triangle edge of the mesh [its units]."""
+    return float(np.max(np.linalg.norm(vertices[faces] - vertices[np.roll(faces, 1, axis=1)], axis=2)))
+
+
 def submesh(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The triangles ``keep`` (bool (F,)) with only the vertices they use, renumbered."""
     kept = faces[keep]

@@ -101,10 +101,10 @@ def surface_colors(mesh: trimesh.Trimesh, count: int = 20000) -> np.ndarray | No
     visual = mesh.visual
     try:
         _, faces, bary = trimesh.sample.sample_surface(mesh, count, return_barycentric=True, seed=0)
-        corners = mesh.faces[faces]
-        if visual.kind == "texture" and getattr(visual, "uv", None) is not None and texture_image(mesh) is not None:
+        corners, image = mesh.faces[faces], texture_image(mesh)
+        if visual.kind == "texture" and getattr(visual, "uv", None) is not None and image is not None:
             uv = np.einsum("nk,nkc->nc", bary, np.asarray(visual.uv, float)[corners])
-            colors = trimesh.visual.color.uv_to_interpolated_color(uv, texture_image(mesh))
+            colors = trimesh.visual.color.uv_to_interpolated_color(uv, image)
             return np.asarray(colors)[:, :3].astype(np.uint8)
         if visual.kind == "vertex":
             per_vertex = unless_placeholder(np.asarray(visual.vertex_colors)[:, :3])

@@ -46,7 +46,7 @@ from scipy.spatial import ConvexHull, cKDTree
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
 from rose_usd.core.watertight import is_closed
-from rose_usd.geometry.mesh import decimate
+from rose_usd.geometry.mesh import decimate, longest_edge
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import foundationpose
 from rose_usd.layers.masks import Masks, read_masks
@@ -64,7 +64,7 @@ from rose_usd.object.meshes import (  # noqa: F401  (re-exported: the backend's 
     vertex_colors,
     world_from_up,
 )
-from rose_usd.object.rest import level_rotation, resting_clouds, support_height
+from rose_usd.object.rest import level_rotation, resting_clouds, spread_frames, support_height
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
@@ -358,7 +358,7 @@ def _golden_section(at, tried: list[Fit], step: float, resolution: float) -> Non
 
 def _views(layer: Masks, name: str, frames: list[int], masks: list, cameras, count: int = 6) -> list[View]:
     """Up to ``count`` resting frames spread over the rest, with what to leave out of each."""
-    picked = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
+    picked = spread_frames(frames, count)
     return [
         View(masks[t], layer.occluders(name, t, masks[t].shape, grow_px=2), cameras.K[t], cameras.world_from_cv[t])
         for t in picked
@@ -507,10 +507,6 @@ VIDEO_COLOR_EDGE_M = 0.008
 ``object.max_triangles``): the silhouette backend's primitives are colored at the same spacing."""
 
 
-def _longest_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
-    return float(np.max(np.linalg.norm(vertices[faces] - vertices[np.roll(faces, 1, axis=1)], axis=2)))
-
-
 def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud, cameras) -> tuple[ObjectModel, str]:
     """The imported mesh at the fitted scale, decimated, coloured, with its physics and pose; and
     where its colors came from: the file's texture or vertex colors ("file"), else the video
@@ -524,10 +520,10 @@ def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud,
     if imp.colors is not None:
         colors, source = transfer_colors(vertices, local, imp.colors), "file"
     else:
-        while 4 * len(faces) <= ctx.config.max_triangles and _longest_edge(vertices, faces) > VIDEO_COLOR_EDGE_M:
+        while 4 * len(faces) <= ctx.config.max_triangles and longest_edge(vertices, faces) > VIDEO_COLOR_EDGE_M:
             vertices, faces = trimesh.remesh.subdivide(vertices, faces)
-        picked = [cloud.frames[i] for i in np.unique(np.linspace(0, len(cloud.frames) - 1, 12).astype(int))]
         world = se3.transform_points(pose, vertices)
+        picked = spread_frames(cloud.frames, 12)
         colors, source = vertex_colors(world, faces, picked, ctx.case.rgb, cloud.masks, cameras), "video"
     mesh = MeshData(vertices=vertices, faces=faces, vertex_colors=colors)
     physics, mass = physics_for(spec, vertices, faces, ctx)

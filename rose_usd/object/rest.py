@@ -94,6 +94,11 @@ class RestingCloud:
     """The height of the surface around the object [m] (0 = the world's support plane)."""
 
 
+def spread_frames(frames: list[int], count: int) -> list[int]:
+    """Up to ``count`` of ``frames``, spread evenly from the first to the last."""
+    return [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).astype(int))]
+
+
 def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingCloud]:
     """Every object's points while it rests before the interactor first touches it (all objects
     first: one may stand on another). InputError when an object is never clearly seen."""

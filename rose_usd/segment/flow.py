@@ -233,7 +233,7 @@ class FlowTracker:
             if carried[k] and still is not None:  # None: the camera moves
                 claimed &= ~still
             others = [moved[j] for j in range(len(tracks)) if j != k]
-            if resting[k] and tr.broad:
+            if resting[k]:  # resting and broad
                 movers = np.linalg.norm(motion - shifts[k], axis=2) > MOVER_PX
                 claimed &= ~movers
                 others.append(movers)
