@@ -72,6 +72,10 @@ class SilhouetteConfig:
     """A fit under this fraction of the last IoU is tried again from turned starts [-] (default 0.9)."""
     turn_search_deg: float = 25.0
     """... the best pose turned by this much both ways about each camera axis [deg] (default 25)."""
+    max_speed_m_s: float = field(default=3.0, metadata=limits(0.0))
+    """A fit that moves the object faster than this since its last tracked frame is lost: a hand
+    seldom carries an object faster, and a silhouette grown by a mask that took the hand is fitted
+    by moving the object toward the camera [m/s] (default 3)."""
     max_side_px: int = 320
     """Each frame's view is cropped around the mask and downscaled to this long side [px] (default 320)."""
     max_faces: int = 1000

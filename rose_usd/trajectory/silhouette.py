@@ -10,8 +10,10 @@ render and compare, for videos without depth (capture ``sfm``).
 3. **Track.** Otherwise the 6-DoF pose is fitted to the mask (Nelder-Mead on the silhouette IoU,
    ``geometry.silhouette.fit_free``, ``maxfev`` evaluations) from the last pose and from a
    constant-velocity prediction, the better kept. A frame whose mask is missing or too small, or
-   whose best IoU is under ``min_iou``, is lost: the pose holds (confidence 0), and frames lost
-   between tracked ones are interpolated on SE(3) (confidence 0.5).
+   whose best IoU is under ``min_iou``, or whose fit moves the object faster than
+   ``max_speed_m_s`` since its last tracked frame, is lost: the pose holds (confidence 0), and
+   frames lost between tracked ones are interpolated on SE(3) (confidence 0.5). The color
+   posterior is left out where it would pull the object toward the camera (``NEARER``).
 4. **Rest on the support.** When the object holds still again for ``settle_frames`` frames with its
    lowest point within ``settle_m`` of the support, it is set down: turned onto its nearest stable
    face (the convex hull's face nearest its center of mass facing down), lowered onto the support,
@@ -110,12 +112,15 @@ def _target(mask, posterior, color_weight: float):
     return soft >= 0.5, soft
 
 
-def _view(layer, name, t, mask, cameras, cfg, *, soft=None, box=None) -> View:
+def _view(layer, name, t, mask, cameras, cfg, *, soft=None, box=None, segmented=None) -> View:
+    """The view of the target ``mask`` (and ``soft``) at frame t, cropped around ``box`` (the
+    projected pose) joined by the ``segmented`` mask's box where it is near, else around ``mask``."""
     ignore = layer.occluders(name, t, mask.shape, grow_px=2)
-    if box is not None and mask.any():
-        ys, xs = np.nonzero(mask)
+    if box is not None and segmented is not None and segmented.any():
+        ys, xs = np.nonzero(segmented)
         mbox = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
-        # the mask joins the crop only where it is near the prediction (not a track run off elsewhere)
+        # the mask joins the crop only where it is near the prediction (not a track run off
+        # elsewhere); the posterior's target does not: it may hold look-alikes all over the frame
         if mbox[0] < box[2] + (box[2] - box[0]) and mbox[2] > box[0] - (box[2] - box[0]):
             box = (min(box[0], mbox[0]), min(box[1], mbox[1]), max(box[2], mbox[2]), max(box[3], mbox[3]))
     return crop_view(
@@ -145,14 +150,19 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
     conf = np.zeros(n)
     pose, ref_iou, velocity = default.copy(), None, np.eye(4)
     still, settled = 0, False
-    fitted = held = lost = set_down = searched = 0
+    fitted = held = lost = set_down = searched = too_fast = 0
+    last_seen = 0
     colors, base, first = None, None, None
     for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
         mask = mask_of(t)
         has_mask = mask is not None and mask.sum() >= cfg.min_pixels
         if colors is None and cfg.color_weight > 0 and has_mask:
             colors = _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex)
-        posterior = colors(case.rgb(t)) if colors is not None else None
+            if colors is not None and not _posterior_agrees(
+                colors, case.rgb(t), layer, name, t, mask, pose, v, f, cameras, cfg, convex
+            ):
+                colors = False  # the mask alone, for the whole video
+        posterior = colors(case.rgb(t)) if colors else None
         box = _projected_box(pose, v, cameras, t, case.width, case.height)
         if not has_mask and (posterior is None or box is None):
             poses[t], lost = pose, lost + 1
@@ -160,13 +170,23 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         if mask is None:
             mask = np.zeros((case.height, case.width), bool)
         binary, soft = _target(mask if has_mask else None, posterior, cfg.color_weight)
-        view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box if posterior is not None else None)
+        view = _view(
+            layer,
+            name,
+            t,
+            binary,
+            cameras,
+            cfg,
+            soft=soft,
+            box=box if posterior is not None else None,
+            segmented=mask if has_mask else None,
+        )
         now = iou([view], se3.transform_points(pose, v), f, convex=convex)
         if ref_iou is None:
             ref_iou, first, base = now, now, (now if now >= FIRST_IOU_FLOOR else 1.0)
         floor = cfg.min_iou * base
         if now >= max(floor, ref_iou - cfg.hold_drop * base):
-            poses[t], conf[t], present[t] = pose, min(1.0, now / base), True
+            poses[t], conf[t], present[t], last_seen = pose, min(1.0, now / base), True, t
             held, still = held + 1, still + 1
             velocity = np.eye(4)
             if not settled and still >= cfg.settle_frames:
@@ -178,15 +198,25 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
             continue
         best, turned = _refit(v, f, view, pose, velocity, ref_iou, cfg, convex)
         searched += turned
-        if best[1] < floor:
+        reach = cfg.max_speed_m_s * (t - last_seen) / ctx.time_info.fps
+        if best[1] < floor or np.linalg.norm(best[0][:3, 3] - pose[:3, 3]) > reach:
             poses[t], lost = pose, lost + 1
+            too_fast += best[1] >= floor
             continue
+        last_seen = t
         velocity = best[0] @ se3.invert(pose)
         pose, ref_iou = best[0], best[1]
         poses[t], conf[t], present[t] = pose, min(1.0, best[1] / base), True
         fitted, still, settled = fitted + 1, 0, False
-    counts = {"held": held, "fitted": fitted, "lost": lost, "set_down": set_down, "turn_searches": searched}
-    return _finish(poses, present, conf, counts, colors is not None, first)
+    counts = {
+        "held": held,
+        "fitted": fitted,
+        "lost": lost,
+        "too_fast": too_fast,
+        "set_down": set_down,
+        "turn_searches": searched,
+    }
+    return _finish(poses, present, conf, counts, bool(colors), first)
 
 
 def _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> ColorPosterior | None:
@@ -209,6 +239,30 @@ def _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -
     if inside.sum() >= cfg.min_pixels:
         return ColorPosterior(case.rgb(t), inside, around)
     return None
+
+
+NEARER = (0.7, 0.85)
+"""The color posterior is followed only where, in the frame it was learned in, the blended target
+scores the posed silhouette above the same object brought nearer the camera (to these fractions of
+its depth): where the surroundings share the object's colors (a printed box on a checked cloth)
+the target is broad, a larger silhouette overlaps more of it, and a track that follows it comes
+toward the camera."""
+
+
+def _posterior_agrees(colors, rgb, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> bool:
+    """Whether the blended target (color posterior and mask) prefers the posed object to the same
+    object brought nearer the camera (``NEARER``)."""
+    binary, soft = _target(mask, colors(rgb), cfg.color_weight)
+    box = _projected_box(pose, v, cameras, t, mask.shape[1], mask.shape[0])
+    view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box, segmented=mask)
+    eye = cameras.world_from_cv[t][:3, 3]
+
+    def score(k: float) -> float:
+        moved = pose.copy()
+        moved[:3, 3] = eye + k * (pose[:3, 3] - eye)
+        return iou([view], se3.transform_points(moved, v), f, convex=convex)
+
+    return score(1.0) > max(score(k) for k in NEARER)
 
 
 def _refit(v, f, view: View, pose, velocity, ref_iou: float, cfg, convex: bool) -> tuple[tuple, int]:
