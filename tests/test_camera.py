@@ -100,6 +100,34 @@ def test_mitsuba_render_lands_where_opencv_projects():
     assert abs((img * xx).sum() / total - u) < 0.05 and abs((img * yy).sum() / total - v) < 0.05
 
 
+def test_render_labels_match_center_rays():
+    """The labels the gate takes from its own re-render's samples (an item where it covers half a
+    pixel's samples) are the center rays' labels but at edge pixels, also where one item hides part
+    of the other and the pixels are not square; the image is the plain render's to one level."""
+    from rose_usd.render.lighting import Lighting
+    from rose_usd.render.scene import RenderItem, RenderScene
+    from rose_usd.synth.shapes import sphere
+    from rose_usd.usd.geom import MeshData
+
+    world_from_cv = se3.look_at([0.5, -0.4, 0.5], [0.0, 0.0, 0.0])
+    near, far = sphere(0.03, (0.03, 0.0, 0.05), subdivisions=4), sphere(0.05, (-0.04, 0.0, 0.0), subdivisions=4)
+    scene = RenderScene(
+        [
+            RenderItem("near", MeshData(near.vertices, near.faces, color=(0.9, 0.2, 0.2)), label=1),
+            RenderItem("far", MeshData(far.vertices, far.faces, color=(0.2, 0.9, 0.2)), label=2),
+        ],
+        Lighting.unlit(),
+    )
+    img, labels = scene.render_srgb8_and_labels(world_from_cv, K_OFFCENTER, W, H, spp=16, seed=3)
+    plain = scene.render_srgb8(world_from_cv, K_OFFCENTER, W, H, spp=16, seed=3)
+    assert np.abs(img.astype(int) - plain).max() <= 1
+    _, center = scene.depth_and_labels(world_from_cv, K_OFFCENTER, W, H)
+    for label in (1, 2):
+        a, b = labels == label, center == label
+        assert b.sum() > 300 and (a & b).sum() / (a | b).sum() > 0.95
+    assert set(np.unique(labels)) == {0, 1, 2}
+
+
 def test_depth_is_z_depth():
     """Rendered depth is distance along the optical axis, not along the ray."""
     from rose_usd.render.lighting import Lighting

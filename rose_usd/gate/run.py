@@ -112,26 +112,27 @@ def _render_and_compare(
     if (camera.width, camera.height) != (case.width, case.height):
         say(f"gate: the stage's camera is {camera.width}x{camera.height}, the video {case.width}x{case.height}")
 
-    def render(t: int) -> np.ndarray:
-        renderer.pose_at(t)
-        return renderer.scene.render_srgb8(
-            camera.world_from_cv[t], camera.K[t], case.width, case.height, spp=cfg.spp, seed=t
-        )
-
     masks = read_masks(stage, n) if stage.GetPrimAtPath(paths.MASKS) else None
+    track = {name: np.full(n, np.nan) for name in names} if cfg.track and masks is not None else {}
+
+    def render(t: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """The re-render at frame t and, for the track check, its labels from the same samples."""
+        renderer.pose_at(t)
+        args = (camera.world_from_cv[t], camera.K[t], case.width, case.height)
+        if track:
+            return renderer.scene.render_srgb8_and_labels(*args, spp=cfg.spp, seed=t)
+        return renderer.scene.render_srgb8(*args, spp=cfg.spp, seed=t), None
 
     def exclude(t: int) -> np.ndarray | None:
         return _interactor_mask(masks, t, cfg.interactor_dilate_px) if cfg.exclude_interactor else None
 
     ssim = np.full(n, np.nan)
-    track = {name: np.full(n, np.nan) for name in names} if cfg.track and masks is not None else {}
     keep = {}
     sample_frames = set(np.linspace(0, len(frames) - 1, 4).round().astype(int).tolist())
     for i, t in enumerate(progress(frames, "gate render", total=len(frames))):
-        rendered, original, left_out = render(t), case.rgb(t), exclude(t)
+        (rendered, labels), original, left_out = render(t), case.rgb(t), exclude(t)
         ssim[t], ssim_map = masked_ssim(original, rendered, left_out)
         if track:
-            labels = renderer.scene.depth_and_labels(camera.world_from_cv[t], camera.K[t], case.width, case.height)[1]
             for k, name in enumerate(names):
                 track[name][t] = _track_iou(masks, name, t, labels == k + 1, left_out, cfg.track_min_pixels)
         if cfg.save_frames:
@@ -140,7 +141,7 @@ def _render_and_compare(
             keep[t] = (original, rendered, ssim_map, left_out)
     worst = int(np.nanargmin(ssim))
     if worst not in keep:
-        rendered, left_out = render(worst), exclude(worst)
+        rendered, left_out = render(worst)[0], exclude(worst)
         keep[worst] = (case.rgb(worst), rendered, masked_ssim(case.rgb(worst), rendered, left_out)[1], left_out)
     return ssim, keep, track
 

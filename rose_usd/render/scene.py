@@ -51,6 +51,7 @@ def _make_integrator_class(mi, dr):
             self.ambient = mi.Color3f(1.0)
             self.lights: list[tuple] = []
             self.shadow_scene = None  # the scene shadow rays test (items that cast shadows)
+            self.coverage: list[tuple[int, list]] = []  # (label, its shapes): one AOV each while set
 
         def configure(self, lighting: Lighting) -> None:
             self.ambient = mi.Color3f(*lighting.ambient)
@@ -72,10 +73,16 @@ def _make_integrator_class(mi, dr):
                 occluders = self.shadow_scene if self.shadow_scene is not None else scene
                 visible = lit & ~occluders.ray_test(si.spawn_ray_to(position), lit)
                 radiance += dr.select(visible, albedo * intensity * cos / dist2, 0.0)
-            return dr.select(valid, radiance, 0.0), valid, []
+            covered = []
+            for _, shapes in self.coverage:
+                hit = dr.zeros(mi.Bool, dr.width(valid))
+                for shape in shapes:
+                    hit |= valid & (si.shape == shape)
+                covered.append(dr.select(hit, 1.0, 0.0))
+            return dr.select(valid, radiance, 0.0), valid, covered
 
         def aov_names(self):
-            return []
+            return [f"label{label}" for label, _ in self.coverage]
 
         def to_string(self):
             return "RoseDirect[]"
@@ -204,6 +211,41 @@ class RenderScene:
         self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
     ) -> np.ndarray:
         """Linear RGB image (H, W, 3) float32 seen by an OpenCV camera."""
+        return self._render(world_from_cv, K, width, height, spp, seed, labels=False)[..., :3]
+
+    def render_srgb8(
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
+    ) -> np.ndarray:
+        """8-bit sRGB image (H, W, 3) seen by an OpenCV camera."""
+        return linear_to_srgb8(self.render_linear(world_from_cv, K, width, height, spp=spp, seed=seed))
+
+    def render_srgb8_and_labels(
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The 8-bit sRGB image and, from the same samples, item labels (H, W) uint8: per pixel the
+        label whose items cover the most of its samples, where they cover at least half (else 0).
+        One pass: no second ray per pixel."""
+        labels = sorted({item.label for item in self.items.values() if item.label})
+        self.integrator.coverage = [
+            (label, [self.mi.ShapePtr(self._shapes[n]) for n, item in self.items.items() if item.label == label])
+            for label in labels
+        ]
+        try:
+            img = self._render(world_from_cv, K, width, height, spp, seed, labels=True)
+        finally:
+            self.integrator.coverage = []
+        out = np.zeros((height, width), np.uint8)
+        if labels:
+            coverage = img[..., 3 : 3 + len(labels)]
+            best = np.argmax(coverage, axis=-1)
+            covered = np.take_along_axis(coverage, best[..., None], axis=-1)[..., 0] >= 0.5
+            out[covered] = np.asarray(labels, np.uint8)[best[covered]]
+        return linear_to_srgb8(img[..., :3]), out
+
+    def _render(
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int, seed: int, labels: bool
+    ) -> np.ndarray:
+        """Every channel the film holds (H, W, C) float32: linear RGB, then the coverage AOVs."""
         K = np.asarray(K, dtype=float)
         fx, fy = K[0, 0], K[1, 1]
         square = abs(fx - fy) <= 1e-4 * fx
@@ -217,20 +259,22 @@ class RenderScene:
         sensor = self._sensor(world_from_cv, K_render, width, render_h, spp)
         img = np.asarray(
             self.mi.render(self.scene, sensor=sensor, integrator=self.integrator, seed=seed, spp=spp), dtype=np.float32
-        )[..., :3]
+        )
         if not square:
             import cv2
 
-            img = cv2.resize(
-                img, (width, height), interpolation=cv2.INTER_AREA if render_h > height else cv2.INTER_LINEAR
+            interpolation = cv2.INTER_AREA if render_h > height else cv2.INTER_LINEAR
+            # OpenCV resizes at most 4 channels at once
+            img = np.concatenate(
+                [
+                    cv2.resize(img[..., i : i + 3], (width, height), interpolation=interpolation).reshape(
+                        height, width, -1
+                    )
+                    for i in range(0, img.shape[-1], 3)
+                ],
+                axis=-1,
             )
         return img
-
-    def render_srgb8(
-        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
-    ) -> np.ndarray:
-        """8-bit sRGB image (H, W, 3) seen by an OpenCV camera."""
-        return linear_to_srgb8(self.render_linear(world_from_cv, K, width, height, spp=spp, seed=seed))
 
     def depth_and_labels(
         self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int
