@@ -350,8 +350,11 @@ def evaluate(
         ghost = np.zeros(len(rec_pts), bool)
         for mesh, poses in movers:
             inside = metrics.SignedDistance(mesh.vertices, mesh.faces)
+            lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
             for t in range(0, n, max(1, n // 30)):
-                ghost |= inside(se3.transform_points(se3.invert(poses[t]), rec_pts)) < -0.015
+                local = se3.transform_points(se3.invert(poses[t]), rec_pts)
+                near = np.flatnonzero(np.all((local > lo) & (local < hi), axis=1) & ~ghost)  # inside only there
+                ghost[near] = inside(local[near]) < -0.015
         ghost[ghost] = true_surface(rec_pts[ghost]) > 0.015
         scene_ghost_cm2 = 1e4 * area * float(ghost.sum()) / 400_000
     else:
