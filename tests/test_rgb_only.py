@@ -443,6 +443,6 @@ def test_a_color_posterior_that_pulls_the_object_to_the_camera_is_not_followed()
     for around, followed in ((0.9, False), (0.1, True)):
         posterior = np.where(mask, 1.0, around).astype(np.float32)
         agrees = _posterior_agrees(
-            lambda _: posterior, rgb, _Masks([mask]), "Box", 0, mask, rest, v, f, cameras, SilhouetteConfig(), True
+            lambda _, p=posterior: p, rgb, _Masks([mask]), "Box", 0, mask, rest, v, f, cameras, SilhouetteConfig(), True
         )
         assert agrees is followed
