@@ -25,7 +25,8 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
 3. **Interactor** (rough: a 2D motion cue, no depth). What differs from the static background:
    the per-pixel temporal median of the video when the camera stands still (chroma weighted over
    lightness, so shadows count less), else the pixels whose flow departs from the camera's (a
-   RANSAC homography of the flow); minus the tracks and whatever the objects' color models claim.
+   RANSAC homography of the flow); minus the tracks and what the objects' color models claim
+   within a track's reach.
 """
 
 from __future__ import annotations
@@ -409,14 +410,25 @@ def segment_video(
                 masks[tr.name][t] = tr.last_visible.copy()
                 visible[tr.name][t] = frac
         if motion is not None:
-            # not the hand: the tracks, and whatever their color models claim (a look-alike the
-            # tracks lost is still not the hand)
+            # not the hand: the tracks, and what their color models claim within their reach (a
+            # look-alike the tracks lost is still not the hand; a dark sleeve far from a mug with
+            # dark speckles is)
             idx = color_index(tracker.frame_of(t))
             claimed = np.any([tr.fg[idx] > 2.0 * bg[idx] for tr in tracks if tr.is_object], axis=0)
             hands[t] = motion(t, flow) & ~cv2.dilate(
-                (everything | claimed).astype(np.uint8), np.ones((5, 5), np.uint8)
+                (everything | (claimed & _within_reach(tracks))).astype(np.uint8), np.ones((5, 5), np.uint8)
             ).astype(bool)
     return masks, hands, visible
+
+
+def _within_reach(tracks: list[Track2D]) -> np.ndarray:
+    """The pixels within ``_REACH`` of any track's shape (where a pixel could join it)."""
+    near = np.zeros_like(tracks[0].mask)
+    for tr in tracks:
+        r = int(round(_REACH * np.sqrt(tr.typical_px) + 3.0))
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        near |= cv2.dilate(tr.mask.astype(np.uint8), kernel).astype(bool)
+    return near
 
 
 def _looks(case, specs) -> dict[str, np.ndarray]:
