@@ -267,6 +267,21 @@ def run_clip(args) -> dict:
     return result
 
 
+def _shown(argv: list[str]) -> list[str]:
+    """The command line as the README shows it: without --no-run, and without --note's paragraph
+    (it is the README's first)."""
+    out, skip = [], False
+    for a in argv:
+        if skip or a == "--no-run":
+            skip = False
+            continue
+        if a == "--note":
+            skip = True
+            continue
+        out.append(a)
+    return out
+
+
 def write_readme(result: dict, out: Path, argv: list[str], note: str | None) -> None:
     """OUT/README.md: the commands, the per-stage times, validation, the gate and the pictures."""
     clip = Path(result["clip"])
@@ -279,7 +294,7 @@ def write_readme(result: dict, out: Path, argv: list[str], note: str | None) -> 
         "Made by (from the repository root, the run folder is not committed):",
         "",
         "```sh",
-        "python " + " ".join(a for a in argv if a != "--no-run"),
+        "python " + " ".join(_shown(argv)),
         "```",
         "",
         "which wrote this rose.toml beside links to the clip (and cam_K.txt, the mesh where given):",
@@ -333,10 +348,15 @@ def write_readme(result: dict, out: Path, argv: list[str], note: str | None) -> 
             f" silhouette IoU {o.get('silhouette_iou')}"
         )
     t = result.get("trajectory")
-    if t:
+    if t and t.get("tracked") == 0:
+        lines.append(
+            "- trajectory: never tracked (no frame's fit reached the IoU floor, min_iou): held where it started"
+        )
+    elif t:
         lines.append(
             f"- trajectory: held {t.get('held')}, fitted {t.get('fitted')}, lost {t.get('lost')} frames,"
-            f" turn searches {t.get('turn_searches')}, mean confidence {t.get('confidence_mean')}"
+            f" {t.get('too_fast', 0)} too fast, turn searches {t.get('turn_searches')},"
+            f" mean confidence {t.get('confidence_mean')}"
         )
     iou = result.get("silhouette_iou")
     if iou:
