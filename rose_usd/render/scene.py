@@ -211,7 +211,7 @@ class RenderScene:
         self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
     ) -> np.ndarray:
         """Linear RGB image (H, W, 3) float32 seen by an OpenCV camera."""
-        return self._render(world_from_cv, K, width, height, spp, seed, labels=False)[..., :3]
+        return self._render(world_from_cv, K, width, height, spp, seed)[..., :3]
 
     def render_srgb8(
         self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, *, spp: int = 8, seed: int = 0
@@ -231,7 +231,7 @@ class RenderScene:
             for label in labels
         ]
         try:
-            img = self._render(world_from_cv, K, width, height, spp, seed, labels=True)
+            img = self._render(world_from_cv, K, width, height, spp, seed)
         finally:
             self.integrator.coverage = []
         out = np.zeros((height, width), np.uint8)
@@ -243,9 +243,10 @@ class RenderScene:
         return linear_to_srgb8(img[..., :3]), out
 
     def _render(
-        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int, seed: int, labels: bool
+        self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int, seed: int
     ) -> np.ndarray:
-        """Every channel the film holds (H, W, C) float32: linear RGB, then the coverage AOVs."""
+        """Every channel the film holds (H, W, C) float32: linear RGB, then the coverage AOVs the
+        integrator is asked for (``coverage``)."""
         K = np.asarray(K, dtype=float)
         fx, fy = K[0, 0], K[1, 1]
         square = abs(fx - fy) <= 1e-4 * fx

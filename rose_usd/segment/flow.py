@@ -72,6 +72,11 @@ _REACH = 0.35
 """A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""
 
 
+def _reach_px(tr: "Track2D") -> float:
+    """How far from a track's shape a pixel can still join it [px]."""
+    return _REACH * np.sqrt(tr.typical_px) + 3.0
+
+
 @dataclass
 class Track2D:
     name: str
@@ -213,8 +218,7 @@ class FlowTracker:
         for k, (tr, m) in enumerate(zip(tracks, moved)):
             if m.any():
                 d = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3)
-                reach = _REACH * np.sqrt(tr.typical_px) + 3.0
-                dist[k] = np.where(d <= reach, d, np.inf)
+                dist[k] = np.where(d <= _reach_px(tr), d, np.inf)
         owner = np.argmin(dist, axis=0)
         reachable = np.isfinite(np.min(dist, axis=0))
         # where moved shapes overlap, one object passes in front of another: on a tabletop seen
@@ -425,7 +429,7 @@ def _within_reach(tracks: list[Track2D]) -> np.ndarray:
     """The pixels within ``_REACH`` of any track's shape (where a pixel could join it)."""
     near = np.zeros_like(tracks[0].mask)
     for tr in tracks:
-        r = int(round(_REACH * np.sqrt(tr.typical_px) + 3.0))
+        r = int(round(_reach_px(tr)))
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         near |= cv2.dilate(tr.mask.astype(np.uint8), kernel).astype(bool)
     return near
