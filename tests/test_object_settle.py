@@ -49,6 +49,19 @@ def test_contact_and_what_is_far_from_contact_are_left_alone():
     assert np.isnan(settle([sunk], _table())["Sunk"])  # a wrong pose, not a contact error: the caller warns
 
 
+def test_the_collider_not_the_mesh_is_put_on_the_table():
+    """A box whose mesh touches the table but whose collider (CoACD's parts bulge past a mesh)
+    reaches 0.7 mm into it is lifted until the collider clears it; a penetration under SUNK_M is
+    contact."""
+    model = _box("Box", 0.0)
+    bulge = model.mesh.vertices[model.mesh.vertices[:, 2] < 0] - np.array([0.0, 0.0, 0.0007])
+    moves = settle([model], _table(), collider_points={"Box": bulge})
+    assert moves["Box"] == pytest.approx(0.0007 + CLEARANCE_M, abs=2e-4)
+    lowest = se3.transform_points(model.world_from_object_0, bulge)[:, 2].min()
+    assert lowest == pytest.approx(CLEARANCE_M, abs=2e-4)
+    assert settle([_box("Box", -0.0001)], _table()) == {"Box": 0.0}
+
+
 def test_a_stack_settles_from_the_lowest_up():
     base, top = _box("Base", -0.003), _box("Top", 0.06 + 0.004)  # base sunk 3 mm, top 4 mm over it
     settle([top, base], _table())

@@ -69,24 +69,55 @@ NEWTON_COACD = {"threshold": 0.05, "mcts_nodes": 20, "mcts_iterations": 5, "mcts
 does) gives the parts Newton will simulate."""
 
 
-def decomposition_coverage(mesh: MeshData) -> dict:
-    """CoACD's convex parts of the collision mesh (as Newton will make them) against the mesh:
-    the part count, the fraction of the mesh's volume inside their union (coverage, ideally 1)
-    and the union's volume over the mesh's (over 1: the parts bulge out)."""
-    import coacd
-    import manifold3d
+@dataclass(frozen=True)
+class Collider:
+    """An object's collider as Newton will simulate it: the approximation, the mesh's volume over
+    its hull's, the vertices of its convex pieces (object frame; what it touches the scene with)
+    and, for a decomposition, how well the pieces cover the mesh (``decomposition_coverage``)."""
 
-    from rose_usd.core.watertight import manifold_of
+    approximation: Approximation
+    convexity: float
+    points: np.ndarray
+    cover: dict
+
+
+def collider_of(mesh: MeshData, convex_tolerance: float) -> Collider:
+    """The collider Newton makes of the mesh: its hull when nearly convex, else CoACD's parts."""
+    approximation, convexity = collision_approximation(mesh, convex_tolerance)
+    if approximation is Approximation.CONVEX_HULL:  # the hull covers the mesh; its vertices are the mesh's
+        cover = {"collision_parts": 1, "collision_coverage": 1.0, "collision_volume_ratio": round(1.0 / convexity, 4)}
+        return Collider(approximation, convexity, np.asarray(mesh.vertices, float), cover)
+    parts = coacd_parts(mesh)
+    return Collider(approximation, convexity, np.concatenate(parts), decomposition_coverage(mesh, parts))
+
+
+def coacd_parts(mesh: MeshData) -> list[np.ndarray]:
+    """The vertices of each convex part CoACD makes of the mesh with Newton's settings."""
+    import coacd
 
     coacd.set_log_level("error")
     vertices = np.asarray(mesh.vertices, np.float32).astype(np.float64)  # as authored (USD points are float)
     tm = trimesh.Trimesh(vertices, mesh.faces, process=False)
-    hulls = []
-    for part in tm.split(only_watertight=False):
-        for pv, _ in coacd.run_coacd(coacd.Mesh(np.asarray(part.vertices), np.asarray(part.faces)), **NEWTON_COACD):
-            hulls.append(manifold3d.Manifold.hull_points(np.asarray(pv, np.float64)))
+    return [
+        np.asarray(pv, np.float64)
+        for part in tm.split(only_watertight=False)
+        for pv, _ in coacd.run_coacd(coacd.Mesh(np.asarray(part.vertices), np.asarray(part.faces)), **NEWTON_COACD)
+    ]
+
+
+def decomposition_coverage(mesh: MeshData, parts: list[np.ndarray] | None = None) -> dict:
+    """CoACD's convex parts of the collision mesh (as Newton will make them; ``coacd_parts``
+    unless given) against the mesh: the part count, the fraction of the mesh's volume inside
+    their union (coverage, ideally 1) and the union's volume over the mesh's (over 1: the parts
+    bulge out)."""
+    import manifold3d
+
+    from rose_usd.core.watertight import manifold_of
+
+    parts = coacd_parts(mesh) if parts is None else parts
+    hulls = [manifold3d.Manifold.hull_points(pv) for pv in parts]
     union = manifold3d.Manifold.batch_boolean(hulls, manifold3d.OpType.Add)
-    solid = manifold_of(vertices, mesh.faces)
+    solid = manifold_of(np.asarray(mesh.vertices, np.float32).astype(np.float64), mesh.faces)
     return {
         "collision_parts": len(hulls),
         "collision_coverage": round(float((union ^ solid).volume() / solid.volume()), 4),
@@ -94,8 +125,9 @@ def decomposition_coverage(mesh: MeshData) -> dict:
     }
 
 
-def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float) -> dict:
-    """Write one object prim. Returns facts for the layer's provenance."""
+def author_object(ctx: StageContext, model: ObjectModel, collider: Collider) -> dict:
+    """Write one object prim with its ``collider`` (``collider_of``). Returns facts for the layer's
+    provenance."""
     check_collider(model.mesh.vertices, model.mesh.faces, f"object {model.name!r} mesh")
     stage = ctx.stage
     UsdGeom.Scope.Define(stage, paths.OBJECTS)
@@ -139,16 +171,12 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
         MeshData(model.mesh.vertices, model.mesh.faces),
         purpose=UsdGeom.Tokens.guide,
     )
-    approximation, convexity = collision_approximation(model.mesh, convex_tolerance)
-    if approximation is Approximation.CONVEX_DECOMPOSITION:
-        cover = decomposition_coverage(model.mesh)
-        if cover["collision_coverage"] < 0.98:
-            ctx.warn(
-                f"object {model.name!r}: its convex parts cover only "
-                f"{100 * cover['collision_coverage']:.1f} % of its volume"
-            )
-    else:  # the hull covers the mesh
-        cover = {"collision_parts": 1, "collision_coverage": 1.0, "collision_volume_ratio": round(1.0 / convexity, 4)}
+    approximation, cover = collider.approximation, collider.cover
+    if cover["collision_coverage"] < 0.98:
+        ctx.warn(
+            f"object {model.name!r}: its convex parts cover only "
+            f"{100 * cover['collision_coverage']:.1f} % of its volume"
+        )
     make_collider(collision.GetPrim(), approximation)
     material = author_physics_material(
         stage,
@@ -162,17 +190,21 @@ def author_object(ctx: StageContext, model: ObjectModel, convex_tolerance: float
         "mass_kg": round(model.mass.mass_kg, 6),
         "volume_m3": model.mass.volume_m3,
         "approximation": approximation.value,
-        "volume_over_hull": round(convexity, 4),
+        "volume_over_hull": round(collider.convexity, 4),
     } | cover
 
 
 def author_objects(ctx: StageContext, models: list[ObjectModel], convex_tolerance: float) -> dict:
-    """Rest the objects on the scene (object.settle), then write them all. Returns facts per object."""
+    """Rest the objects' colliders on the scene (object.settle), then write them all. Returns facts
+    per object."""
     from rose_usd.layers.scene import scene_collider
     from rose_usd.object.settle import settle
 
+    colliders = {m.name: collider_of(m.mesh, convex_tolerance) for m in models}
     pushes: dict = {}
-    lifts = settle(models, scene_collider(ctx.stage), pushes=pushes)
+    lifts = settle(
+        models, scene_collider(ctx.stage), pushes=pushes, collider_points={n: c.points for n, c in colliders.items()}
+    )
     facts = {}
     for model in models:
         lift = lifts.get(model.name, 0.0)
@@ -184,7 +216,7 @@ def author_objects(ctx: StageContext, models: list[ObjectModel], convex_toleranc
         elif lift > 0.01:
             ctx.warn(f"object {model.name!r} was {1e3 * lift:.0f} mm inside the scene at frame 0: lifted onto it")
         push = pushes.get(model.name, np.zeros(3))
-        facts[model.name] = author_object(ctx, model, convex_tolerance) | {
+        facts[model.name] = author_object(ctx, model, colliders[model.name]) | {
             "settle_lift_m": None if not np.isfinite(lift) else round(lift, 5),
             "settle_push_m": [round(float(v), 5) for v in push[:2]],
         }
