@@ -27,8 +27,16 @@ import numpy as np
 
 from rose_usd.case.config import ObjectSpec
 from rose_usd.core import se3
-from rose_usd.geometry.primitives import largest_dimension, primitive_mesh, typical
-from rose_usd.geometry.silhouette import View, crop_view, fit_standing, footprint_xy
+from rose_usd.geometry.primitives import (
+    MUG_REACH_SIGMA,
+    MUG_YAWS,
+    PrimitiveKind,
+    largest_dimension,
+    primitive_mesh,
+    turns,
+    typical,
+)
+from rose_usd.geometry.silhouette import View, crop_view, fit_standing, footprint_xy, log_normal_ratio
 
 CAMERA_HEIGHT_M = (0.5, 0.5)
 """A tabletop video's camera height over the support: (typical [m], relative sigma)."""
@@ -98,10 +106,25 @@ def fit_primitive(
     width_units, xy0 = start
     # start from the typical shape scaled to the object's width at its foot's depth
     dims0 = np.asarray(typ.dims) * width_units / max(typ.size_m, 1e-6)
-    turn = typ.kind.value in ("box", "lying-cylinder")
-    yaws = (0.0, np.radians(30.0), np.radians(60.0)) if turn else (0.0,)
+    turn = turns(typ.kind)
+    yaws = (
+        MUG_YAWS if typ.kind is PrimitiveKind.MUG else ((0.0, np.radians(30.0), np.radians(60.0)) if turn else (0.0,))
+    )
+    # the overall size is what is measured; only a mug's handle reach, which a view from behind
+    # leaves open, is held near its typical proportion to the radius
+    shape_cost = (
+        log_normal_ratio(2, 0, typ.dims[2] / typ.dims[0], MUG_REACH_SIGMA) if typ.kind is PrimitiveKind.MUG else None
+    )
     fit = fit_standing(
-        lambda d: primitive_mesh(typ.kind, d), dims0, [view], xy0, yaws=yaws, turn=turn, convex=True, maxfev=maxfev
+        lambda d: primitive_mesh(typ.kind, d),
+        dims0,
+        [view],
+        xy0,
+        yaws=yaws,
+        turn=turn,
+        convex=True,
+        maxfev=maxfev,
+        size_cost=shape_cost,
     )
     size = largest_dimension(typ.kind, fit.size)
     return {

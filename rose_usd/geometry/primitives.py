@@ -1,5 +1,6 @@
 """Category primitives: the shape that stands in for an object nobody scanned (a box, an upright
-cylinder, a cup's frustum, a pen's lying cylinder), and the typical size of its category.
+cylinder, a cup's frustum, a mug's cylinder with a handle, a pen's lying cylinder), and the
+typical size of its category.
 
 An RGB-only video measures no size: a monocular reconstruction is correct up to one scale. When
 rose.toml gives neither ``size_m`` nor a metric mesh, the object's category gives a typical size
@@ -23,6 +24,7 @@ class PrimitiveKind(enum.Enum):
     BOX = "box"  # dims: (x, y, z) extents
     CYLINDER = "cylinder"  # dims: (radius, height), axis +Z
     FRUSTUM = "frustum"  # dims: (bottom radius, top radius, height), axis +Z (a cup)
+    MUG = "mug"  # dims: (radius, height, handle reach beyond the wall), axis +Z, the handle on +X
     LYING_CYLINDER = "lying-cylinder"  # dims: (radius, length), axis +X, lying on its side (a pen)
 
 
@@ -55,11 +57,11 @@ TYPICAL: dict[str, Typical] = {
         revolution=True,
     ),
     "mug": Typical(
-        PrimitiveKind.CYLINDER,
-        (0.041, 0.095),
+        PrimitiveKind.MUG,
+        (0.041, 0.095, 0.037),
         0.12,
-        "11 oz ceramic mug, the common sublimation blank: 9.5 cm tall, 8.2 cm across (vendors' spec sheets);"
-        " 8-15 oz mugs are 8-12 cm tall",
+        "11 oz ceramic mug, the common sublimation blank: 9.5 cm tall, 8.2 cm across, 11.9 cm across its"
+        " handle (vendors' spec sheets); 8-15 oz mugs are 8-12 cm tall",
     ),
     "can": Typical(
         PrimitiveKind.CYLINDER,
@@ -103,6 +105,19 @@ TYPICAL: dict[str, Typical] = {
 """Category -> its primitive and typical dimensions. Categories without an entry use ``generic``."""
 
 
+MUG_REACH_SIGMA = 0.2
+"""Relative one-sigma of a mug's handle reach over its radius (0.9 for the typical mug; 8-15 oz
+mugs' handles reach 2.8-4.5 cm beyond a 3.6-4.5 cm radius)."""
+
+MUG_YAWS = tuple(np.radians([0.0, 90.0, 180.0, 270.0]))
+"""Where a fit of a mug's yaw starts: its handle may point anywhere."""
+
+
+def turns(kind: PrimitiveKind) -> bool:
+    """Whether the primitive's silhouette depends on its yaw (not a solid of revolution about +Z)."""
+    return kind in (PrimitiveKind.BOX, PrimitiveKind.LYING_CYLINDER, PrimitiveKind.MUG)
+
+
 def typical(category: str) -> tuple[Typical, bool]:
     """The category's entry, and whether it has its own (False: the generic guess)."""
     key = category.strip().lower()
@@ -110,12 +125,15 @@ def typical(category: str) -> tuple[Typical, bool]:
 
 
 def largest_dimension(kind: PrimitiveKind, dims: np.ndarray) -> float:
-    """The primitive's largest dimension [m] (a box's longest side, a cylinder's diameter or height)."""
+    """The primitive's largest dimension [m] (a box's longest side, a cylinder's diameter or height,
+    a mug's width across its handle or height)."""
     d = np.asarray(dims, dtype=float)
     if kind is PrimitiveKind.BOX:
         return float(d.max())
     if kind is PrimitiveKind.CYLINDER:
         return float(max(2 * d[0], d[1]))
+    if kind is PrimitiveKind.MUG:
+        return float(max(2 * d[0] + d[2], d[1]))
     if kind is PrimitiveKind.FRUSTUM:
         return float(max(2 * d[0], 2 * d[1], d[2]))
     return float(max(2 * d[0], d[1]))
@@ -131,6 +149,8 @@ def primitive_mesh(kind: PrimitiveKind, dims, *, segments: int = 32) -> tuple[np
         return frustum_mesh(d[0], d[0], d[1], segments)
     if kind is PrimitiveKind.FRUSTUM:
         return frustum_mesh(d[0], d[1], d[2], segments)
+    if kind is PrimitiveKind.MUG:
+        return mug_mesh(d[0], d[1], d[2], segments)
     v, f = frustum_mesh(d[0], d[0], d[1], segments)
     v = v - np.array([0.0, 0.0, 0.5 * d[1]])
     v = v @ np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]).T  # axis +Z -> +X
@@ -152,6 +172,24 @@ def box_mesh(extents) -> tuple[np.ndarray, np.ndarray]:
         ]
     )  # fmt: skip
     return corners, faces
+
+
+def mug_mesh(radius: float, height: float, reach: float, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """A closed cylinder standing on z = 0, axis +Z, with a D-shaped handle on +X reaching ``reach``
+    beyond its wall: a half-elliptical loop 0.6 of the height tall, centered 0.55 of it up, its bar
+    0.3 ``reach`` wide and thick (one solid, joined by manifold3d)."""
+    import manifold3d
+
+    body = manifold3d.Manifold.cylinder(height, radius, radius, segments)
+    bar, sunk = 0.3 * reach, 0.15 * radius  # the loop's bar; how far its ends reach into the wall
+    a, b = reach + sunk, 0.3 * height  # the loop's outer semi-axes (out, up)
+    ring = manifold3d.CrossSection.circle(1.0, segments).scale([a, b]) - manifold3d.CrossSection.circle(
+        1.0, segments
+    ).scale([max(a - bar, 1e-4), max(b - bar, 1e-4)])
+    half = manifold3d.CrossSection.square([a + 1e-3, 2 * b + 2e-3]).translate([0.0, -b - 1e-3])
+    handle = (ring ^ half).extrude(bar).translate([0.0, 0.0, -bar / 2]).rotate([90.0, 0.0, 0.0])
+    solid = (body + handle.translate([radius - sunk, 0.0, 0.55 * height])).to_mesh()
+    return np.asarray(solid.vert_properties, float)[:, :3], np.asarray(solid.tri_verts, np.int64)
 
 
 def frustum_mesh(r_bottom: float, r_top: float, height: float, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:

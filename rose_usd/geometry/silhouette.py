@@ -195,6 +195,20 @@ def log_normal_sizes(expected: np.ndarray, sigma: float) -> Callable[[np.ndarray
     return cost
 
 
+def log_normal_ratio(i: int, j: int, expected: float, sigma: float) -> Callable[[np.ndarray], float]:
+    """A proportion prior for ``fit_standing`` where the overall size is free: ``PRIOR_WEIGHT`` *
+    z**2, z the log ratio of size parameters i / j to ``expected`` over the relative one-sigma
+    ``sigma`` (a mug's handle reach to its radius: what the silhouettes leave open while the
+    handle is behind the mug)."""
+    log_expected = float(np.log(expected))
+
+    def cost(size: np.ndarray) -> float:
+        z = (np.log(float(size[i]) / float(size[j])) - log_expected) / max(sigma, 1e-6)
+        return PRIOR_WEIGHT * z * z
+
+    return cost
+
+
 def lying_start(view_mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, support_z: float = 0.0):
     """Where a long object lying on z = ``support_z`` (a pen) starts a fit: the ends of the mask's
     principal axis (its 2nd and 98th percentiles along it) cast onto the plane: (center x, y, yaw

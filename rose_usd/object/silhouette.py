@@ -11,12 +11,13 @@ videos without depth (capture ``sfm``).
      cube (or a mesh in unknown units) is scaled by the silhouettes: the paper's Eq. 1-3, its
      search over rho done by the simplex with position and yaw, started at rho_0 = the world's
      object width over the mesh's.
-   - Without: the category's primitive (``geometry.primitives``: a cup's frustum, a mug's or a
-     can's cylinder, a pen's lying cylinder, a box), its dimensions fitted to the silhouettes
-     under a log-normal prior around the typical ones (``size_m``'s where given; one sigma: the
-     category's spread and the world scale's together), so a size the masks leave open (an end
-     hidden by the hand or out of the crop) stays near it; marked as a proxy (``RoseShapeAPI``:
-     ``rose:shape:proxy``). A pen starts on its mask's axis cast onto the support.
+   - Without: the category's primitive (``geometry.primitives``: a cup's frustum, a mug's
+     cylinder with a handle, a can's cylinder, a pen's lying cylinder, a box), its dimensions
+     fitted to the silhouettes under a log-normal prior around the typical ones (``size_m``'s
+     where given; one sigma: the category's spread and the world scale's together), so a size
+     the masks leave open (an end hidden by the hand or out of the crop) stays near it; marked as
+     a proxy (``RoseShapeAPI``: ``rose:shape:proxy``). A pen starts on its mask's axis cast onto
+     the support.
    The world's metric scale came from the same kind of fit in the capture stage (its size prior,
    category or mesh), so the sizes agree with it.
 3. **Pose.** Standing on the support (the scene's pad height under it) at (x, y) turned by yaw,
@@ -40,7 +41,7 @@ import trimesh
 from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate, longest_edge
-from rose_usd.geometry.primitives import PrimitiveKind, largest_dimension, primitive_mesh, typical
+from rose_usd.geometry.primitives import MUG_YAWS, PrimitiveKind, largest_dimension, primitive_mesh, turns, typical
 from rose_usd.geometry.silhouette import (
     View,
     crop_view,
@@ -200,12 +201,13 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
         ctx.warn(f"object {spec.name!r}: no primitive for category {spec.category!r}: a box stands in for it")
     width = _object_width_m(views[0], xy)
     expected, sigma = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
-    turn = typ.kind in (PrimitiveKind.BOX, PrimitiveKind.LYING_CYLINDER)
-    yaws = (
-        tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
-        if typ.kind is PrimitiveKind.LYING_CYLINDER
-        else (tuple(np.radians([0.0, 30.0, 60.0])) if turn else (0.0,))
-    )
+    turn = turns(typ.kind)
+    if typ.kind is PrimitiveKind.LYING_CYLINDER:
+        yaws = tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
+    elif typ.kind is PrimitiveKind.MUG:
+        yaws = MUG_YAWS
+    else:
+        yaws = tuple(np.radians([0.0, 30.0, 60.0])) if turn else (0.0,)
     xy0 = _start(xy, views, width)
     lying = (
         lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)
