@@ -290,9 +290,12 @@ def test_the_backdrop_meets_the_floor_without_a_seam_and_the_slab_is_closed():
 @pytest.mark.slow
 def test_the_sample_without_depth_reconstructs_to_a_valid_stage(tmp_path, sample_case):
     """Frames alone (the sample with depth/ and cam_K.txt removed): every RGB-only backend runs and
-    writes a valid stage whose world says it has no metric depth."""
+    writes a valid stage whose world says it has no metric depth; the box is a proxy (a category
+    primitive), tracked by its hull's silhouette."""
     import rose_usd
+    from rose_usd.layers.objects import is_proxy
     from rose_usd.layers.world import has_metric_depth, read_scale
+    from rose_usd.usd.stage import layer_file, read_provenance
 
     case = tmp_path / "case"
     shutil.copytree(sample_case, case)
@@ -312,6 +315,8 @@ def test_the_sample_without_depth_reconstructs_to_a_valid_stage(tmp_path, sample
     assert not has_metric_depth(result.stage)
     assert read_scale(result.stage).source in ("size-prior", "category-prior", "camera-height")
     assert result.gate.ssim_mean > 0.6
+    assert is_proxy(result.stage, "Box")
+    assert read_provenance(layer_file(tmp_path / "out", "trajectory"))["results"]["objects"]["Box"]["convex"]
 
 
 def test_a_pen_starts_on_its_mask_axis_cast_onto_the_table():

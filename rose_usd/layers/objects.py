@@ -41,6 +41,12 @@ def visual_mesh(stage: Usd.Stage, name: str) -> MeshData:
     return read_mesh(_prim(stage, paths.object_visual(name), name))
 
 
+def is_proxy(stage: Usd.Stage, name: str) -> bool:
+    """Whether object ``name``'s shape stands in for it (a category primitive, ``RoseShapeAPI``)."""
+    attr = _prim(stage, paths.object_path(name), name).GetAttribute(tokens.SHAPE_PROXY)
+    return bool(attr and attr.HasAuthoredValue() and attr.Get())
+
+
 def default_pose(stage: Usd.Stage, name: str) -> np.ndarray:
     """Object ``name``'s default world pose (4, 4): where the object stage put it at frame 0."""
     xform = UsdGeom.Xformable(_prim(stage, paths.object_path(name), name))

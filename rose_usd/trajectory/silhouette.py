@@ -19,7 +19,9 @@ render and compare, for videos without depth (capture ``sfm``).
    face (the convex hull's face nearest its center of mass facing down), lowered onto the support,
    and its position and yaw refitted standing (``fit_standing``), for the rest of the hold.
 
-Confidence is the silhouette IoU of the pose (0 lost, 0.5 interpolated).
+Confidence is the silhouette IoU of the pose (0 lost, 0.5 interpolated). A convex mesh's
+silhouette, and a proxy's (a category primitive: a mug's handle loop is not worth its triangles),
+is its projected hull's.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from rose_usd.core.pinhole import projected_box, silhouette
 from rose_usd.geometry.mesh import decimate
 from rose_usd.geometry.silhouette import ColorPosterior, View, crop_view, fit_free, fit_standing, iou, is_convex
 from rose_usd.layers.masks import read_masks
-from rose_usd.layers.objects import default_pose, visual_mesh
+from rose_usd.layers.objects import default_pose, is_proxy, visual_mesh
 from rose_usd.layers.scene import support_heights
 from rose_usd.layers.world import read_cameras
 from rose_usd.progress import progress
@@ -75,7 +77,8 @@ def run(ctx: StageContext) -> None:
         default = default_pose(ctx.stage, spec.name)
         mesh = visual_mesh(ctx.stage, spec.name)
         local = se3.transform_points(se3.invert(default), mesh.vertices)
-        convex = is_convex(local, mesh.faces)
+        # a proxy's silhouette is its hull's (a mug's handle loop is not worth its triangles)
+        convex = is_proxy(ctx.stage, spec.name) or is_convex(local, mesh.faces)
         if convex:  # its silhouette is its projected hull: the hull's vertices are all it takes
             hull = ConvexHull(local)
             remap = np.full(len(local), -1)
