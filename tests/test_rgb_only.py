@@ -10,13 +10,14 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import ConvexHull
 
 from rose_usd.capture.planar import track_planar
 from rose_usd.capture.scale import ScaleCue, choose, fit_primitive
 from rose_usd.case.config import ObjectSpec
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
-from rose_usd.geometry.primitives import TYPICAL, PrimitiveKind, largest_dimension, primitive_mesh
+from rose_usd.geometry.primitives import TYPICAL, PrimitiveKind, hull_points, largest_dimension, primitive_mesh
 from rose_usd.geometry.silhouette import (
     PRIOR_WEIGHT,
     ColorPosterior,
@@ -121,6 +122,10 @@ def test_the_metric_scale_of_a_mug_counts_its_handle():
     assert solid.is_watertight and solid.volume > np.pi * 0.041**2 * 0.095
     assert np.ptp(v, axis=0) == pytest.approx([0.119, 0.082, 0.095], abs=1e-3)
     assert TYPICAL["mug"].size_m == pytest.approx(0.119)
+    for typ in TYPICAL.values():  # what the convex fits draw: the same hull, no solid made
+        points, _ = hull_points(typ.kind, np.asarray(typ.dims))
+        mesh_v, _ = primitive_mesh(typ.kind, np.asarray(typ.dims))
+        assert ConvexHull(points).volume == pytest.approx(ConvexHull(mesh_v).volume, rel=1e-6)
 
     height = 0.55
     pose = _camera(height, 40.0)

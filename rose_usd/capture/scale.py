@@ -31,8 +31,8 @@ from rose_usd.geometry.primitives import (
     MUG_REACH_SIGMA,
     MUG_YAWS,
     PrimitiveKind,
+    hull_points,
     largest_dimension,
-    primitive_mesh,
     turns,
     typical,
 )
@@ -116,7 +116,7 @@ def fit_primitive(
         log_normal_ratio(2, 0, typ.dims[2] / typ.dims[0], MUG_REACH_SIGMA) if typ.kind is PrimitiveKind.MUG else None
     )
     fit = fit_standing(
-        lambda d: primitive_mesh(typ.kind, d),
+        lambda d: hull_points(typ.kind, d),
         dims0,
         [view],
         xy0,

@@ -41,7 +41,15 @@ import trimesh
 from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate, longest_edge
-from rose_usd.geometry.primitives import MUG_YAWS, PrimitiveKind, largest_dimension, primitive_mesh, turns, typical
+from rose_usd.geometry.primitives import (
+    MUG_YAWS,
+    PrimitiveKind,
+    hull_points,
+    largest_dimension,
+    primitive_mesh,
+    turns,
+    typical,
+)
 from rose_usd.geometry.silhouette import (
     View,
     crop_view,
@@ -217,7 +225,7 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
     if lying is not None:
         xy0, yaws = np.array(lying[:2]), (lying[2], *yaws)  # a pen: on its mask's axis, along it
     fit = fit_standing(
-        lambda d: primitive_mesh(typ.kind, d),
+        lambda d: hull_points(typ.kind, d),
         expected,
         views,
         xy0,
