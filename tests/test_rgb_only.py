@@ -275,6 +275,21 @@ def test_a_standing_fit_finds_the_box_position_and_yaw():
     assert iou(views, se3.transform_points(fit.pose(), v), f, convex=True) > 0.98
 
 
+def test_the_support_reaches_the_farthest_object_foot():
+    """A 10 x 8 x 6 cm box standing 0.7 m in front of a camera 0.4 m up: the lowest pixel of its
+    mask's middle columns, cast onto the table, is its near bottom edge, 0.66 m away (0.662 m at
+    its corners), the distance the plane scene's support must reach past."""
+    from types import SimpleNamespace
+
+    from rose_usd.scene.plane import farthest_foot
+
+    pose = _camera(0.4, 30.0)
+    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.10, 0.08, 0.06]))
+    mask = silhouette(v + np.array([0.0, 0.1, 0.0]), f, pose, K, W, H, closed=True)
+    layer = SimpleNamespace(names=["Box", "Hidden"], mask=lambda name, t: mask if name == "Box" else None)
+    assert farthest_foot(layer, 0, K, pose) == pytest.approx(0.66, abs=0.005)
+
+
 def test_the_backdrop_meets_the_floor_without_a_seam_and_the_slab_is_closed():
     """Rays below the horizon end on the floor within the wall's reach, the others on the wall,
     and where the two meet they agree; the support's slab is a watertight prism."""

@@ -54,6 +54,9 @@ class PlaneConfig:
     backdrop_reach: float = 2.5
     """The support plane reaches this many times the camera's horizontal distance to the world
     origin (0.3-5 m); beyond it the backdrop stands (default 2.5)."""
+    object_reach: float = 1.5
+    """... and at least this many times the horizontal distance to the farthest foot of an object
+    masked in the reference frame (its far side stands on the plane too; default 1.5)."""
     grid_px: float = 16.0
     """Vertex spacing of the support and backdrop grid over the reference image [px] (default 16)."""
     texture_size: int = 2048

@@ -5,7 +5,8 @@ lies beyond it (walls, furniture, a person) has no depth. So the scene is:
 
 1. **Support** (visual and collider): the support plane as far as the reference camera (frame 0)
    sees it, out to ``wall_distance`` (``backdrop_reach`` times the camera's horizontal distance to
-   the world origin, the object's foot, within 0.3-5 m): its visual mesh is textured from the
+   the world origin, the object's foot, and at least ``object_reach`` times the farthest foot of
+   an object masked in that frame, within 0.3-5 m, so every object stands on it): its visual mesh is textured from the
    video, and the collider is that region of the plane as a solid slab ``thickness_m`` thick (a
    prism: watertight by construction, checked as every collider is).
 2. **Backdrop** (visual only, not collidable, named so): everything the camera sees beyond that
@@ -99,6 +100,27 @@ def _grid(extent, step: float):
     return uu.ravel(), vv.ravel(), faces
 
 
+def farthest_foot(layer, t: int, K: np.ndarray, world_from_cv: np.ndarray) -> float:
+    """The largest horizontal distance [m] from the camera to where an object masked in frame t
+    meets the plane z = 0: the median over its mask's columns of their lowest pixel cast onto it
+    (the outermost columns may hold only the top of an edge leaning out; 0 when none is below the
+    horizon)."""
+    far = 0.0
+    for name in layer.names:
+        m = layer.mask(name, t)
+        if m is None or not m.any():
+            continue
+        cols = np.flatnonzero(m.any(axis=0))
+        rows = m.shape[0] - 1 - np.argmax(m[::-1, cols], axis=0)
+        rays = np.column_stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1], np.ones(len(cols))])
+        rays = rays @ world_from_cv[:3, :3].T
+        down = rays[:, 2] < -1e-9
+        if down.any():
+            s = -world_from_cv[2, 3] / rays[down, 2]
+            far = max(far, float(np.median(s * np.linalg.norm(rays[down, :2], axis=1))))
+    return far
+
+
 def _moving_masks(layer, t: int, shape, kernel) -> np.ndarray:
     """Everything masked in frame t (every object and the interactor), grown by ``kernel``."""
     out = np.zeros(shape, np.uint8)
@@ -177,7 +199,8 @@ def run(ctx: StageContext) -> None:
     ref = 0
     pose0 = cameras.world_from_cv[ref]
     reach = float(np.linalg.norm(pose0[:2, 3]))
-    wall_m = float(np.clip(cfg.backdrop_reach * max(reach, 0.1), 0.3, 5.0))
+    foot = farthest_foot(read_masks(ctx.stage, n, (case.height, case.width)), ref, cameras.K[ref], pose0)
+    wall_m = float(np.clip(max(cfg.backdrop_reach * max(reach, 0.1), cfg.object_reach * foot), 0.3, 5.0))
     sample = sorted(set(np.linspace(0, n - 1, min(n, 24)).round().astype(int).tolist()))
     extent = _extent(cameras, ref, wall_m, case.width, case.height, sample)
     uu, vv, faces = _grid(extent, cfg.grid_px)
@@ -222,6 +245,7 @@ def run(ctx: StageContext) -> None:
         author_scene(ctx, parts, MeshData(vertices=cv, faces=cf), Lighting.unlit(), support=support)
     ctx.record(
         wall_distance_m=round(wall_m, 4),
+        farthest_object_foot_m=round(foot, 4),
         extent_px=[round(v, 1) for v in extent],
         grid_vertices=int(len(points)),
         support_triangles=int(floor_face.sum()),
