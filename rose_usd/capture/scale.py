@@ -29,12 +29,12 @@ from rose_usd.case.config import ObjectSpec
 from rose_usd.core import se3
 from rose_usd.geometry.primitives import (
     MUG_REACH_SIGMA,
-    MUG_YAWS,
     PrimitiveKind,
     hull_points,
     largest_dimension,
     turns,
     typical,
+    yaw_starts,
 )
 from rose_usd.geometry.silhouette import View, crop_view, fit_standing, footprint_xy, log_normal_ratio
 
@@ -106,10 +106,7 @@ def fit_primitive(
     width_units, xy0 = start
     # start from the typical shape scaled to the object's width at its foot's depth
     dims0 = np.asarray(typ.dims) * width_units / max(typ.size_m, 1e-6)
-    turn = turns(typ.kind)
-    yaws = (
-        MUG_YAWS if typ.kind is PrimitiveKind.MUG else ((0.0, np.radians(30.0), np.radians(60.0)) if turn else (0.0,))
-    )
+    turn, yaws = turns(typ.kind), yaw_starts(typ.kind)
     # the overall size is what is measured; only a mug's handle reach, which a view from behind
     # leaves open, is held near its typical proportion to the radius
     shape_cost = (

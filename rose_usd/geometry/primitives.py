@@ -109,13 +109,18 @@ MUG_REACH_SIGMA = 0.2
 """Relative one-sigma of a mug's handle reach over its radius (0.9 for the typical mug; 8-15 oz
 mugs' handles reach 2.8-4.5 cm beyond a 3.6-4.5 cm radius)."""
 
-MUG_YAWS = tuple(np.radians([0.0, 90.0, 180.0, 270.0]))
-"""Where a fit of a mug's yaw starts: its handle may point anywhere."""
-
 
 def turns(kind: PrimitiveKind) -> bool:
     """Whether the primitive's silhouette depends on its yaw (not a solid of revolution about +Z)."""
     return kind in (PrimitiveKind.BOX, PrimitiveKind.LYING_CYLINDER, PrimitiveKind.MUG)
+
+
+def yaw_starts(kind: PrimitiveKind) -> tuple[float, ...]:
+    """Where a standing fit's yaw starts [rad]: a mug's handle may point anywhere; a box (and a
+    lying cylinder) repeats every 90 (180) deg; a solid of revolution needs none but 0."""
+    if kind is PrimitiveKind.MUG:
+        return tuple(np.radians([0.0, 90.0, 180.0, 270.0]))
+    return tuple(np.radians([0.0, 30.0, 60.0])) if turns(kind) else (0.0,)
 
 
 def typical(category: str) -> tuple[Typical, bool]:

@@ -42,13 +42,13 @@ from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate, longest_edge
 from rose_usd.geometry.primitives import (
-    MUG_YAWS,
     PrimitiveKind,
     hull_points,
     largest_dimension,
     primitive_mesh,
     turns,
     typical,
+    yaw_starts,
 )
 from rose_usd.geometry.silhouette import (
     View,
@@ -210,12 +210,11 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
     width = _object_width_m(views[0], xy)
     expected, sigma = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
     turn = turns(typ.kind)
-    if typ.kind is PrimitiveKind.LYING_CYLINDER:
-        yaws = tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
-    elif typ.kind is PrimitiveKind.MUG:
-        yaws = MUG_YAWS
-    else:
-        yaws = tuple(np.radians([0.0, 30.0, 60.0])) if turn else (0.0,)
+    yaws = (
+        tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
+        if typ.kind is PrimitiveKind.LYING_CYLINDER
+        else yaw_starts(typ.kind)
+    )
     xy0 = _start(xy, views, width)
     lying = (
         lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)

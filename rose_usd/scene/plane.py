@@ -131,9 +131,9 @@ def _moving_masks(layer, t: int, shape, kernel) -> np.ndarray:
     return cv2.dilate(out, kernel).astype(bool)
 
 
-def bake_backdrop(ctx: StageContext, cameras, ref: int, extent, size: tuple[int, int], wall_m: float, cfg):
+def bake_backdrop(ctx: StageContext, cameras, layer, ref: int, extent, size: tuple[int, int], wall_m: float, cfg):
     """The texture (H, W, 3) sRGB8 of the extended reference image plane and how many texels no
-    frame saw bare (inpainted)."""
+    frame saw bare (inpainted); ``layer``: the masks (objects and interactor taken out)."""
     case, n = ctx.case, ctx.time_info.n_frames
     tw, th = size
     u0, v0, u1, v1 = extent
@@ -141,7 +141,6 @@ def bake_backdrop(ctx: StageContext, cameras, ref: int, extent, size: tuple[int,
     ys = v0 - 0.5 + (np.arange(th) + 0.5) * (v1 - v0 + 1.0) / th
     uu, vv = np.meshgrid(xs, ys)
     pts, _ = backdrop_points(uu.ravel(), vv.ravel(), cameras.K[ref], cameras.world_from_cv[ref], wall_m)
-    layer = read_masks(ctx.stage, n, (case.height, case.width))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cfg.mask_margin_px + 1,) * 2)
     frames = sorted(set(np.linspace(0, n - 1, min(n, cfg.texture_frames)).round().astype(int).tolist()))
     samples = np.zeros((len(frames), th * tw, 3), np.uint8)
@@ -199,7 +198,8 @@ def run(ctx: StageContext) -> None:
     ref = 0
     pose0 = cameras.world_from_cv[ref]
     reach = float(np.linalg.norm(pose0[:2, 3]))
-    foot = farthest_foot(read_masks(ctx.stage, n, (case.height, case.width)), ref, cameras.K[ref], pose0)
+    layer = read_masks(ctx.stage, n, (case.height, case.width))
+    foot = farthest_foot(layer, ref, cameras.K[ref], pose0)
     wall_m = float(np.clip(max(cfg.backdrop_reach * max(reach, 0.1), cfg.object_reach * foot), 0.3, 5.0))
     sample = sorted(set(np.linspace(0, n - 1, min(n, 24)).round().astype(int).tolist()))
     extent = _extent(cameras, ref, wall_m, case.width, case.height, sample)
@@ -210,7 +210,7 @@ def run(ctx: StageContext) -> None:
     span_u, span_v = u1 - u0 + 1.0, v1 - v0 + 1.0
     s = min(1.0, cfg.texture_size / max(span_u, span_v))
     size = (max(2, int(round(span_u * s))), max(2, int(round(span_v * s))))
-    tex, holes, used = bake_backdrop(ctx, cameras, ref, extent, size, wall_m, cfg)
+    tex, holes, used = bake_backdrop(ctx, cameras, layer, ref, extent, size, wall_m, cfg)
     uv = np.column_stack([(uu - u0 + 0.5) / span_u, 1.0 - (vv - v0 + 0.5) / span_v])
     floor_face = on_floor[faces].all(axis=1)
     # the collider: the seen support's convex hull as a slab
