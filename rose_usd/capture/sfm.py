@@ -177,13 +177,24 @@ def run(ctx: StageContext) -> None:
     up = gravity.up / np.linalg.norm(gravity.up)
 
     # ---------------------------------------------------------------- world frame (units) and scale
-    anchor_pt, mask = _anchor_on_plane(ctx, spec, poses[ref], K, support)
+    mask = _prompt_mask(ctx, spec)
+    anchor_pt = _anchor_on_plane(ctx, mask, poses[ref], K, support)
     world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
     world_units = np.einsum("ij,njk->nik", world_from_track, poses)
-    if cfg.sfm.level_by_object and mask is not None and mask.sum() >= 30 and gravity.source in _IMAGE_GRAVITY:
+    if cfg.sfm.level_by_object and mask is not None and gravity.source in _IMAGE_GRAVITY:
         world_from_track, world_units, gravity = _level(
             spec, mask, K, gravity, world_from_track, world_units, poses, ref, record
         )
+        if motion == "near-static" and not np.allclose(gravity.up, up):
+            # the camera was tracked against the support as the one image put it: track it again
+            # against the levelled support (tracking frame = the reference camera, 1 unit above it)
+            up = gravity.up
+            support = Plane(up, -1.0, 0, 0.0)
+            poses = _track_near_static(ctx, K, spec, ref, up, record)
+            record["planar_tracked_levelled"] = True
+            anchor_pt = _anchor_on_plane(ctx, mask, poses[ref], K, support)
+            world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
+            world_units = np.einsum("ij,njk->nik", world_from_track, poses)
     cues, chosen, agreement = _scale(ctx, spec, mask, K, world_units[ref], record)
     world_from_camera = _author(ctx, world_units, world_from_track, K, k_source, gravity, chosen, cues)
     height = float(world_from_camera[ref, 2, 3])
@@ -437,14 +448,21 @@ def _plane_along(up: np.ndarray, points: np.ndarray, anchor: np.ndarray | None) 
 # ---------------------------------------------------------------------------- origin and scale
 
 
-def _anchor_on_plane(ctx: StageContext, spec, ref_pose: np.ndarray, K: np.ndarray, support: Plane):
-    """The origin: where the prompted object's silhouette's foot meets the support plane (or the
-    first view's center without a prompt), in the tracking frame; and the object's mask (or None)."""
+def _prompt_mask(ctx: StageContext, spec) -> np.ndarray | None:
+    """The prompted object's silhouette in its prompt frame (GrabCut in the box), None without a
+    usable one."""
+    if spec is None:
+        return None
     case = ctx.case
-    mask = None
-    if spec is not None:
-        mask = prompt_silhouette(case.rgb(spec.prompt.frame), _box(spec.prompt, case.width, case.height))
-    if mask is not None and mask.sum() >= 30:
+    mask = prompt_silhouette(case.rgb(spec.prompt.frame), _box(spec.prompt, case.width, case.height))
+    return mask if mask is not None and mask.sum() >= 30 else None
+
+
+def _anchor_on_plane(ctx: StageContext, mask, ref_pose: np.ndarray, K: np.ndarray, support: Plane) -> np.ndarray:
+    """The origin: where the prompted object's silhouette's foot (``mask``) meets the support plane
+    (or the first view's center without one), in the tracking frame."""
+    case = ctx.case
+    if mask is not None:
         ys, xs = np.nonzero(mask)
         u, v = float(np.median(xs)), float(np.percentile(ys, 98))
     else:
@@ -454,9 +472,9 @@ def _anchor_on_plane(ctx: StageContext, spec, ref_pose: np.ndarray, K: np.ndarra
     origin = ref_pose[:3, 3]
     denom = support.normal @ ray
     if denom >= -1e-6:  # at or above the horizon: straight below the camera
-        return support.project(origin), mask
+        return support.project(origin)
     s = (support.offset - support.normal @ origin) / denom
-    return origin + s * ray, mask
+    return origin + s * ray
 
 
 def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np.ndarray):
