@@ -172,6 +172,8 @@ class StandingFit:
     size: np.ndarray
     """A primitive's dimensions, or (rho,) for a mesh's scale."""
     iou: float
+    cost: float
+    """What the fit minimized: 1 - IoU plus the size prior's cost."""
 
     def pose(self, support_z: float = 0.0) -> np.ndarray:
         return standing_pose(self.x, self.y, self.yaw, support_z)
@@ -283,7 +285,7 @@ def fit_standing(
         if best is None or c < best[1]:
             best = (p, c)
     x, y, yaw, size = unpack(best[0])
-    return StandingFit(float(x), float(y), float(yaw), size, 1.0 - best[1] + prior(size))
+    return StandingFit(float(x), float(y), float(yaw), size, 1.0 - best[1] + prior(size), float(best[1]))
 
 
 def footprint_xy(view_mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray, support_z: float = 0.0):
