@@ -4,6 +4,7 @@ and the context a backend runs in. Stages register in :mod:`rose_usd.registry`."
 from __future__ import annotations
 
 import ast
+import contextlib
 import functools
 import hashlib
 import importlib
@@ -135,6 +136,7 @@ class StageContext:
     out_dir: Path
     time_info: TimeInfo
     writer: LayerWriter
+    _deferred: list[str] | None = field(default=None, repr=False)
 
     @property
     def stage(self) -> Usd.Stage:
@@ -150,13 +152,28 @@ class StageContext:
             raise ValueError(f"stage {self.stage_def.name!r} did not declare side folder {name!r}")
         return self.writer.side_dir(name)
 
+    @contextlib.contextmanager
+    def deferred_warnings(self):
+        """Warnings given inside are collected in the list this yields, neither printed nor kept:
+        for work that may be thrown away (the caller ``warn``s the ones of the work it keeps)."""
+        outer, self._deferred = self._deferred, []
+        try:
+            yield self._deferred
+        finally:
+            self._deferred = outer
+
     def record(self, **values: Any) -> None:
         """Add entries to the layer's provenance (e.g. fit residuals, timings, warnings)."""
         self.writer.provenance.setdefault("results", {}).update(values)
 
     def warn(self, message: str) -> None:
-        """A warning the user should see: printed and kept in the layer's provenance."""
+        """A warning the user should see: printed and kept in the layer's provenance (inside
+        ``deferred_warnings``: only collected)."""
         from rose_usd.progress import say
+
+        if self._deferred is not None:
+            self._deferred.append(message)
+            return
 
         self.writer.provenance.setdefault("warnings", []).append(message)
         say(f"warning: {self.stage_def.name}: {message}")

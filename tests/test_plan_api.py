@@ -188,3 +188,22 @@ def test_the_public_names_are_documented_and_importable():
         if name not in ("__version__", "STAGES"):
             assert (value.__doc__ or "").strip(), f"rose_usd.{name} has no docstring"
     assert [s.name for s in rose_usd.STAGES] == list(registry.STAGE_NAMES)
+
+
+def test_deferred_warnings_are_given_only_when_replayed(capsys):
+    """Work that may be thrown away warns into a list; the stage keeps only what is replayed."""
+    from types import SimpleNamespace
+
+    from rose_usd.stage_api import StageContext
+
+    writer = SimpleNamespace(provenance={})
+    ctx = StageContext(SimpleNamespace(name="object"), None, None, None, None, writer)
+    with ctx.deferred_warnings() as kept:
+        ctx.warn("a fit that is not kept")
+        with ctx.deferred_warnings() as inner:
+            ctx.warn("nested")
+    assert kept == ["a fit that is not kept"] and inner == ["nested"]
+    said = capsys.readouterr()
+    assert "warnings" not in writer.provenance and "not kept" not in said.out + said.err
+    ctx.warn(kept[0])
+    assert writer.provenance["warnings"] == ["a fit that is not kept"]

@@ -303,18 +303,20 @@ def test_a_can_stacked_on_a_box_is_refitted_standing_on_it():
     standing on the table as every object is, stands behind the box, 17 % too tall; the stacking
     pass fits it on the box's top too and keeps that, its fit's cost lower: foot at 7 cm, height
     within 3 %. A can beside the box, and one on the table behind it (its foot hidden by the box,
-    which the fit leaves out), stay on the table."""
+    which the fit leaves out), stay on the table. A stack of three (box, box, can), listed top
+    first, settles from the bottom: the can on the middle box's top at 12 cm."""
     from types import SimpleNamespace
 
-    from rose_usd.object.silhouette import Fitted, _stack
+    from rose_usd.object.silhouette import FitResult, Fitted, _stack
 
     cam = _camera(0.5, 35.0)
     box_v, box_f = primitive_mesh(PrimitiveKind.BOX, np.array([0.15, 0.12, 0.07]))
     box_mask = silhouette(box_v, box_f, cam, K, W, H, closed=True)
+    mid_v, mid_f = primitive_mesh(PrimitiveKind.BOX, np.array([0.10, 0.08, 0.05]))
     can_v, can_f = primitive_mesh(PrimitiveKind.CYLINDER, np.array([0.03, 0.10]))
 
-    def fitted(v, f, kind, dims, placed, hidden=None):
-        mask = silhouette(se3.transform_points(placed, v), f, cam, K, W, H, closed=True)
+    def fitted(v, f, kind, dims, at, hidden=None):
+        mask = silhouette(se3.transform_points(se3.make_pose(np.eye(3), at), v), f, cam, K, W, H, closed=True)
         if hidden is not None:
             mask &= ~hidden
         view = crop_view(mask, hidden, K, cam)
@@ -327,9 +329,12 @@ def test_a_can_stacked_on_a_box_is_refitted_standing_on_it():
             )  # fmt: skip
             model = SimpleNamespace(world_from_object_0=found.pose(support_z), mesh=SimpleNamespace(vertices=v))
             fact = {"held": False, "fit_cost": found.cost, "dims": found.size, "support_height_m": support_z}
-            return model, fact, None
+            return FitResult(model, fact, (), [])
 
-        return Fitted(fit, functools.partial(footprint_xy, mask, K, cam), *fit(0.0))
+        return Fitted(fit, functools.partial(footprint_xy, mask, K, cam), fit(0.0))
+
+    def foot(fit):
+        return fit.result.model.world_from_object_0[2, 3]
 
     cases = {
         "on": ([0.0, 0.0, 0.07], None),
@@ -337,17 +342,26 @@ def test_a_can_stacked_on_a_box_is_refitted_standing_on_it():
         "behind": ([0.0, 0.095, 0.0], box_mask),
     }
     for where, (at, hidden) in cases.items():
-        can = fitted(can_v, can_f, PrimitiveKind.CYLINDER, [0.03, 0.10], se3.make_pose(np.eye(3), at), hidden)
-        box = fitted(box_v, box_f, PrimitiveKind.BOX, [0.15, 0.12, 0.07], np.eye(4))
-        first = can.fact["dims"][1]
+        can = fitted(can_v, can_f, PrimitiveKind.CYLINDER, [0.03, 0.10], at, hidden)
+        box = fitted(box_v, box_f, PrimitiveKind.BOX, [0.15, 0.12, 0.07], [0.0, 0.0, 0.0])
+        first = can.result.fact["dims"][1]
         _stack({"Base": box, "Can": can})
-        foot = can.model.world_from_object_0[2, 3]
-        assert "stands_on" not in box.fact
+        fact = can.result.fact
+        assert "stands_on" not in box.result.fact
         if where == "on":
-            assert can.fact.get("stands_on") == "Base" and foot == pytest.approx(0.07, abs=0.002), (foot, first)
-            assert can.fact["dims"][1] == pytest.approx(0.10, rel=0.03) and first > 0.11
+            assert fact.get("stands_on") == "Base" and foot(can) == pytest.approx(0.07, abs=0.002), (foot(can), first)
+            assert fact["dims"][1] == pytest.approx(0.10, rel=0.03) and first > 0.11
         else:
-            assert "stands_on" not in can.fact and foot == 0.0, (where, can.fact)
+            assert "stands_on" not in fact and foot(can) == 0.0, (where, fact)
+
+    stack = {
+        "Can": fitted(can_v, can_f, PrimitiveKind.CYLINDER, [0.03, 0.10], [0.0, 0.0, 0.12]),
+        "Mid": fitted(mid_v, mid_f, PrimitiveKind.BOX, [0.10, 0.08, 0.05], [0.0, 0.0, 0.07]),
+        "Base": fitted(box_v, box_f, PrimitiveKind.BOX, [0.15, 0.12, 0.07], [0.0, 0.0, 0.0]),
+    }
+    _stack(stack)
+    assert stack["Mid"].result.fact.get("stands_on") == "Base" and foot(stack["Mid"]) == pytest.approx(0.07, abs=0.003)
+    assert stack["Can"].result.fact.get("stands_on") == "Mid" and foot(stack["Can"]) == pytest.approx(0.12, abs=0.004)
 
 
 def test_the_support_reaches_the_farthest_object_foot():

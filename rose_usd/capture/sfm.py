@@ -187,14 +187,21 @@ def run(ctx: StageContext) -> None:
         )
         if motion == "near-static" and not np.allclose(gravity.up, up):
             # the camera was tracked against the support as the one image put it: track it again
-            # against the levelled support (tracking frame = the reference camera, 1 unit above it)
-            up = gravity.up
-            support = Plane(up, -1.0, 0, 0.0)
-            poses = _track_near_static(ctx, K, spec, ref, up, record)
-            record["planar_tracked_levelled"] = True
-            anchor_pt = _anchor_on_plane(ctx, mask, poses[ref], K, support)
-            world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
-            world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+            # against the levelled support (tracking frame = the reference camera, 1 unit above
+            # it), unless that keeps far fewer of the plane's corners
+            again: dict = {}
+            levelled = _track_near_static(ctx, K, spec, ref, gravity.up, again)
+            first = {k: v for k, v in record.items() if k.startswith("planar_")}
+            record["planar_tracked_levelled"] = again["planar_inliers_median"] >= 0.5 * first["planar_inliers_median"]
+            if record["planar_tracked_levelled"]:
+                record.update(again, planar_first=first)
+                up, poses = gravity.up, levelled
+                support = Plane(up, -1.0, 0, 0.0)
+                anchor_pt = _anchor_on_plane(ctx, mask, poses[ref], K, support)
+                world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
+                world_units = np.einsum("ij,njk->nik", world_from_track, poses)
+            else:
+                record["planar_levelled_rejected"] = again
     cues, chosen, agreement = _scale(ctx, spec, mask, K, world_units[ref], record)
     world_from_camera = _author(ctx, world_units, world_from_track, K, k_source, gravity, chosen, cues)
     height = float(world_from_camera[ref, 2, 3])

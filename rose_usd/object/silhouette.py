@@ -24,7 +24,7 @@ videos without depth (capture ``sfm``).
    fitted by Nelder-Mead on the silhouette IoU (``geometry.silhouette.fit_standing``) from the
    foot of the mask, from several yaws. Stacks: an object whose mask's foot, cast onto another
    object's top, lands inside that one's footprint is fitted standing there too, and stands where
-   its fit costs less (``_stack``). A metric mesh is also fitted free (6-DoF,
+   that fit costs less (``_stack``). A metric mesh is also fitted free (6-DoF,
    ``search_free`` over 1800 orientations then ``fit_free``): when that fits better by
    ``held_margin`` IoU, or standing fits poorly, the object is held in the air in its rest frames
    and keeps the free pose (it is then not rested on the scene).
@@ -148,20 +148,23 @@ def run(ctx: StageContext) -> None:
 
         def fit(support_z, spec=spec, path=path, views=views, masks=masks, picked=picked, frames=frames):
             xy = footprint_xy(masks[picked[0]], cameras.K[picked[0]], cameras.world_from_cv[picked[0]], support_z)
-            if path is not None:
-                model, fact, shape = _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras)
-            else:
-                model, fact, shape = _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scale)
+            with ctx.deferred_warnings() as warnings:  # given where this fit is kept
+                if path is not None:
+                    model, fact, shape = _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras)
+                else:
+                    model, fact, shape = _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scale)
             fact.update(rest_frames=[frames[0], frames[-1]], fitted_frames=picked, support_height_m=support_z)
-            return model, fact, shape
+            return FitResult(model, fact, shape, warnings)
 
         t0 = picked[0]
         foot = functools.partial(footprint_xy, masks[t0], cameras.K[t0], cameras.world_from_cv[t0])
-        fits[spec.name] = Fitted(fit, foot, *fit(float(pads.get(spec.name, 0.0))))
+        fits[spec.name] = Fitted(fit, foot, fit(float(pads.get(spec.name, 0.0))))
     _stack(fits)
     models, facts, shapes = [], {}, {}
     for spec in case.config.objects:
-        name, (model, fact, shape) = spec.name, fits[spec.name].result
+        name, (model, fact, shape, warnings) = spec.name, fits[spec.name].result
+        for message in warnings:
+            ctx.warn(message)
         if fact["silhouette_iou"] < 0.6:
             ctx.warn(
                 f"object {name!r}: its shape overlaps its masks poorly"
@@ -186,45 +189,79 @@ def run(ctx: StageContext) -> None:
 
 
 @dataclass
-class Fitted:
-    """An object's fit: how to fit it standing on a height (z [m] -> (model, fact, shape)), where
-    its mask's foot meets a height (z -> (x, y) or None), and the fit made."""
-
-    refit: Callable[[float], tuple]
-    foot_xy: Callable[[float], np.ndarray | None]
+class FitResult:
     model: ObjectModel
     fact: dict
     shape: tuple
+    warnings: list[str]
+    """What the fit would warn about, given only where it is kept."""
+
+    def __iter__(self):
+        return iter((self.model, self.fact, self.shape, self.warnings))
 
     @property
-    def result(self) -> tuple:
-        return self.model, self.fact, self.shape
+    def points(self) -> np.ndarray:
+        """The mesh's vertices in the world at frame 0 (N, 3)."""
+        return se3.transform_points(self.model.world_from_object_0, self.model.mesh.vertices)
+
+
+@dataclass
+class Fitted:
+    """An object's fit: how to fit it standing on a height (z [m] -> FitResult), where its mask's
+    foot meets a height (z -> (x, y) or None), and the fit kept."""
+
+    refit: Callable[[float], FitResult]
+    foot_xy: Callable[[float], np.ndarray | None]
+    result: FitResult
 
 
 STACKED_M = 0.01
 """Another object whose top is this much [m] above an object's support is a support it may stand on."""
+STACKED_MARGIN = 0.005
+"""How much lower [1 - IoU + size prior] a fit on another object must cost to be kept."""
 
 
 def _stack(fits: dict[str, Fitted]) -> None:
-    """Objects stacked on others: every object (not held) whose mask's foot, cast onto the top of
-    another, lands inside that one's footprint is fitted standing on it too, and stands where its
-    fit's cost (1 - IoU + the size prior) is lower. In place; the refit's fact says ``stands_on``."""
-    world = {n: se3.transform_points(f.model.world_from_object_0, f.model.mesh.vertices) for n, f in fits.items()}
-    for name, a in fits.items():
-        if a.fact.get("held"):
-            continue
-        for other, b in fits.items():
-            top = float(world[other][:, 2].max())
-            if other == name or b.fact.get("held") or top - a.fact["support_height_m"] < STACKED_M:
-                continue
-            xy = a.foot_xy(top)
-            hull = ConvexHull(world[other][:, :2])
-            if xy is None or np.any(hull.equations[:, :2] @ xy + hull.equations[:, 2] > 0.0):
-                continue
-            model, fact, shape = a.refit(top)
-            if not fact.get("held") and fact["fit_cost"] < a.fact["fit_cost"]:
-                a.model, a.fact, a.shape = model, {**fact, "stands_on": other}, shape
-        world[name] = se3.transform_points(a.model.world_from_object_0, a.model.mesh.vertices)
+    """Objects stacked on others. An object whose mask's foot, cast onto the top of another (not
+    held in the air), lands inside that one's footprint is fitted standing on it too, and stands
+    there where that fit costs ``STACKED_MARGIN`` less (1 - IoU + the size prior) and is not held;
+    an object standing on one that moved is refitted on its new top. Repeated until nothing moves
+    (a stack of three settles from the bottom). In place; the fact says ``stands_on``."""
+    world = {n: f.result.points for n, f in fits.items()}
+    for _ in range(len(fits)):
+        moved = False
+        for name, a in fits.items():
+            for other, b in fits.items():
+                if other == name or b.result.fact.get("held") or b.result.fact.get("stands_on") == name:
+                    continue
+                top, now = float(world[other][:, 2].max()), a.result.fact
+                on = now.get("stands_on") == other
+                if on and abs(top - now["support_height_m"]) < 1e-6:
+                    continue
+                if not on and (
+                    top - now["support_height_m"] < STACKED_M or not _lands_on(a.foot_xy(top), world[other])
+                ):
+                    continue
+                found = a.refit(top)
+                if found.fact.get("held") or (not on and found.fact["fit_cost"] > now["fit_cost"] - STACKED_MARGIN):
+                    continue
+                found.fact["stands_on"] = other
+                a.result, world[name], moved = found, found.points, True
+        if not moved:
+            return
+
+
+def _lands_on(xy, points: np.ndarray) -> bool:
+    """Whether the point (x, y) (or None) lies inside the footprint of ``points`` (N, 3)."""
+    from scipy.spatial import QhullError
+
+    if xy is None:
+        return False
+    try:
+        hull = ConvexHull(points[:, :2])
+    except QhullError:  # a flat footprint (a card seen edge on) holds nothing
+        return False
+    return bool(np.all(hull.equations[:, :2] @ np.asarray(xy) + hull.equations[:, 2] <= 0.0))
 
 
 def _start(xy, views: list[View], size_m: float):
