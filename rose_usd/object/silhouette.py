@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 from rose_usd.core import se3
 from rose_usd.errors import InputError
@@ -253,8 +253,6 @@ def _stack(fits: dict[str, Fitted]) -> None:
 
 def _lands_on(xy, points: np.ndarray) -> bool:
     """Whether the point (x, y) (or None) lies inside the footprint of ``points`` (N, 3)."""
-    from scipy.spatial import QhullError
-
     if xy is None:
         return False
     try:
