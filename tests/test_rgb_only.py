@@ -167,7 +167,7 @@ def test_a_standing_can_corrects_a_gravity_pitched_far_off():
     """One image's lines can misplace the horizon by 30-50 deg (the benchmark's cans: a camera
     pitched 35 deg down taken for a level one). With the sigma such a source claims (60 deg), the
     can standing in its silhouette finds the tilt (within 6 deg; a local search from level stopped
-    38 deg off)."""
+    38 deg off), also where the world's x is not the camera's right (a moving camera's first frame)."""
     from rose_usd.capture.scale import level_by_object
 
     pose = _camera(0.55, 35.0)
@@ -176,8 +176,11 @@ def test_a_standing_can_corrects_a_gravity_pitched_far_off():
         se3.transform_points(se3.make_pose(np.eye(3), [0.02, 0.03, 0.0]), v), f, pose, K, W, H, closed=True
     )
     up_true = pose[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-    for wrong_deg in (35.0, -20.0):
-        wrong = se3.make_pose(cv2.Rodrigues(np.array([np.radians(wrong_deg), 0.0, 0.0]))[0], np.zeros(3)) @ pose
+    turned = se3.make_pose(cv2.Rodrigues(np.array([0.0, 0.0, np.radians(45.0)]))[0], np.zeros(3))
+    for wrong_deg, world in ((35.0, np.eye(4)), (-20.0, np.eye(4)), (45.0, turned)):
+        # (a world turned 45 deg about up, its x not the camera's right: the grid of starts follows
+        # the camera's pitch; about the world's x it ended 22.5 deg off)
+        wrong = world @ se3.make_pose(cv2.Rodrigues(np.array([np.radians(wrong_deg), 0, 0]))[0], np.zeros(3)) @ pose
         tilt, record = level_by_object(ObjectSpec("Can", category="can"), mask, K, wrong, 60.0)
         up_fixed = (tilt @ wrong)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
         err = np.degrees(np.arccos(np.clip(up_true @ up_fixed, -1, 1)))

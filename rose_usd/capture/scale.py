@@ -157,8 +157,8 @@ def level_by_object(
     One image's lines most often misplace the horizon, a pitch error of 30-50 deg where a camera
     looking down at a table is taken for a level one; a local search from the level start stops a
     few degrees out. So the search spans ``level_search_deg(sigma_deg)``: a grid of starts over it
-    (``LEVEL_GRID_DEG`` apart in pitch, about the world's x, which is the reference camera's
-    right; three rolls), then Nelder-Mead from the best start and from the level one."""
+    (``LEVEL_GRID_DEG`` apart in the reference camera's pitch, about its right made horizontal;
+    three rolls), then Nelder-Mead from the best start and from level."""
     from rose_usd.geometry.silhouette import nelder_mead
 
     span = level_search_deg(sigma_deg)
@@ -173,7 +173,11 @@ def level_by_object(
 
     level = cost(np.zeros(2))
     pitches = np.arange(-span, span + 1e-9, LEVEL_GRID_DEG)
-    starts = [np.array([a, b]) for a in pitches for b in (-LEVEL_ROLL_DEG, 0.0, LEVEL_ROLL_DEG)]
+    # the tilt turns about the world's x then y; the world's x is the first camera's right, so the
+    # reference camera's pitch and roll are turned by its right's heading (to first order)
+    c, s = world_from_cv[:2, 0] / max(float(np.linalg.norm(world_from_cv[:2, 0])), 1e-9)
+    heading = np.array([[c, -s], [s, c]])
+    starts = [heading @ np.array([a, b]) for a in pitches for b in (-LEVEL_ROLL_DEG, 0.0, LEVEL_ROLL_DEG)]
     starts = [x for x in starts if np.hypot(*x) <= span]
     grid = [cost(x) for x in starts]
     best, best_cost = np.zeros(2), level
