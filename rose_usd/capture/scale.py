@@ -27,6 +27,7 @@ import numpy as np
 
 from rose_usd.case.config import ObjectSpec
 from rose_usd.core import se3
+from rose_usd.core.grabcut import SEEDS, box_grabcut
 from rose_usd.geometry.primitives import (
     MUG_REACH_SIGMA,
     PrimitiveKind,
@@ -56,8 +57,11 @@ class ScaleCue:
     detail: dict = field(default_factory=dict)
 
 
-def prompt_silhouette(rgb: np.ndarray, box: tuple[float, float, float, float], *, max_side: int = 640) -> np.ndarray:
-    """The object's mask in the prompt frame: GrabCut initialized by the prompt box, its largest
+def prompt_silhouette(
+    rgb: np.ndarray, box: tuple[float, float, float, float], *, max_side: int = 640, seeds: int = SEEDS
+) -> np.ndarray:
+    """The object's mask in the prompt frame: GrabCut in the prompt box (``core.grabcut``; one seed
+    for a box made around a point prompt, which says nothing of the object's extent), its largest
     part with holes filled (bool, the frame's size)."""
     h, w = rgb.shape[:2]
     s = min(1.0, max_side / max(w, h))
@@ -65,15 +69,7 @@ def prompt_silhouette(rgb: np.ndarray, box: tuple[float, float, float, float], *
     x0, y0, x1, y1 = (int(round(v * s)) for v in box)
     x0, y0 = max(x0, 1), max(y0, 1)
     x1, y1 = min(x1, small.shape[1] - 2), min(y1, small.shape[0] - 2)
-    mask = np.zeros(small.shape[:2], np.uint8)
-    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
-    cv2.grabCut(
-        cv2.cvtColor(small, cv2.COLOR_RGB2BGR), mask, (x0, y0, x1 - x0, y1 - y0), bgd, fgd, 5, cv2.GC_INIT_WITH_RECT
-    )
-    fg = ((mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)).astype(np.uint8)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(fg)
-    if count > 1:
-        fg = (labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
+    fg = box_grabcut(small, (x0, y0, x1, y1), seeds=seeds).astype(np.uint8)
     contours, _ = cv2.findContours(fg, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     cv2.drawContours(fg, contours, -1, 1, thickness=cv2.FILLED)
     return cv2.resize(fg, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
