@@ -56,6 +56,7 @@ from rose_usd.capture.static import still_fraction
 from rose_usd.capture.world import author_world
 from rose_usd.case.config import Prompt
 from rose_usd.core import se3
+from rose_usd.core.grabcut import SEEDS
 from rose_usd.errors import InputError
 from rose_usd.geometry.silhouette import crop_view
 from rose_usd.geometry.vanishing import up_from_lines, upright_prior
@@ -461,7 +462,8 @@ def _prompt_mask(ctx: StageContext, spec) -> np.ndarray | None:
     if spec is None:
         return None
     case = ctx.case
-    mask = prompt_silhouette(case.rgb(spec.prompt.frame), _box(spec.prompt, case.width, case.height))
+    seeds = SEEDS if spec.prompt.box is not None else 1  # a point's box says nothing of the extent
+    mask = prompt_silhouette(case.rgb(spec.prompt.frame), _box(spec.prompt, case.width, case.height), seeds=seeds)
     return mask if mask is not None and mask.sum() >= 30 else None
 
 

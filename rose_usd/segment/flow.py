@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rose_usd.core.grabcut import SEEDS, box_grabcut
 from rose_usd.errors import InputError
 from rose_usd.io.meshfile import read_mesh_file, surface_colors
 from rose_usd.progress import progress
@@ -125,23 +126,18 @@ class FlowTracker:
         surroundings. ``look``: the color model of the object's whole surface (its mesh's
         texture, ``surface_histogram``), mixed into the track's by ``LOOK_WEIGHT``."""
         rgb = self.frame_of(t)
-        if box is None:  # a point: a box around it, a tenth of the image wide
+        seeds = SEEDS
+        if box is None:  # a point: a box around it, a tenth of the image wide (not the object's extent)
+            seeds = 1
             r = max(self.w, self.h) // 20
             box = (point[0] - r, point[1] - r, point[0] + r, point[1] + r)
         x0, y0, x1, y1 = (int(np.clip(v, 0, lim)) for v, lim in zip(box, (self.w, self.h, self.w, self.h)))
-        gc = np.zeros((self.h, self.w), np.uint8)
-        bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
-        cv2.grabCut(
-            cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), gc, (x0, y0, x1 - x0, y1 - y0), bgd, fgd, 5, cv2.GC_INIT_WITH_RECT
-        )
-        mask = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
-        n, labels, areas = components(mask)
-        if n < 2:
+        mask = box_grabcut(rgb, (x0, y0, x1, y1), seeds=seeds, connectivity=4)
+        if not mask.any():
             raise InputError(
                 f"GrabCut found nothing inside the prompt of {name!r} on frame {t}",
                 hint="draw the box tightly around the object",
             )
-        mask = labels == 1 + int(np.argmax(areas[1:]))
         bw, bh = x1 - x0, y1 - y0
         ring = np.zeros_like(mask)
         ring[max(0, y0 - bh) : y1 + bh, max(0, x0 - bw) : x1 + bw] = True
