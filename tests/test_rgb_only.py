@@ -589,9 +589,80 @@ def test_a_color_posterior_that_pulls_the_object_to_the_camera_is_not_followed()
     mask = silhouette(se3.transform_points(rest, v), f, cam, K, W, H, closed=True)
     cameras = SimpleNamespace(K=K[None], world_from_cv=cam[None])
     rgb = np.zeros((H, W, 3), np.uint8)
+    case = SimpleNamespace(width=W, height=H, rgb=lambda t: rgb)
     for around, followed in ((0.9, False), (0.1, True)):
         posterior = np.where(mask, 1.0, around).astype(np.float32)
         agrees = _posterior_agrees(
-            lambda _, p=posterior: p, rgb, _Masks([mask]), "Box", 0, mask, rest, v, f, cameras, SilhouetteConfig(), True
+            lambda _, p=posterior: p,
+            case,
+            _Masks([mask]),
+            "Box",
+            0,
+            mask,
+            rest,
+            v,
+            f,
+            cameras,
+            SilhouetteConfig(),
+            True,
         )
         assert agrees is followed
+
+
+def _nearer(pose: np.ndarray, cam: np.ndarray, fraction: float) -> np.ndarray:
+    """The pose brought along the camera's ray to ``fraction`` of its distance."""
+    out = pose.copy()
+    out[:3, 3] = cam[:3, 3] + fraction * (pose[:3, 3] - cam[:3, 3])
+    return out
+
+
+def test_a_color_posterior_whose_refit_swells_is_not_followed(monkeypatch):
+    """openreal2sim-marker-rgb: a clear pen's body takes the desk's colors; the posed pen scores
+    above the pen brought nearer along its ray, but a refit to the blended target from the pose
+    came 3 cm under the camera, its silhouette 10 times the mask. The posterior is dropped when
+    the refit from the first pose swells over twice the mask (``SWELL``), kept when it stays."""
+    from types import SimpleNamespace
+
+    import rose_usd.trajectory.silhouette as ts
+    from rose_usd.trajectory.config import SilhouetteConfig
+
+    cam = _camera(0.4, 40.0)
+    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.08, 0.06, 0.05]))
+    v = v - [0.0, 0.0, v[:, 2].min()]
+    rest = np.eye(4)
+    mask = silhouette(se3.transform_points(rest, v), f, cam, K, W, H, closed=True)
+    cameras = SimpleNamespace(K=K[None], world_from_cv=cam[None])
+    rgb = np.zeros((H, W, 3), np.uint8)
+    case = SimpleNamespace(width=W, height=H, rgb=lambda t: rgb)
+    posterior = np.where(mask, 1.0, 0.1).astype(np.float32)  # the box alone: the nearer poses score less
+    for refit_to, followed in ((_nearer(rest, cam, 0.5), False), (_nearer(rest, cam, 0.97), True)):
+        monkeypatch.setattr(ts, "_refit", lambda *a, p=refit_to: ((p, 0.9), 0))
+        agrees = ts._posterior_agrees(
+            lambda _: posterior, case, _Masks([mask]), "Box", 0, mask, rest, v, f, cameras, SilhouetteConfig(), True
+        )
+        assert agrees is followed
+
+
+def test_a_fit_that_swells_over_the_mask_is_lost(monkeypatch):
+    """A fit of high IoU within the speed limit that brings the box to half its distance from the
+    camera (its silhouette 4 times the unchanged mask) is lost, counted ``swollen``; the box stays."""
+    import rose_usd.trajectory.silhouette as ts
+
+    cam = _camera(0.4, 40.0)
+    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.08, 0.06, 0.05]))
+    v = v - [0.0, 0.0, v[:, 2].min()]
+    rest = np.eye(4)
+    mask = silhouette(se3.transform_points(rest, v), f, cam, K, W, H, closed=True)
+    frames = [mask] * 6
+    rgb = np.full((H, W, 3), 120, np.uint8)
+    near = _nearer(rest, cam, 0.5)
+    # frame 3's mask is taken as moved (hold fails), and the refit offers the nearer pose
+    real_iou = ts.iou
+    monkeypatch.setattr(ts, "iou", lambda views, *a, **k: 0.1 if views[0].frame == 3 else real_iou(views, *a, **k))
+    monkeypatch.setattr(ts, "_refit", lambda *a: ((near, 0.95), 0))
+    poses, _, record = _silhouette_track(frames, rgb, rest, v, f, cam, color_weight=0.0, max_speed_m_s=1000.0)
+    assert record["swollen"] == 1
+    assert np.abs(poses[:, :3, 3] - rest[:3, 3]).max() < 1e-9
+    monkeypatch.setattr(ts, "SWELL", 1e9)
+    poses, _, record = _silhouette_track(frames, rgb, rest, v, f, cam, color_weight=0.0, max_speed_m_s=1000.0)
+    assert np.linalg.norm(poses[3][:3, 3] - near[:3, 3]) < 1e-9

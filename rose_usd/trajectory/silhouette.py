@@ -11,9 +11,10 @@ render and compare, for videos without depth (capture ``sfm``).
    ``geometry.silhouette.fit_free``, ``maxfev`` evaluations) from the last pose and from a
    constant-velocity prediction, the better kept. A frame whose mask is missing or too small, or
    whose best IoU is under ``min_iou``, or whose fit moves the object faster than
-   ``max_speed_m_s`` since its last tracked frame, is lost: the pose holds (confidence 0), and
-   frames lost between tracked ones are interpolated on SE(3) (confidence 0.5). The color
-   posterior is left out where it would pull the object toward the camera (``NEARER``).
+   ``max_speed_m_s`` since its last tracked frame, or swells its silhouette over twice the mask
+   (``SWELL``), is lost: the pose holds (confidence 0), and frames lost between tracked ones are
+   interpolated on SE(3) (confidence 0.5). The color posterior is left out where it would pull
+   the object toward the camera (``NEARER``).
 4. **Rest on the support.** When the object holds still again for ``settle_frames`` frames with its
    lowest point within ``settle_m`` of the support, it is set down: turned onto its nearest stable
    face (the convex hull's face nearest its center of mass facing down), lowered onto the support,
@@ -153,7 +154,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
     conf = np.zeros(n)
     pose, ref_iou, velocity = default.copy(), None, np.eye(4)
     still, settled = 0, False
-    fitted = held = lost = set_down = searched = too_fast = 0
+    fitted = held = lost = set_down = searched = too_fast = swollen = 0
     last_seen = 0
     colors, base, first = None, None, None
     for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
@@ -162,7 +163,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         if colors is None and cfg.color_weight > 0 and has_mask:
             colors = _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex)
             if colors is not None and not _posterior_agrees(
-                colors, case.rgb(t), layer, name, t, mask, pose, v, f, cameras, cfg, convex
+                colors, case, layer, name, t, mask, pose, v, f, cameras, cfg, convex
             ):
                 colors = False  # the mask alone, for the whole video
         posterior = colors(case.rgb(t)) if colors else None
@@ -202,9 +203,12 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         best, turned = _refit(v, f, view, pose, velocity, ref_iou, cfg, convex)
         searched += turned
         reach = cfg.max_speed_m_s * (t - last_seen) / ctx.time_info.fps
-        if best[1] < floor or np.linalg.norm(best[0][:3, 3] - pose[:3, 3]) > reach:
+        fast = np.linalg.norm(best[0][:3, 3] - pose[:3, 3]) > reach
+        swells = has_mask and _swollen(best[0], v, f, cameras, t, case, mask, layer, name, convex)
+        if best[1] < floor or fast or swells:
             poses[t], lost = pose, lost + 1
-            too_fast += best[1] >= floor
+            too_fast += int(best[1] >= floor and fast)
+            swollen += int(best[1] >= floor and not fast and swells)
             continue
         last_seen = t
         velocity = best[0] @ se3.invert(pose)
@@ -216,10 +220,31 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         "fitted": fitted,
         "lost": lost,
         "too_fast": too_fast,
+        "swollen": swollen,
         "set_down": set_down,
         "turn_searches": searched,
     }
     return _finish(poses, present, conf, counts, bool(colors), first)
+
+
+SWELL = 2.0
+"""A fit whose silhouette, outside what may hide the object, covers more than this many times the
+frame's mask is lost: a broad color target (a clear pen's body on a wooden desk) pulls the track
+toward the camera, where the silhouette swells over the target, while the mask keeps its size."""
+
+
+def _swollen(pose, v, f, cameras, t, case, mask, layer, name, convex) -> bool:
+    """Whether the posed object's silhouette, outside the frame's occluders, exceeds ``SWELL``
+    times its mask (or reaches behind the camera)."""
+    world = se3.transform_points(pose, v)
+    if se3.transform_points(se3.invert(cameras.world_from_cv[t]), world)[:, 2].min() <= 1e-3:
+        return True
+    if convex:
+        sil = _hull_mask(pose, v, cameras, t, case)
+    else:
+        sil = silhouette(world, f, cameras.world_from_cv[t], cameras.K[t], case.width, case.height)
+    seen = np.count_nonzero(sil & ~layer.occluders(name, t, mask.shape, grow_px=2))
+    return seen > SWELL * max(np.count_nonzero(mask), 1)
 
 
 def _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> ColorPosterior | None:
@@ -252,10 +277,12 @@ the target is broad, a larger silhouette overlaps more of it, and a track that f
 toward the camera."""
 
 
-def _posterior_agrees(colors, rgb, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> bool:
+def _posterior_agrees(colors, case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> bool:
     """Whether the blended target (color posterior and mask) prefers the posed object to the same
-    object brought nearer the camera (``NEARER``)."""
-    binary, soft = _target(mask, colors(rgb), cfg.color_weight)
+    object brought nearer the camera (``NEARER``), and a fit to it from the pose does not swell over
+    the mask (``SWELL``: a clear pen's body takes the desk's colors, and a refit comes toward the
+    camera, turned far from the pose, which the nearer poses alone do not reach)."""
+    binary, soft = _target(mask, colors(case.rgb(t)), cfg.color_weight)
     box = _projected_box(pose, v, cameras, t, mask.shape[1], mask.shape[0])
     view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box, segmented=mask)
     eye = cameras.world_from_cv[t][:3, 3]
@@ -265,7 +292,10 @@ def _posterior_agrees(colors, rgb, layer, name, t, mask, pose, v, f, cameras, cf
         moved[:3, 3] = eye + k * (pose[:3, 3] - eye)
         return iou([view], se3.transform_points(moved, v), f, convex=convex)
 
-    return score(1.0) > max(score(k) for k in NEARER)
+    if score(1.0) <= max(score(k) for k in NEARER):
+        return False
+    (fitted, _), _ = _refit(v, f, view, pose, np.eye(4), score(1.0), cfg, convex)
+    return not _swollen(fitted, v, f, cameras, t, case, mask, layer, name, convex)
 
 
 def _refit(v, f, view: View, pose, velocity, ref_iou: float, cfg, convex: bool) -> tuple[tuple, int]:
