@@ -9,7 +9,8 @@ render and compare, for videos without depth (capture ``sfm``).
    resting object hides part of its mask, not the overlap of the rest.
 3. **Track.** Otherwise the 6-DoF pose is fitted to the mask (Nelder-Mead on the silhouette IoU,
    ``geometry.silhouette.fit_free``, ``maxfev`` evaluations) from the last pose and from a
-   constant-velocity prediction, the better kept. A frame whose mask is missing or too small, or
+   constant-velocity prediction, the better kept, a pose below the support plane penalized
+   (``SINK_COST_PER_M``). A frame whose mask is missing or too small, or
    whose best IoU is under ``min_iou``, or whose fit moves the object faster than
    ``max_speed_m_s`` since its last tracked frame, or swells its silhouette over twice the mask
    (``SWELL``), is lost: the pose holds (confidence 0), and frames lost between tracked ones are
@@ -28,6 +29,7 @@ is its projected hull's.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -298,24 +300,44 @@ def _posterior_agrees(colors, case, layer, name, t, mask, pose, v, f, cameras, c
     return not _swollen(fitted, v, f, cameras, t, case, mask, layer, name, convex)
 
 
+SINK_COST_PER_M = 10.0
+"""Added to a refit's 1 - IoU per meter its object reaches below the support plane (z = 0): a thin
+object's silhouette hardly tells its depth, and a pen closed on by fingers sank 10 cm into the desk."""
+
+
+def _sinking(v: np.ndarray) -> Callable[[np.ndarray], float]:
+    """The cost of a pose (4, 4) that puts the object's vertices ``v`` below z = 0."""
+
+    def cost(pose: np.ndarray) -> float:
+        return SINK_COST_PER_M * max(0.0, -float((v @ pose[2, :3] + pose[2, 3]).min()))
+
+    return cost
+
+
 def _refit(v, f, view: View, pose, velocity, ref_iou: float, cfg, convex: bool) -> tuple[tuple, int]:
     """The best 6-DoF fit (pose, IoU) to the view from the last pose, its constant-velocity
-    prediction and the pose recentered on the mask, and whether (1) or not (0) it searched turned
-    starts because that fit fell under ``turn_search_below`` of ``ref_iou``."""
-    starts = [pose, velocity @ pose, _recentered(view, pose, v)]
+    prediction and the pose recentered on the mask, kept above the support plane (``_sinking``), and
+    whether (1) or not (0) it searched turned starts because that fit fell under
+    ``turn_search_below`` of ``ref_iou``."""
+    sink = _sinking(v)
     best = None
-    for start in starts:
-        got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
-        if best is None or score > best[1]:
+
+    def fit(start):
+        nonlocal best
+        got, score = fit_free(
+            v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex, cost_extra=sink
+        )
+        if best is None or score - sink(got) > best[1] - sink(best[0]):
             best = (got, score)
+
+    for start in (pose, velocity @ pose, _recentered(view, pose, v)):
+        fit(start)
     if best[1] >= cfg.turn_search_below * ref_iou:
         return best, 0
     # a fast turn (deepac-cat-rgb: 27 deg in one frame) is out of the simplex's reach:
     # start again from the best pose turned by +-turn_search_deg about each camera axis
     for start in _turned(best[0], view, np.radians(cfg.turn_search_deg)):
-        got, score = fit_free(v, f, [view], start, maxfev=cfg.maxfev, step_deg=4.0, step_shift=0.01, convex=convex)
-        if score > best[1]:
-            best = (got, score)
+        fit(start)
     return best, 1
 
 
