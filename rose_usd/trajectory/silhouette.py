@@ -156,7 +156,8 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
     conf = np.zeros(n)
     pose, ref_iou, velocity = default.copy(), None, np.eye(4)
     still, settled = 0, False
-    fitted = held = lost = set_down = searched = too_fast = swollen = 0
+    fitted = held = lost = set_down = searched = 0
+    rejected = dict.fromkeys(("low", "fast", "swollen"), 0)
     last_seen = 0
     colors, base, first = None, None, None
     for t in progress(range(n), f"trajectory {name}: silhouettes", total=n):
@@ -205,12 +206,9 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         best, turned = _refit(v, f, view, pose, velocity, ref_iou, cfg, convex)
         searched += turned
         reach = cfg.max_speed_m_s * (t - last_seen) / ctx.time_info.fps
-        fast = np.linalg.norm(best[0][:3, 3] - pose[:3, 3]) > reach
-        swells = has_mask and _swollen(best[0], v, f, cameras, t, case, mask, layer, name, convex)
-        if best[1] < floor or fast or swells:
-            poses[t], lost = pose, lost + 1
-            too_fast += int(best[1] >= floor and fast)
-            swollen += int(best[1] >= floor and not fast and swells)
+        why = _why_lost(best, pose, floor, reach, has_mask and (v, f, cameras, t, case, mask, layer, name, convex))
+        if why:
+            poses[t], lost, rejected[why] = pose, lost + 1, rejected[why] + 1
             continue
         last_seen = t
         velocity = best[0] @ se3.invert(pose)
@@ -221,12 +219,23 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         "held": held,
         "fitted": fitted,
         "lost": lost,
-        "too_fast": too_fast,
-        "swollen": swollen,
+        "too_fast": rejected["fast"],
+        "swollen": rejected["swollen"],
         "set_down": set_down,
         "turn_searches": searched,
     }
     return _finish(poses, present, conf, counts, bool(colors), first)
+
+
+def _why_lost(best: tuple, pose: np.ndarray, floor: float, reach: float, swell_args) -> str | None:
+    """Why a refit (pose, IoU) is not taken from ``pose``: "low" (its IoU under ``floor``), "fast"
+    (it moved more than ``reach`` [m]) or "swollen" (``_swollen(pose, *swell_args)``, where
+    given); None when it is taken."""
+    if best[1] < floor:
+        return "low"
+    if np.linalg.norm(best[0][:3, 3] - pose[:3, 3]) > reach:
+        return "fast"
+    return "swollen" if swell_args and _swollen(best[0], *swell_args) else None
 
 
 SWELL = 2.0
