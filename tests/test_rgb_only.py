@@ -572,24 +572,33 @@ def test_a_mask_swollen_by_the_hand_does_not_pull_the_object_to_the_camera():
     assert np.linalg.norm(poses[4][:3, 3] - rest[:3, 3]) > 0.1
 
 
+def _box_at_rest(cam: np.ndarray):
+    """An 8 x 6 x 5 cm box standing at the origin and its silhouette seen by ``cam``: (v, f, pose, mask)."""
+    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.08, 0.06, 0.05]))
+    v = v - [0.0, 0.0, v[:, 2].min()]
+    rest = np.eye(4)
+    return v, f, rest, silhouette(se3.transform_points(rest, v), f, cam, K, W, H, closed=True)
+
+
+def _one_black_frame(cam: np.ndarray):
+    """The cameras and the case of one black frame seen by ``cam``: (cameras, case)."""
+    from types import SimpleNamespace
+
+    rgb = np.zeros((H, W, 3), np.uint8)
+    return SimpleNamespace(K=K[None], world_from_cv=cam[None]), SimpleNamespace(width=W, height=H, rgb=lambda t: rgb)
+
+
 def test_a_color_posterior_that_pulls_the_object_to_the_camera_is_not_followed():
     """A posterior that also claims the surroundings (a cloth that shares the box's colors) is
     overlapped more by the box brought nearer the camera, which a track following it would do:
     it is not followed. One that claims the box alone is. The real thing: the first frame of the
     realistic suite's push-box in rgb mode, where following it ran the box 45 cm toward the camera."""
-    from types import SimpleNamespace
-
     from rose_usd.trajectory.config import SilhouetteConfig
     from rose_usd.trajectory.silhouette import _posterior_agrees
 
     cam = _camera(0.4, 40.0)
-    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.08, 0.06, 0.05]))
-    v = v - [0.0, 0.0, v[:, 2].min()]
-    rest = np.eye(4)
-    mask = silhouette(se3.transform_points(rest, v), f, cam, K, W, H, closed=True)
-    cameras = SimpleNamespace(K=K[None], world_from_cv=cam[None])
-    rgb = np.zeros((H, W, 3), np.uint8)
-    case = SimpleNamespace(width=W, height=H, rgb=lambda t: rgb)
+    v, f, rest, mask = _box_at_rest(cam)
+    cameras, case = _one_black_frame(cam)
     for around, followed in ((0.9, False), (0.1, True)):
         posterior = np.where(mask, 1.0, around).astype(np.float32)
         agrees = _posterior_agrees(
@@ -621,19 +630,12 @@ def test_a_color_posterior_whose_refit_swells_is_not_followed(monkeypatch):
     above the pen brought nearer along its ray, but a refit to the blended target from the pose
     came 3 cm under the camera, its silhouette 10 times the mask. The posterior is dropped when
     the refit from the first pose swells over twice the mask (``SWELL``), kept when it stays."""
-    from types import SimpleNamespace
-
     import rose_usd.trajectory.silhouette as ts
     from rose_usd.trajectory.config import SilhouetteConfig
 
     cam = _camera(0.4, 40.0)
-    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.08, 0.06, 0.05]))
-    v = v - [0.0, 0.0, v[:, 2].min()]
-    rest = np.eye(4)
-    mask = silhouette(se3.transform_points(rest, v), f, cam, K, W, H, closed=True)
-    cameras = SimpleNamespace(K=K[None], world_from_cv=cam[None])
-    rgb = np.zeros((H, W, 3), np.uint8)
-    case = SimpleNamespace(width=W, height=H, rgb=lambda t: rgb)
+    v, f, rest, mask = _box_at_rest(cam)
+    cameras, case = _one_black_frame(cam)
     posterior = np.where(mask, 1.0, 0.1).astype(np.float32)  # the box alone: the nearer poses score less
     for refit_to, followed in ((_nearer(rest, cam, 0.5), False), (_nearer(rest, cam, 0.97), True)):
         monkeypatch.setattr(ts, "_refit", lambda *a, p=refit_to: ((p, 0.9), 0))
@@ -649,10 +651,7 @@ def test_a_fit_that_swells_over_the_mask_is_lost(monkeypatch):
     import rose_usd.trajectory.silhouette as ts
 
     cam = _camera(0.4, 40.0)
-    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.08, 0.06, 0.05]))
-    v = v - [0.0, 0.0, v[:, 2].min()]
-    rest = np.eye(4)
-    mask = silhouette(se3.transform_points(rest, v), f, cam, K, W, H, closed=True)
+    v, f, rest, mask = _box_at_rest(cam)
     frames = [mask] * 6
     rgb = np.full((H, W, 3), 120, np.uint8)
     near = _nearer(rest, cam, 0.5)
