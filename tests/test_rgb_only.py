@@ -628,8 +628,8 @@ def _nearer(pose: np.ndarray, cam: np.ndarray, fraction: float) -> np.ndarray:
 def test_a_color_posterior_whose_refit_swells_is_not_followed(monkeypatch):
     """openreal2sim-marker-rgb: a clear pen's body takes the desk's colors; the posed pen scores
     above the pen brought nearer along its ray, but a refit to the blended target from the pose
-    came 6 cm under the camera, its silhouette 6 times the mask. The posterior is dropped when
-    the refit from the first pose swells its silhouette over twice (``SWELL``), kept when it stays."""
+    came 3 cm under the camera, its silhouette 10 times the mask. The posterior is dropped when
+    the refit from the first pose swells over twice the mask (``SWELL``), kept when it stays."""
     import rose_usd.trajectory.silhouette as ts
     from rose_usd.trajectory.config import SilhouetteConfig
 
@@ -645,9 +645,9 @@ def test_a_color_posterior_whose_refit_swells_is_not_followed(monkeypatch):
         assert agrees is followed
 
 
-def test_a_fit_that_swells_is_lost(monkeypatch):
+def test_a_fit_that_swells_over_the_mask_is_lost(monkeypatch):
     """A fit of high IoU within the speed limit that brings the box to half its distance from the
-    camera (its silhouette 4 times the last pose's) is lost, counted ``swollen``; the box stays."""
+    camera (its silhouette 4 times the unchanged mask) is lost, counted ``swollen``; the box stays."""
     import rose_usd.trajectory.silhouette as ts
 
     cam = _camera(0.4, 40.0)

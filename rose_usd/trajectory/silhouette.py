@@ -12,8 +12,8 @@ render and compare, for videos without depth (capture ``sfm``).
    constant-velocity prediction, the better kept, a pose below the support plane penalized
    (``SINK_COST_PER_M``). A frame whose mask is missing or too small, or
    whose best IoU is under ``min_iou``, or whose fit moves the object faster than
-   ``max_speed_m_s`` since its last tracked frame, or swells its silhouette over twice the last
-   pose's (``SWELL``), is lost: the pose holds (confidence 0), and frames lost between tracked ones are
+   ``max_speed_m_s`` since its last tracked frame, or swells its silhouette over twice the mask
+   (``SWELL``), is lost: the pose holds (confidence 0), and frames lost between tracked ones are
    interpolated on SE(3) (confidence 0.5). The color posterior is left out where it would pull
    the object toward the camera (``NEARER``).
 4. **Rest on the support.** When the object holds still again for ``settle_frames`` frames with its
@@ -206,7 +206,7 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
         best, turned = _refit(v, f, view, pose, velocity, ref_iou, cfg, convex)
         searched += turned
         reach = cfg.max_speed_m_s * (t - last_seen) / ctx.time_info.fps
-        why = _why_lost(best, pose, floor, reach, (v, f, cameras, t, case, convex))
+        why = _why_lost(best, pose, floor, reach, has_mask and (v, f, cameras, t, case, mask, layer, name, convex))
         if why:
             poses[t], lost, rejected[why] = pose, lost + 1, rejected[why] + 1
             continue
@@ -229,36 +229,33 @@ def _track(ctx, name, v, f, default, layer, cameras, support_z, cfg, convex):
 
 def _why_lost(best: tuple, pose: np.ndarray, floor: float, reach: float, swell_args) -> str | None:
     """Why a refit (pose, IoU) is not taken from ``pose``: "low" (its IoU under ``floor``), "fast"
-    (it moved more than ``reach`` [m]) or "swollen" (``_swollen(its pose, pose, *swell_args)``);
-    None when it is taken."""
+    (it moved more than ``reach`` [m]) or "swollen" (``_swollen(pose, *swell_args)``, where
+    given); None when it is taken."""
     if best[1] < floor:
         return "low"
     if np.linalg.norm(best[0][:3, 3] - pose[:3, 3]) > reach:
         return "fast"
-    return "swollen" if _swollen(best[0], pose, *swell_args) else None
+    return "swollen" if swell_args and _swollen(best[0], *swell_args) else None
 
 
 SWELL = 2.0
-"""A refit whose silhouette covers more than this many times the last pose's is lost: a broad color
-target (a clear pen's body on a wooden desk) pulls the track toward the camera, where the silhouette
-swells over it, and no hand brings an object 1.4 times nearer between two tracked frames. (Against
-the mask instead, a partial mask lost right fits: the default suite's push-box, whose mask holds a
-third of the box.)"""
+"""A fit whose silhouette, outside what may hide the object, covers more than this many times the
+frame's mask is lost: a broad color target (a clear pen's body on a wooden desk) pulls the track
+toward the camera, where the silhouette swells over the target, while the mask keeps its size."""
 
 
-def _swollen(pose, last, v, f, cameras, t, case, convex) -> bool:
-    """Whether the posed object's silhouette covers over ``SWELL`` times the ``last`` pose's in
-    frame t (or it reaches behind the camera)."""
-
-    def area(p):
-        world = se3.transform_points(p, v)
-        if se3.transform_points(se3.invert(cameras.world_from_cv[t]), world)[:, 2].min() <= 1e-3:
-            return np.inf
-        if convex:
-            return np.count_nonzero(_hull_mask(p, v, cameras, t, case))
-        return np.count_nonzero(silhouette(world, f, cameras.world_from_cv[t], cameras.K[t], case.width, case.height))
-
-    return area(pose) > SWELL * max(area(last), 1)
+def _swollen(pose, v, f, cameras, t, case, mask, layer, name, convex) -> bool:
+    """Whether the posed object's silhouette, outside the frame's occluders, exceeds ``SWELL``
+    times its mask (or reaches behind the camera)."""
+    world = se3.transform_points(pose, v)
+    if se3.transform_points(se3.invert(cameras.world_from_cv[t]), world)[:, 2].min() <= 1e-3:
+        return True
+    if convex:
+        sil = _hull_mask(pose, v, cameras, t, case)
+    else:
+        sil = silhouette(world, f, cameras.world_from_cv[t], cameras.K[t], case.width, case.height)
+    seen = np.count_nonzero(sil & ~layer.occluders(name, t, mask.shape, grow_px=2))
+    return seen > SWELL * max(np.count_nonzero(mask), 1)
 
 
 def _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> ColorPosterior | None:
@@ -293,9 +290,9 @@ toward the camera."""
 
 def _posterior_agrees(colors, case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> bool:
     """Whether the blended target (color posterior and mask) prefers the posed object to the same
-    object brought nearer the camera (``NEARER``), and a refit to it from the pose does not swell
-    (``SWELL``: a clear pen's body takes the desk's colors, and a refit comes toward the camera,
-    turned far from the pose, which the nearer poses alone do not reach)."""
+    object brought nearer the camera (``NEARER``), and a fit to it from the pose does not swell over
+    the mask (``SWELL``: a clear pen's body takes the desk's colors, and a refit comes toward the
+    camera, turned far from the pose, which the nearer poses alone do not reach)."""
     binary, soft = _target(mask, colors(case.rgb(t)), cfg.color_weight)
     box = _projected_box(pose, v, cameras, t, mask.shape[1], mask.shape[0])
     view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box, segmented=mask)
@@ -309,7 +306,7 @@ def _posterior_agrees(colors, case, layer, name, t, mask, pose, v, f, cameras, c
     if score(1.0) <= max(score(k) for k in NEARER):
         return False
     (fitted, _), _ = _refit(v, f, view, pose, np.eye(4), score(1.0), cfg, convex)
-    return not _swollen(fitted, pose, v, f, cameras, t, case, convex)
+    return not _swollen(fitted, v, f, cameras, t, case, mask, layer, name, convex)
 
 
 SINK_COST_PER_M = 10.0
