@@ -247,33 +247,27 @@ toward the camera, where the silhouette swells over the target, while the mask k
 def _swollen(pose, v, f, cameras, t, case, mask, layer, name, convex) -> bool:
     """Whether the posed object's silhouette, outside the frame's occluders, exceeds ``SWELL``
     times its mask (or reaches behind the camera)."""
-    world = se3.transform_points(pose, v)
-    if se3.transform_points(se3.invert(cameras.world_from_cv[t]), world)[:, 2].min() <= 1e-3:
+    cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
+    if cam[:, 2].min() <= 1e-3:
         return True
-    if convex:
-        sil = _hull_mask(pose, v, cameras, t, case)
-    else:
-        sil = silhouette(world, f, cameras.world_from_cv[t], cameras.K[t], case.width, case.height)
+    sil = _frame_silhouette(pose, v, f, cameras, t, case, convex)
     seen = np.count_nonzero(sil & ~layer.occluders(name, t, mask.shape, grow_px=2))
     return seen > SWELL * max(np.count_nonzero(mask), 1)
+
+
+def _frame_silhouette(pose, v, f, cameras, t, case, convex: bool) -> np.ndarray:
+    """The posed object's silhouette in the whole frame t: a convex mesh's projected hull, else
+    the mesh's."""
+    if convex:
+        return _hull_mask(pose, v, cameras, t, case)
+    world = se3.transform_points(pose, v)
+    return silhouette(world, f, cameras.world_from_cv[t], cameras.K[t], case.width, case.height, closed=True)
 
 
 def _color_model(case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> ColorPosterior | None:
     """The object's color posterior learned in frame ``t`` where the posed silhouette meets its
     mask (against the pixels around it), or None when too few pixels are inside."""
-    sil = (
-        silhouette(
-            se3.transform_points(pose, v),
-            f,
-            cameras.world_from_cv[t],
-            cameras.K[t],
-            case.width,
-            case.height,
-            closed=not convex,
-        )
-        if not convex
-        else _hull_mask(pose, v, cameras, t, case)
-    )
+    sil = _frame_silhouette(pose, v, f, cameras, t, case, convex)
     inside, around = ColorPosterior.regions(sil & mask, layer.occluders(name, t, mask.shape, grow_px=2))
     if inside.sum() >= cfg.min_pixels:
         return ColorPosterior(case.rgb(t), inside, around)
@@ -303,9 +297,10 @@ def _posterior_agrees(colors, case, layer, name, t, mask, pose, v, f, cameras, c
         moved[:3, 3] = eye + k * (pose[:3, 3] - eye)
         return iou([view], se3.transform_points(moved, v), f, convex=convex)
 
-    if score(1.0) <= max(score(k) for k in NEARER):
+    posed = score(1.0)
+    if posed <= max(score(k) for k in NEARER):
         return False
-    (fitted, _), _ = _refit(v, f, view, pose, np.eye(4), score(1.0), cfg, convex)
+    (fitted, _), _ = _refit(v, f, view, pose, np.eye(4), posed, cfg, convex)
     return not _swollen(fitted, v, f, cameras, t, case, mask, layer, name, convex)
 
 
