@@ -58,17 +58,6 @@ def bake_texture(
     return verts, new_faces.astype(np.int64), uv.astype(float), transfer_colors(verts, points, colors), tex
 
 
-def bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``image`` (H, W, C) at continuous pixel coordinates (pixel centers at integers), clamped."""
-    h, w = image.shape[:2]
-    u, v = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
-    u0, v0 = np.minimum(u.astype(int), w - 2), np.minimum(v.astype(int), h - 2)
-    a, b = (u - u0)[:, None], (v - v0)[:, None]
-    return (image[v0, u0] * (1 - a) + image[v0, u0 + 1] * a) * (1 - b) + (
-        image[v0 + 1, u0] * (1 - a) + image[v0 + 1, u0 + 1] * a
-    ) * b
-
-
 def dilate_ids(ids: np.ndarray, steps: int) -> np.ndarray:
     for _ in range(steps):
         empty = ids < 0

@@ -39,13 +39,14 @@ from scipy.spatial import cKDTree
 
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
-from rose_usd.core.pinhole import backproject, masked_world_points, pixels_of, sample_at, view_counts
+from rose_usd.core.pinhole import backproject, masked_world_points, view_counts
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.geometry.background import StaticBackground
 from rose_usd.geometry.contact import first_contact, ring_height
+from rose_usd.geometry.frame_median import FrameMedian, FrameStack
 from rose_usd.geometry.mesh import faces_facing, self_intersects, submesh
-from rose_usd.geometry.texture import bake_texture, bilinear, transfer_colors
+from rose_usd.geometry.texture import bake_texture, transfer_colors
 from rose_usd.geometry.wrap import alpha_wrap
 from rose_usd.io.images import read_mask
 from rose_usd.layers.masks import INTERACTOR, read_masks
@@ -236,20 +237,6 @@ def fuse_static(
     return points, colors, normals, used, carved
 
 
-def nanmedian_first_axis(samples: np.ndarray) -> np.ndarray:
-    """``np.nanmedian(samples, axis=0)``, bit for bit, for columns with at least one value. NumPy
-    takes a masked-array median for short axes (under 600), which sorts masked arrays and took
-    most of the scene stage's time; here one sort (NaNs go last) and the middle values picked by
-    each column's count, averaged as NumPy does (their sum halved, in the input's type)."""
-    ordered = np.sort(samples, axis=0)
-    count = np.count_nonzero(~np.isnan(ordered), axis=0)
-    high = count // 2
-    low = np.where(count % 2 == 1, high, high - 1)
-    lo = np.take_along_axis(ordered, np.maximum(low, 0)[None], axis=0)[0]
-    hi = np.take_along_axis(ordered, high[None], axis=0)[0]
-    return (lo + hi) / samples.dtype.type(2)
-
-
 class FrameColors:
     """Texel colors from the video itself: each texel is projected into ``count`` frames spread
     over the video and takes the median of its linear colors (bilinear) over the frames that see
@@ -257,59 +244,30 @@ class FrameColors:
     facing the camera (cos > ``min_cos``), and the pixel static (no object or interactor mask
     within ``margin_px``, not nearer than the static world). The median leaves out what passed
     through (a hand, its shadow). The TSDF's colors are averages over its voxels (``voxel_m``, 8 mm);
-    the frames hold the texture's own detail (a tablecloth's weave)."""
+    the frames hold the texture's own detail (a tablecloth's weave). The projection and median
+    run in one Warp kernel (``geometry.frame_median``)."""
 
-    def __init__(
-        self,
-        ctx: StageContext,
-        *,
-        count: int,
-        margin_px: int,
-        tol_m: float = 0.01,
-        min_cos: float = 0.15,
-        chunk: int = 400_000,
-    ):
+    def __init__(self, ctx: StageContext, *, count: int, margin_px: int, tol_m: float = 0.01, min_cos: float = 0.15):
         case, n = ctx.case, ctx.time_info.n_frames
-        self.cameras = read_cameras(ctx.stage, n)
-        self.depth_of = metric_depth_reader(ctx.stage, case, cache=4)
-        self.frames = np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int)).tolist()
-        background = StaticBackground(
-            self.depth_of, self.cameras.world_from_cv, self.cameras.K, case.width, case.height
-        )
+        cameras = read_cameras(ctx.stage, n)
+        depth_of = metric_depth_reader(ctx.stage, case, cache=4)
+        frames = np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int)).tolist()
+        background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
         masks = _mask_files(ctx, n)
         kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
-        self.static, self.rgb = {}, {}
-        for t in progress(self.frames, "scene texture: frames", total=len(self.frames)):
-            self.static[t] = _static_pixels(t, self.depth_of(t), _read_frame_masks(masks[t], case), background, kernel)
-            self.rgb[t] = srgb8_to_linear(case.rgb(t)).astype(np.float32)
-        self.tol_m, self.min_cos, self.chunk = tol_m, min_cos, chunk
+        depth = np.zeros((len(frames), case.height, case.width), np.float32)
+        static = np.zeros((len(frames), case.height, case.width), bool)
+        rgb = np.zeros((len(frames), case.height, case.width, 3), np.float32)
+        for k, t in enumerate(progress(frames, "scene texture: frames", total=len(frames))):
+            depth[k] = depth_of(t)
+            static[k] = _static_pixels(t, depth_of(t), _read_frame_masks(masks[t], case), background, kernel)
+            rgb[k] = srgb8_to_linear(case.rgb(t))
+        stack = FrameStack(cameras.world_from_cv[frames], cameras.K[frames], depth, static, rgb)
+        self.frames = frames
+        self.median = FrameMedian(stack, tol_m=tol_m, rel_tol=0.02, min_cos=min_cos, min_z=0.05)
 
     def __call__(self, xyz: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        out = np.zeros((len(xyz), 3))
-        seen = np.zeros(len(xyz), bool)
-        for a in progress(range(0, len(xyz), self.chunk), "scene texture: texels", total=-(-len(xyz) // self.chunk)):
-            p, nrm = xyz[a : a + self.chunk], normals[a : a + self.chunk]
-            samples = np.full((len(self.frames), len(p), 3), np.nan, np.float32)
-            for k, t in enumerate(self.frames):
-                pose, K = self.cameras.world_from_cv[t], self.cameras.K[t]
-                depth = self.depth_of(t)
-                h, w = depth.shape
-                u, v, z = pixels_of(p, pose, K, w, h, min_z=0.05)
-                ok = (u >= 0) & sample_at(self.static[t], u, v, fill=False)
-                d = sample_at(depth, u, v).astype(float)
-                ok &= np.abs(d - z) <= self.tol_m + 0.02 * z
-                ray = pose[:3, 3] - p
-                ok &= np.einsum("ij,ij->i", nrm, ray) > self.min_cos * np.linalg.norm(ray, axis=1)
-                if not ok.any():
-                    continue
-                cam = se3.transform_points(se3.invert(pose), p[ok])
-                samples[k, ok] = bilinear(
-                    self.rgb[t], K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
-                )
-            got = ~np.isnan(samples[..., 0]).all(axis=0)
-            out[a : a + self.chunk][got] = nanmedian_first_axis(samples[:, got])
-            seen[a : a + self.chunk] = got
-        return out, seen
+        return self.median(xyz, normals)
 
 
 def fill_support_holes(

@@ -27,12 +27,16 @@ def _native_stderr_silenced():
         os.close(devnull)
 
 
+def _verbose() -> bool:
+    return os.environ.get("ROSE_USD_VERBOSE", "") not in ("", "0")
+
+
 @functools.cache
-def newton():
-    """The ``newton`` module with Warp initialized (quiet unless ROSE_USD_VERBOSE is set)."""
+def warp():
+    """The ``warp`` module, initialized (quiet unless ROSE_USD_VERBOSE is set)."""
     import warp as wp
 
-    verbose = os.environ.get("ROSE_USD_VERBOSE", "") not in ("", "0")
+    verbose = _verbose()
     if not verbose:
         # Warp 1.19 logs through config.log_level (older releases through config.quiet); on a
         # machine without a GPU its missing-driver warning is expected noise
@@ -41,15 +45,22 @@ def newton():
         wp.config.quiet = True
     cache = Path(os.environ.get("WARP_CACHE_PATH") or Path.home() / ".cache" / "warp") / wp.config.version
     if not cache.is_dir() or not any(cache.iterdir()):
-        say(f"newton: first use compiles Warp kernels into {cache} (about a minute on a CPU, once)")
+        say(f"warp: first use compiles its kernels into {cache} (about a minute on a CPU, once)")
     if verbose:
         wp.init()
     else:
         with _native_stderr_silenced():  # Warp's driver probe prints a warning from C++ on CPU-only machines
             wp.init()
+    return wp
+
+
+@functools.cache
+def newton():
+    """The ``newton`` module with Warp initialized (quiet unless ROSE_USD_VERBOSE is set)."""
+    warp()
     import newton as newton_module
 
-    if not verbose:
+    if not _verbose():
         try:  # Newton runs CoACD for convexDecomposition colliders; its info log floods stdout
             import coacd
 
