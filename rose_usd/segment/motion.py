@@ -31,9 +31,12 @@ def translation(old: np.ndarray, new: np.ndarray, iterations: int = 5) -> np.nda
     tree = cKDTree(old)
     best, best_gap = np.zeros(3), np.inf
     for shift in (np.zeros(3), new.mean(axis=0) - old.mean(axis=0)):
+        last = None
         for _ in range(iterations):
             _, nearest = tree.query(new - shift)
-            shift = np.median(new - old[nearest], axis=0)
+            if last is not None and np.array_equal(nearest, last):
+                break  # the same pairs give the same shift: every further iteration repeats it
+            shift, last = np.median(new - old[nearest], axis=0), nearest
         gap = float(np.median(tree.query(new - shift)[0]))
         if gap < best_gap:
             best, best_gap = shift, gap
@@ -60,10 +63,14 @@ def rigid_motion(
     best = (np.eye(3), shift, base)
     for rot0 in (np.eye(3), rotation_matrix(spin)):
         rot, t = rot0, shift.copy()
+        last = None
         for _ in range(iterations):
             moved = (old - centre) @ rot.T + centre + t
             d, idx = tree.query(moved)
             keep = d <= np.percentile(d, 80)
+            if last is not None and np.array_equal(idx, last[0]) and np.array_equal(keep, last[1]):
+                break  # the same pairs give the same turn and shift: a fixed point
+            last = (idx, keep)
             a, b = old[keep] - centre, new[idx[keep]]
             ca, cb = a.mean(axis=0), b.mean(axis=0)
             u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
