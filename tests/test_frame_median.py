@@ -3,6 +3,8 @@ looking straight down at the plane z = 0 from 1 m, where every answer is known."
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -82,3 +84,19 @@ def test_the_split_into_chunks_and_threads_does_not_change_a_bit(chunk):
     whole = FrameMedian(stack, **limits, chunk=10_000, device="cpu")(points, np.tile(UP, (200, 1)))
     split = FrameMedian(stack, **limits, chunk=chunk, device="cpu")(points, np.tile(UP, (200, 1)))
     assert whole[1].sum() > 100 and np.array_equal(whole[0], split[0]) and np.array_equal(whole[1], split[1])
+
+
+def test_the_median_of_taken_samples_is_numpys_nanmedian_bit_for_bit():
+    from rose_usd.geometry.frame_median import median_over_frames
+
+    rng = np.random.default_rng(1)
+    for frames in (1, 2, 5, 48):
+        samples = rng.integers(0, 256, (frames, 3000, 3), dtype=np.uint8)
+        seen = rng.uniform(size=(frames, 3000)) < 0.6
+        median, count = median_over_frames(samples, seen, chunk=700, device="cpu")
+        assert np.array_equal(count, seen.sum(axis=0))
+        some = count > 0
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: the unseen texels
+            ref = np.nanmedian(np.where(seen[..., None], samples.astype(np.float32), np.nan), axis=0)
+        assert np.array_equal(median[some], ref[some]) and not median[~some].any()

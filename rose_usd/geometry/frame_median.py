@@ -6,7 +6,8 @@ static, the frame's depth there within ``tol_m + rel_tol * z`` of the point's, a
 facing the camera (cos > ``min_cos``). The colour is the per-channel median of those samples,
 as ``np.nanmedian`` takes it (the two middle values averaged in float32). One thread a point, on
 the CPU (a thread a core, each on its own points) or, where Warp finds one, a CUDA GPU; on the
-CPU the result repeats bit for bit."""
+CPU the result repeats bit for bit. ``median_over_frames`` takes the same median of samples
+already taken (8-bit colours and which frames saw each texel: the plane scene's backdrop)."""
 
 from __future__ import annotations
 
@@ -173,19 +174,14 @@ class FrameMedian:
     def __call__(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         out = np.zeros((len(points), 3))
         seen = np.zeros(len(points), bool)
-        starts = range(0, len(points), self.chunk)
 
-        def run(a: int) -> None:
-            colors, count = self._launch(points[a : a + self.chunk], normals[a : a + self.chunk])
+        def run(a: int, b: int) -> None:
+            colors, count = self._launch(points[a:b], normals[a:b])
             got = count > 0
-            out[a : a + len(got)][got] = colors[got]
-            seen[a : a + len(got)] = got
+            out[a:b][got] = colors[got]
+            seen[a:b] = got
 
-        # a CPU launch runs serially with the GIL released: one thread a core runs chunks side by
-        # side (each point is its own, so the result does not depend on the split)
-        workers = len(os.sched_getaffinity(0)) if self.device.is_cpu and hasattr(os, "sched_getaffinity") else 1
-        with ThreadPoolExecutor(max_workers=max(1, min(workers, len(starts)))) as pool:
-            list(pool.map(run, starts))
+        _in_chunks(len(points), self.chunk, self.device, run)
         return out, seen
 
     def _launch(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,3 +199,63 @@ class FrameMedian:
             device=self.device,
         )
         return colors.numpy(), count.numpy()
+
+
+def _in_chunks(n: int, chunk: int, device, run) -> None:
+    """``run(a, b)`` on every chunk [a, b) of ``n`` items. A CPU launch runs serially with the GIL
+    released: one thread a core runs chunks side by side (each item is its own, so the result
+    does not depend on the split); a GPU takes them one after another."""
+    starts = range(0, n, chunk)
+    workers = len(os.sched_getaffinity(0)) if device.is_cpu and hasattr(os, "sched_getaffinity") else 1
+    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(starts)))) as pool:
+        list(pool.map(lambda a: run(a, min(a + chunk, n)), starts))
+
+
+@functools.cache
+def _samples_kernel():
+    wp, median = _median()
+
+    @wp.kernel
+    def samples_median(
+        samples: wp.array3d(dtype=wp.uint8),
+        seen: wp.array2d(dtype=wp.uint8),
+        scratch: wp.array3d(dtype=wp.float32),
+        out: wp.array(dtype=wp.vec3f),
+        count: wp.array(dtype=wp.int32),
+    ):
+        i = wp.tid()
+        c = int(0)  # noqa: UP018 (a Warp variable that the loop mutates is declared typed)
+        for k in range(samples.shape[0]):
+            if seen[k, i] != wp.uint8(0):
+                for ch in range(3):
+                    scratch[i, ch, c] = wp.float32(samples[k, i, ch])
+                c += 1
+        count[i] = c
+        if c > 0:
+            out[i] = median(scratch, i, c)
+
+    return wp, samples_median
+
+
+def median_over_frames(
+    samples: np.ndarray, seen: np.ndarray, *, chunk: int = 200_000, device: str | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per texel, the per-channel median of its 8-bit ``samples`` (F, N, 3) over the frames that
+    ``seen`` (F, N) marks, as ``np.nanmedian`` takes it (float32; 0 where none), and that count (N,)."""
+    wp, kernel = _samples_kernel()
+    dev = wp.get_device(device) if device else wp.get_preferred_device()
+    frames, n = seen.shape
+    out, count = np.zeros((n, 3), np.float32), np.zeros(n, np.int32)
+
+    def run(a: int, b: int) -> None:
+        args = [
+            wp.array(np.ascontiguousarray(samples[:, a:b], np.uint8), dtype=wp.uint8, device=dev),
+            wp.array(np.ascontiguousarray(seen[:, a:b], bool).view(np.uint8), dtype=wp.uint8, device=dev),
+            wp.empty((b - a, 3, max(frames, 1)), dtype=wp.float32, device=dev),
+        ]
+        med, got = wp.zeros(b - a, dtype=wp.vec3f, device=dev), wp.zeros(b - a, dtype=wp.int32, device=dev)
+        wp.launch(kernel, dim=b - a, inputs=args, outputs=[med, got], device=dev)
+        out[a:b], count[a:b] = med.numpy(), got.numpy()
+
+    _in_chunks(n, chunk, dev, run)
+    return out, count

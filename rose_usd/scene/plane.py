@@ -28,7 +28,6 @@ is in the texture).
 from __future__ import annotations
 
 import tempfile
-import warnings
 from pathlib import Path
 
 import cv2
@@ -37,6 +36,7 @@ import numpy as np
 from rose_usd.core import se3
 from rose_usd.core.pinhole import project
 from rose_usd.errors import MeshError
+from rose_usd.geometry.frame_median import median_over_frames
 from rose_usd.geometry.mesh import check_collider, self_intersects
 from rose_usd.layers.masks import INTERACTOR, read_masks
 from rose_usd.layers.world import read_cameras
@@ -156,13 +156,9 @@ def bake_backdrop(ctx: StageContext, cameras, layer, ref: int, extent, size: tup
         samples[i] = cv2.remap(rgb, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
         ok = cv2.remap(bare.astype(np.uint8), mu, mv, cv2.INTER_NEAREST, borderValue=0).reshape(-1).astype(bool)
         seen[i] = inside & ok
-    count = seen.sum(axis=0)
-    data = np.where(seen[..., None], samples.astype(np.float32), np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # texels no frame saw: NaN, inpainted below
-        median = np.nanmedian(data, axis=0)
-    holes = count == 0
-    tex = np.nan_to_num(median, nan=0.0).clip(0, 255).astype(np.uint8).reshape(th, tw, 3)
+    median, count = median_over_frames(samples, seen)
+    holes = count == 0  # texels no frame saw bare: inpainted below
+    tex = median.clip(0, 255).astype(np.uint8).reshape(th, tw, 3)
     if holes.any():
         tex = cv2.inpaint(tex, holes.reshape(th, tw).astype(np.uint8), 5, cv2.INPAINT_TELEA)
     return tex, float(holes.mean()), len(frames)
