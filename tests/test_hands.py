@@ -76,7 +76,7 @@ def test_found_hands_are_the_interactors_and_no_objects(monkeypatch, sample_case
     area[80:140, 170:192] = True  # over the box's left half at the start of the push
     box = Hand(np.array([[181.0, 110.0]] * 21), np.zeros(21), "Right", 1.0)
     monkeypatch.setattr(classical, "hand_mask", lambda hands, shape: area.copy())
-    monkeypatch.setattr(classical, "_found_hands", lambda ctx: [[box] if 10 <= t < 20 else [] for t in range(48)])
+    monkeypatch.setattr(classical, "find_hands", lambda ctx, rgb_of: [[box] if 10 <= t < 20 else [] for t in range(48)])
     out = tmp_path / "out"
     options = Options(
         backends={"capture": "oracle", "segment": "classical"},

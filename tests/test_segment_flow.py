@@ -25,10 +25,15 @@ def _flow(**segment) -> Options:
 
 def test_flow_backend_needs_no_capture_and_follows_the_box(tmp_path, sample_case):
     """From rose.toml's first-frame box and the RGB frames alone, the box's masks reach IoU >= 0.9
-    (where it is more than half visible), and no world layer is written or needed."""
+    (where it is more than half visible), and no world layer is written or needed (the masks
+    layer's tracks are still listed)."""
     out = tmp_path / "out"
     Pipeline(sample_case, out, _flow()).run("segment")
     assert sorted(p.name for p in (out / "layers").iterdir()) == ["masks.usda"]
+    from rose_usd.layers.masks import read_masks
+    from rose_usd.usd.stage import open_stage
+
+    assert read_masks(open_stage(out / "rose.usda"), 48).names == ["Box"]  # no world layer defines /World
     gt = GroundTruth(sample_case / "gt")
     assert _mask_ious(gt.mask_dir("Box"), out / "masks" / "Box", gt.n_frames, min_fraction=0.5) >= 0.9
 
@@ -170,6 +175,7 @@ def test_a_carried_object_leaves_the_background_behind():
 
 
 RED, BLUE = np.array([200, 40, 30], np.uint8), np.array([40, 60, 200], np.uint8)
+SKIN = np.array([205, 150, 125], np.uint8)
 
 
 def _patchwork(h: int = 120, w: int = 160) -> np.ndarray:
@@ -299,3 +305,57 @@ def test_a_sleeve_far_from_the_object_is_the_interactor_whatever_its_color():
     assert (masks["Mug"][-1] & obj).sum() / (masks["Mug"][-1] | obj).sum() > 0.9
     ious = [(hands[t] & sleeves[t]).sum() / (hands[t] | sleeves[t]).sum() for t in range(8, 30)]
     assert min(ious) >= 0.7
+
+
+def _carried_block(n: int = 30):
+    """A still camera: an orange block speckled with a skin-like color rests, then a skin-colored
+    hand comes down over its top third (frames 4-9, in front of it) and carries it right, 2 px a
+    frame. Returns frames, the block's visible part and the hand's true masks."""
+    rng = np.random.default_rng(2)
+    h, w = 120, 160
+    frames, blocks, hands = [], [], []
+    speckle = rng.random((30, 30)) < 0.5
+    for t in range(n):
+        image = _patchwork(h, w)
+        x0 = 30 + 2 * max(0, t - 10)
+        block, hand = np.zeros((h, w), bool), np.zeros((h, w), bool)
+        block[60:90, x0 : x0 + 30] = True
+        image[block] = (220, 130, 40)
+        image[60:90, x0 : x0 + 30][speckle] = SKIN
+        if t >= 4:
+            bottom = 70 - max(0, 30 - 6 * (t - 4))  # comes down over the block's top third
+            hand[max(0, bottom - 30) : bottom, x0 - 2 : x0 + 32] = True
+            image[hand] = SKIN
+        frames.append(image)
+        blocks.append(block & ~hand)
+        hands.append(hand)
+    return frames, blocks, hands
+
+
+def test_found_hands_are_no_objects_pixels(monkeypatch):
+    """A block whose color model claims skin (its speckles) is carried by a hand in front of it:
+    followed by color and flow alone, its mask takes the hand (IoU < 0.8 once it is carried);
+    with the hand found (its landmark mask and skin colors given), the block's mask stays on its
+    visible part (IoU >= 0.9 in every frame) and the interactor covers the hand (>= 95 %)."""
+    from rose_usd.segment import flow
+    from rose_usd.segment.colors import color_index, histogram
+
+    frames, blocks, hands = _carried_block()
+    h, w = blocks[0].shape
+
+    def run(found, skin):
+        masks, inter, _ = flow.segment_video(
+            lambda t: frames[t], len(frames), (w, h), [("Block", 0, (26, 56, 64, 94), None)], found=found, skin=skin
+        )
+        block = np.array([(m & b).sum() / (m | b).sum() for m, b in zip(masks["Block"], blocks)])
+        return block, inter
+
+    alone, _ = run(None, None)
+    assert alone[12:].min() < 0.8
+    monkeypatch.setattr(flow, "hand_mask", lambda found, shape: found[0])
+    found = [[m] if m.any() else [] for m in hands]
+    skin = histogram(color_index(frames[20])[hands[20]])
+    kept, inter = run(found, skin)
+    assert kept.min() >= 0.9, kept.round(2)
+    covered = [(inter[t] & hands[t]).sum() / hands[t].sum() for t in range(4, 30)]
+    assert min(covered) >= 0.95, np.round(covered, 2)

@@ -33,7 +33,8 @@ class Masks:
             raise StageError(
                 "the stage has no masks layer", path=stage.GetRootLayer().identifier, hint="run the segment stage"
             )
-        self.names = [p.GetName() for p in root.GetChildren()] if root else []
+        # every child, also where no world layer defines /World (a stage of the segment stage alone)
+        self.names = [p.GetName() for p in root.GetAllChildren()] if root else []
 
     def _prim(self, name: str) -> Usd.Prim:
         path = paths.INTERACTOR_MASK if name == INTERACTOR else paths.object_mask(name)

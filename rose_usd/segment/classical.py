@@ -7,13 +7,15 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from rose_usd.errors import EnvironmentProblem, InputError
+from rose_usd.errors import InputError
 from rose_usd.geometry.background import StaticBackground
-from rose_usd.geometry.hands import Hand, HandDetector, bridge_gaps, hand_mask
+from rose_usd.geometry.hands import Hand, hand_mask
 from rose_usd.geometry.support import SupportSurface
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.progress import progress
-from rose_usd.segment.colors import color_index, histogram
+from rose_usd.segment.colors import histogram
+from rose_usd.segment.hands import found_hands as find_hands
+from rose_usd.segment.hands import skin_histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
 from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, following_arm, interactor_mask
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
@@ -39,9 +41,9 @@ def run(ctx: StageContext) -> None:
         how = "prompt"
     else:
         starts, how = [], ""  # found below, once the hands are known
-    found_hands = _found_hands(ctx) if cfg.classical.hands else None
+    found_hands = find_hands(ctx, case.rgb) if cfg.classical.hands else None
     if found_hands is not None and cfg.classical.skin_peel_px > 0:
-        seg.skin = skin_histogram(case, found_hands)
+        seg.skin = skin_histogram(case.rgb, found_hands)
     if specs and not prompted:
         # hands found in a tenth of the frames or more are what touches the objects
         by_hand = found_hands is not None and sum(bool(h) for h in found_hands) >= max(3, 0.1 * n)
@@ -102,40 +104,6 @@ def run(ctx: StageContext) -> None:
     )
 
 
-def skin_histogram(case, found_hands: list[list[Hand]], *, frames: int = 40) -> np.ndarray | None:
-    """The color histogram of the found hands' skin: their landmark masks drawn thin and eroded
-    (so little of what they hold or lie on is taken), over up to ``frames`` frames with hands."""
-    with_hands = [t for t, hands in enumerate(found_hands) if hands]
-    if not with_hands:
-        return None
-    picked = with_hands[:: max(1, len(with_hands) // frames)]
-    shape = (case.height, case.width)
-    kernel = np.ones((3, 3), np.uint8)
-    idx = np.concatenate(
-        [
-            color_index(case.rgb(t))[
-                cv2.erode(hand_mask(found_hands[t], shape, finger_width=0.15).astype(np.uint8), kernel) > 0
-            ]
-            for t in picked
-        ]
-    )
-    return histogram(idx) if len(idx) >= MIN_REGION_PX else None
-
-
 def _hand_pixels(seg: Segmenter, t: int, found_hands: list[list[Hand]]) -> np.ndarray:
     shape = seg.frame(t).depth.shape
     return hand_mask(found_hands[t], shape) if found_hands[t] else np.zeros(shape, bool)
-
-
-def _found_hands(ctx: StageContext) -> list[list[Hand]] | None:
-    """The hands in every frame (a forward pass: the detector tracks them from frame to frame;
-    short losses bridged), None with a warning when the hand models are not installed."""
-    try:
-        detector = HandDetector(ctx.case.fps)
-    except EnvironmentProblem as exc:
-        ctx.warn(f"hands are not detected ({exc.message}); the interactor is what stands in front of the static world")
-        return None
-    with detector:
-        n = ctx.time_info.n_frames
-        found = [detector.detect(ctx.case.rgb(t), t) for t in progress(range(n), "segment: hands", total=n)]
-    return bridge_gaps(found)

