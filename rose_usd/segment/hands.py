@@ -21,7 +21,7 @@ def found_hands(ctx: StageContext, rgb_of) -> list[list[Hand]] | None:
     try:
         detector = HandDetector(ctx.case.fps)
     except EnvironmentProblem as exc:
-        ctx.warn(f"hands are not detected ({exc.message}); the interactor is found by its motion alone")
+        ctx.warn(f"hands are not detected ({exc.message}); the interactor is what differs from the static world")
         return None
     with detector:
         n = ctx.time_info.n_frames
