@@ -2,9 +2,11 @@
 the kill and the recovery every writer runs first, the folder is the old result or the new one,
 with no litter; a re-run then completes it.
 
-The stage is ``run segment --force`` with every oracle backend on the sample's oracle output: its
-commit replaces ``masks/`` and ``layers/masks.usda`` and removes the four layers it makes stale
-with their side folders. Kills land at the k-th file operation (rename, unlink, rmtree, mkdir,
+The stage is ``run segment --force`` with every oracle backend on the sample's oracle output and
+one shared segment setting changed that the oracle does not read: its commit replaces ``masks/``
+and ``layers/masks.usda`` and removes the four layers it makes stale with their side folders.
+(Without the setting the new layer differs from the old only by its wall time, and when the two
+runs' wall times round to the same millisecond, nothing is stale: CI saw that once.) Kills land at the k-th file operation (rename, unlink, rmtree, mkdir,
 fsync) of the process, which walks the commit step by step, or after a random delay.
 """
 
@@ -69,6 +71,8 @@ def command(tmp: Path, case: Path, out: Path) -> list[str]:
         str(out),
         "--backend",
         "all=oracle",
+        "--set",
+        "segment.core_m=0.016",
         "--force",
     ]
 
