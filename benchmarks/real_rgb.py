@@ -413,7 +413,10 @@ def run_seven_scenes(args) -> dict:
     (case_dir / "rose.toml").write_text("# a static scene: nothing is moved in this recording\nobjects = []\n")
     run_dir = case_dir.parent / ("out-no-k" if args.no_k else "out")
     t0 = time.perf_counter()
-    Pipeline(case_dir, run_dir, Options(force=True)).run("capture")
+    from rose_usd.cli import _parse_assignments
+
+    settings = _parse_assignments(args.set or [], "--set")
+    Pipeline(case_dir, run_dir, Options(force=True, settings=settings)).run("capture")
     wall = time.perf_counter() - t0
     stage = open_stage(run_dir / "rose.usda")
     cams = read_cameras(stage, len(truth))
