@@ -6,8 +6,9 @@ The stage is ``run segment --force`` with every oracle backend on the sample's o
 one shared segment setting changed that the oracle does not read: its commit replaces ``masks/``
 and ``layers/masks.usda`` and removes the four layers it makes stale with their side folders.
 (Without the setting the new layer differs from the old only by its wall time, and when the two
-runs' wall times round to the same millisecond, nothing is stale: CI saw that once.) Kills land at the k-th file operation (rename, unlink, rmtree, mkdir,
-fsync) of the process, which walks the commit step by step, or after a random delay.
+runs' wall times round to the same millisecond, nothing is stale: CI saw that once.) Kills land
+at the k-th file operation (rename, unlink, rmtree, mkdir, fsync) of the process, which walks the
+commit step by step, or after a random delay.
 """
 
 from __future__ import annotations
