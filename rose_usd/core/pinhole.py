@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 
 from rose_usd.core import se3
+from rose_usd.core.raster import fill_triangles
 
 
 def backproject(u, v, z, K: np.ndarray) -> np.ndarray:
@@ -152,16 +153,7 @@ def silhouette(
         a, b, c = cam[tri[:, 0]], cam[tri[:, 1]], cam[tri[:, 2]]
         tri = tri[np.einsum("ij,ij->i", np.cross(b - a, c - a), a) < 0.0]  # normal toward the camera
     x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
-    # fixed point with 4 fractional bits: cv2 rasterizes pixel centers at integers (a window moves
-    # them by whole pixels, so it rasterizes the same)
-    pts = np.round(np.stack([u, v], axis=-1) * 16).astype(np.int32)[tri] - np.array([16 * x0, 16 * y0], np.int32)
-    lo, hi = pts.min(axis=1), pts.max(axis=1)
-    w, h = x1 - x0, y1 - y0
-    onscreen = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < 16 * w) & (lo[:, 1] < 16 * h)
-    out = np.zeros((h, w), np.uint8)
-    for p in pts[onscreen]:
-        cv2.fillConvexPoly(out, p, 1, lineType=cv2.LINE_8, shift=4)
-    return out.astype(bool)
+    return fill_triangles(np.column_stack([u - x0, v - y0]), tri, x1 - x0, y1 - y0)
 
 
 def world_points(depth: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ pixels a simplex of a few pixels' moves finds its way.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ from scipy.optimize import minimize
 
 from rose_usd.core import se3
 from rose_usd.core.pinhole import project, silhouette
+from rose_usd.core.raster import convex_spans, fill_convex, row_sums, running_sums
 
 
 @dataclass
@@ -54,15 +56,40 @@ class View:
     ) -> np.ndarray:
         """The mesh's silhouette in the crop; a ``convex`` mesh's is its projected vertices' hull."""
         h, w = self.mask.shape
-        if convex:
-            cam = se3.transform_points(se3.invert(self.world_from_cv), vertices_world)
-            if np.all(cam[:, 2] > 1e-3):
-                u, v = project(cam, self.K)
-                hull = cv2.convexHull(np.round(np.column_stack([u, v]) * 16).astype(np.int32))
-                out = np.zeros((h, w), np.uint8)
-                cv2.fillConvexPoly(out, hull, 1, lineType=cv2.LINE_8, shift=4)
-                return out.astype(bool)
+        hull = self._hull(vertices_world) if convex else None
+        if hull is not None:
+            return fill_convex(hull, w, h)
         return silhouette(vertices_world, faces, self.world_from_cv, self.K, w, h, closed=closed)
+
+    def _hull(self, vertices_world: np.ndarray) -> np.ndarray | None:
+        """The projected vertices' convex hull (M, 2) [px]; None when one is not in front of the camera."""
+        cam = se3.transform_points(self._cv_from_world, vertices_world)
+        if not np.all(cam[:, 2] > 1e-3):
+            return None
+        return cv2.convexHull(np.column_stack(project(cam, self.K)).astype(np.float32)).reshape(-1, 2)
+
+    @functools.cached_property
+    def _cv_from_world(self) -> np.ndarray:
+        return se3.invert(self.world_from_cv)
+
+    @functools.cached_property
+    def _sums(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Running row sums of what counts (not ignored) and of the mask there (soft where given),
+        and the mask's total there: a convex silhouette's IoU from its row spans alone."""
+        keep = ~self.ignore
+        target = np.where(keep, self.soft, 0.0) if self.soft is not None else self.mask & keep
+        return running_sums(keep), running_sums(target), float(target.sum())
+
+    def convex_overlap(self, vertices_world: np.ndarray) -> tuple[float, float] | None:
+        """(intersection, union) of a convex mesh's silhouette with the mask (soft where given),
+        outside what is ignored, as ``iou`` counts them; None when a vertex is behind the camera."""
+        hull = self._hull(vertices_world)
+        if hull is None:
+            return None
+        spans = convex_spans(hull, self.mask.shape[1], self.mask.shape[0])
+        keep, target, total = self._sums
+        drawn, inside = row_sums(keep, spans), row_sums(target, spans)
+        return inside, drawn + total - inside
 
 
 def crop_view(
@@ -127,6 +154,10 @@ def iou(
     """Silhouette IoU of the mesh (world coordinates) with the views' masks, outside what they ignore."""
     inter = union = 0.0
     for view in views:
+        overlap = view.convex_overlap(vertices_world) if convex else None
+        if overlap is not None:
+            inter, union = inter + overlap[0], union + overlap[1]
+            continue
         r = view.render(vertices_world, faces, closed=closed, convex=convex)
         keep = ~view.ignore
         if view.soft is not None:  # soft IoU: sum(r S) / sum(r + S - r S)

@@ -38,6 +38,7 @@ from scipy.spatial import ConvexHull
 
 from rose_usd.core import se3
 from rose_usd.core.pinhole import projected_box, silhouette
+from rose_usd.core.raster import fill_convex
 from rose_usd.geometry.mesh import decimate
 from rose_usd.geometry.silhouette import ColorPosterior, View, crop_view, fit_free, fit_standing, iou, is_convex
 from rose_usd.layers.masks import read_masks
@@ -370,9 +371,7 @@ def _hull_mask(pose, v, cameras, t, case) -> np.ndarray:
     cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
     k = cameras.K[t]
     uv = np.column_stack([k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]])
-    out = np.zeros((case.height, case.width), np.uint8)
-    cv2.fillConvexPoly(out, cv2.convexHull(np.round(uv * 16).astype(np.int32)), 1, shift=4)
-    return out.astype(bool)
+    return fill_convex(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2), case.width, case.height)
 
 
 def _turned(pose: np.ndarray, view: View, angle: float) -> list[np.ndarray]:

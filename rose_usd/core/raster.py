@@ -1,0 +1,146 @@
+"""Triangles and convex polygons rasterized by pixel centers: a pixel is the shape's when its
+center (integer coordinates) lies inside it or on its edge, no pixel more.
+
+``cv2.fillConvexPoly`` also takes every pixel its edges pass through, half a pixel more on every
+side: a 10 px square covers 121 pixels, not 100. A shape fitted to a mask through such a
+silhouette comes out a pixel too small across (5-10 % for the 10-20 px objects of a 160x120 video),
+and one tracked by it a little too far. Here a convex polygon is taken row by row (NumPy: each
+row's span between its two chains), and a fit's IoU is summed over those spans without drawing
+them (``row_sums``); a triangle mesh is filled by one Warp kernel on the CPU (a thread a triangle,
+each row of its box between its edges): 0.3 ms for 580 camera-facing triangles at 640x480, where
+the OpenCV loop it replaces took 0.8 ms (0.13 against 0.06 ms for 36 triangles at 160x120)."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+EDGE_EPS = 1e-9
+"""A pixel center this near an edge [px] is inside (both triangles of a shared edge take it)."""
+
+
+def convex_spans(polygon: np.ndarray, width: int, height: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """A convex polygon's (N, 2) [px, either winding] pixel centers row by row, clipped to a
+    (height, width) image: (r0, lo, hi), row r0 + i holding columns lo[i]..hi[i] (none where
+    hi[i] < lo[i]; no rows at all when lo is empty)."""
+    p = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    n = len(p)
+    ys = p[:, 1]
+    top, bottom = int(ys.argmin()), int(ys.argmax())
+    y_top, y_bottom = float(ys[top]), float(ys[bottom])
+    r0 = max(0, math.ceil(y_top - EDGE_EPS))
+    r1 = min(height - 1, math.floor(y_bottom + EDGE_EPS))
+    if n < 3 or r1 < r0:
+        return 0, np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rows = np.arange(r0, r1 + 1, dtype=float)
+    # the two chains from the top vertex to the bottom one, each's x at every row
+    down = np.arange(top, top + (bottom - top) % n + 1) % n
+    up = np.arange(top, top - (top - bottom) % n - 1, -1) % n
+    xa = np.interp(rows, ys[down], p[down, 0])
+    xb = np.interp(rows, ys[up], p[up, 0])
+    lo, hi = np.minimum(xa, xb), np.maximum(xa, xb)
+    for y in (y_top, y_bottom):  # a level top or bottom edge: its whole width on its row
+        if y == round(y) and r0 <= y <= r1:
+            level = p[np.abs(ys - y) <= EDGE_EPS, 0]
+            lo[int(y) - r0], hi[int(y) - r0] = level.min(), level.max()
+    lo -= EDGE_EPS
+    hi += EDGE_EPS
+    np.ceil(lo, out=lo)
+    np.floor(hi, out=hi)
+    np.maximum(lo, 0.0, out=lo)
+    np.minimum(hi, width - 1.0, out=hi)
+    return r0, lo.astype(np.int64), hi.astype(np.int64)
+
+
+def fill_convex(polygon: np.ndarray, width: int, height: int, out: np.ndarray | None = None) -> np.ndarray:
+    """The pixels whose centers a convex polygon (N, 2) [px, either winding] covers: a (height,
+    width) bool image (set in ``out`` when given)."""
+    out = np.zeros((height, width), bool) if out is None else out
+    r0, lo, hi = convex_spans(polygon, width, height)
+    if len(lo) and (hi >= lo).any():
+        c0, c1 = int(lo.min()), int(hi.max())
+        cols = np.arange(c0, c1 + 1)
+        out[r0 : r0 + len(lo), c0 : c1 + 1] |= (cols >= lo[:, None]) & (cols <= hi[:, None])
+    return out
+
+
+def row_sums(prefix: np.ndarray, spans: tuple[int, np.ndarray, np.ndarray]) -> float:
+    """The sum of an image over ``convex_spans``' pixels, from its running sums along each row
+    ``prefix`` (H, W + 1; column 0 zeros): two lookups a row."""
+    r0, lo, hi = spans
+    ok = hi >= lo
+    rows = r0 + np.flatnonzero(ok)
+    return float((prefix[rows, hi[ok] + 1] - prefix[rows, lo[ok]]).sum())
+
+
+def running_sums(image: np.ndarray) -> np.ndarray:
+    """``row_sums``' table of an image (H, W): its running sums along each row, a zero column first."""
+    out = np.zeros((image.shape[0], image.shape[1] + 1), np.float64)
+    np.cumsum(image, axis=1, dtype=np.float64, out=out[:, 1:])
+    return out
+
+
+@functools.cache
+def _kernel():
+    from rose_usd.sim.engine import warp
+
+    wp = warp()
+
+    @wp.func
+    def span(ax: float, ay: float, bx: float, by: float, y: float, lo: float, hi: float):
+        """(lo, hi) widened by where the edge a-b crosses row y (unchanged when it does not)."""
+        if wp.abs(by - ay) > 1e-12:
+            t = (y - ay) / (by - ay)
+            if t >= -1e-9 and t <= 1.0 + 1e-9:
+                x = ax + wp.clamp(t, 0.0, 1.0) * (bx - ax)
+                lo = wp.min(lo, x)
+                hi = wp.max(hi, x)
+        return wp.vec2(lo, hi)
+
+    @wp.kernel
+    def fill(
+        points: wp.array(dtype=wp.vec2),
+        faces: wp.array2d(dtype=wp.int32),
+        out: wp.array2d(dtype=wp.uint8),
+    ):
+        i = wp.tid()
+        a = points[faces[i, 0]]
+        b = points[faces[i, 1]]
+        c = points[faces[i, 2]]
+        h = out.shape[0]
+        w = out.shape[1]
+        y0 = wp.max(int(wp.ceil(wp.min(a[1], wp.min(b[1], c[1])) - 1e-9)), 0)
+        y1 = wp.min(int(wp.floor(wp.max(a[1], wp.max(b[1], c[1])) + 1e-9)), h - 1)
+        for y in range(y0, y1 + 1):
+            fy = float(y)
+            s = wp.vec2(1.0e30, -1.0e30)
+            s = span(a[0], a[1], b[0], b[1], fy, s[0], s[1])
+            s = span(b[0], b[1], c[0], c[1], fy, s[0], s[1])
+            s = span(c[0], c[1], a[0], a[1], fy, s[0], s[1])
+            x0 = wp.max(int(wp.ceil(s[0] - 1e-9)), 0)
+            x1 = wp.min(int(wp.floor(s[1] + 1e-9)), w - 1)
+            for x in range(x0, x1 + 1):
+                out[y, x] = wp.uint8(1)
+
+    return wp, fill
+
+
+def fill_triangles(points: np.ndarray, triangles: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The pixels whose centers some triangle covers: a (height, width) bool image of the
+    triangles ``triangles`` (T, 3) indexing ``points`` (P, 2) [px], either winding."""
+    tri = np.ascontiguousarray(triangles, dtype=np.int32).reshape(-1, 3)
+    if not len(tri) or width <= 0 or height <= 0:
+        return np.zeros((max(height, 0), max(width, 0)), bool)
+    wp, fill = _kernel()
+    pts = np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 2)
+    out = np.zeros((height, width), np.uint8)
+    wp.launch(
+        fill,
+        dim=len(tri),
+        inputs=[wp.array(pts, dtype=wp.vec2, device="cpu"), wp.array(tri, dtype=wp.int32, device="cpu")],
+        outputs=[wp.array(out, dtype=wp.uint8, device="cpu", copy=False)],
+        device="cpu",
+    )
+    return out.view(bool)
