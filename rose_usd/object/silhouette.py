@@ -219,13 +219,17 @@ STACKED_M = 0.01
 """Another object whose top is this much [m] above an object's support is a support it may stand on."""
 STACKED_MARGIN = 0.005
 """How much lower [1 - IoU + size prior] a fit on another object must cost to be kept."""
+INSIDE_FRACTION = 0.05
+"""An object with this fraction of its volume inside another's hull stands in it: a fit on that
+one's top is kept whatever it costs."""
 
 
 def _stack(fits: dict[str, Fitted]) -> None:
     """Objects stacked on others. An object whose mask's foot, cast onto the top of another (not
     held in the air), lands inside that one's footprint is fitted standing on it too, and stands
-    there where that fit costs ``STACKED_MARGIN`` less (1 - IoU + the size prior) and is not held;
-    an object standing on one that moved is refitted on its new top. Repeated until nothing moves
+    there where that fit costs ``STACKED_MARGIN`` less (1 - IoU + the size prior), or wherever its
+    fit on the support puts it inside that one (``INSIDE_FRACTION``), and is not held; an object
+    standing on one that moved is refitted on its new top. Repeated until nothing moves
     (a stack of three settles from the bottom). In place; the fact says ``stands_on``."""
     world = {n: f.result.points for n, f in fits.items()}
     for _ in range(len(fits)):
@@ -243,12 +247,31 @@ def _stack(fits: dict[str, Fitted]) -> None:
                 ):
                     continue
                 found = a.refit(top)
-                if found.fact.get("held") or (not on and found.fact["fit_cost"] > now["fit_cost"] - STACKED_MARGIN):
+                cheaper = found.fact["fit_cost"] <= now["fit_cost"] - STACKED_MARGIN
+                if found.fact.get("held") or (not on and not cheaper and not _inside(world[name], world[other])):
                     continue
                 found.fact["stands_on"] = other
                 a.result, world[name], moved = found, found.points, True
         if not moved:
             return
+
+
+def _inside(points: np.ndarray, other: np.ndarray) -> bool:
+    """Whether more than ``INSIDE_FRACTION`` of the convex hull of ``points`` (N, 3) lies 5 mm or
+    more inside that of ``other`` (M, 3), by volume (a grid of 10^3 over the first's box): two
+    solids in one place, which no rest allows."""
+    try:
+        mine, theirs = ConvexHull(points), ConvexHull(other)
+    except QhullError:
+        return False
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    axes = [np.linspace(a, b, 10) for a, b in zip(lo, hi)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    grid = grid[(grid @ mine.equations[:, :3].T + mine.equations[:, 3]).max(axis=1) <= 1e-9]
+    if not len(grid):
+        return False
+    depth = (grid @ theirs.equations[:, :3].T + theirs.equations[:, 3]).max(axis=1)
+    return bool(np.mean(depth < -0.005) > INSIDE_FRACTION)
 
 
 def _lands_on(xy, points: np.ndarray) -> bool:
