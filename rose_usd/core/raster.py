@@ -25,15 +25,18 @@ def convex_spans(polygon: np.ndarray, width: int, height: int) -> tuple[int, np.
     """A convex polygon's (N, 2) [px, either winding] pixel centers row by row, clipped to a
     (height, width) image: (r0, lo, hi), row r0 + i holding columns lo[i]..hi[i] (none where
     hi[i] < lo[i]; no rows at all when lo is empty)."""
+    none = (0, np.zeros(0, np.int64), np.zeros(0, np.int64))
     p = np.asarray(polygon, dtype=float).reshape(-1, 2)
     n = len(p)
+    if n < 3:
+        return none
     ys = p[:, 1]
     top, bottom = int(ys.argmin()), int(ys.argmax())
     y_top, y_bottom = float(ys[top]), float(ys[bottom])
     r0 = max(0, math.ceil(y_top - EDGE_EPS))
     r1 = min(height - 1, math.floor(y_bottom + EDGE_EPS))
-    if n < 3 or r1 < r0:
-        return 0, np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if r1 < r0:
+        return none
     rows = np.arange(r0, r1 + 1, dtype=float)
     # the two chains from the top vertex to the bottom one, each's x at every row
     down = np.arange(top, top + (bottom - top) % n + 1) % n
