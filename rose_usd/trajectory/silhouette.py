@@ -37,7 +37,7 @@ import trimesh
 from scipy.spatial import ConvexHull
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import projected_box, silhouette
+from rose_usd.core.pinhole import project, projected_box, silhouette
 from rose_usd.core.raster import fill_convex
 from rose_usd.geometry.mesh import decimate
 from rose_usd.geometry.silhouette import ColorPosterior, View, crop_view, fit_free, fit_standing, iou, is_convex
@@ -369,8 +369,7 @@ def _finish(poses, present, conf, counts: dict, color_model: bool, first):
 def _hull_mask(pose, v, cameras, t, case) -> np.ndarray:
     """A convex mesh's silhouette in the whole frame: its projected vertices' hull."""
     cam = se3.transform_points(se3.invert(cameras.world_from_cv[t]), se3.transform_points(pose, v))
-    k = cameras.K[t]
-    uv = np.column_stack([k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]])
+    uv = np.column_stack(project(cam, cameras.K[t]))
     return fill_convex(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2), case.width, case.height)
 
 
