@@ -77,3 +77,39 @@ def test_an_object_carried_with_another_later_is_not_joined():
     moved = seg.moved_when(labels == ball_label, 0)
     assert moved[[8, 20, 27]].all() and not moved[[0, 7, 28]].any()
     assert np.array_equal(seg.join_moving_with(labels, labels == ball_label, [outer], 0), labels == ball_label)
+
+
+def test_frames_and_foregrounds_made_ahead_are_the_ones_made_in_place():
+    """``foregrounds_ahead`` and ``prefetch`` make on worker threads what ``foreground`` and
+    ``frame`` would make themselves: the same arrays, whether a frame was made ahead, is still
+    being made, or was never started (``close`` drops it)."""
+    from rose_usd.geometry.background import StaticBackground
+
+    depth_of, cams, _, _ = _clip()
+    rgb_of = lambda t: np.full((H, W, 3), 3 * t, np.uint8)  # noqa: E731
+    bg = StaticBackground(depth_of, cams.world_from_cv, cams.K, W, H)
+    plain = Segmenter(rgb_of, depth_of, cams, SegmentConfig(), background=bg)
+    ahead = Segmenter(rgb_of, depth_of, cams, SegmentConfig(), background=bg)
+    try:
+        ahead.foregrounds_ahead(list(range(N)))
+        for t in range(N):
+            ahead.prefetch(t + 1)
+            for a, b in zip(ahead.foreground(t), plain.foreground(t)):
+                assert a.dtype == bool and np.array_equal(a, b)
+            for a, b in zip(ahead.frame(t), plain.frame(t)):
+                assert np.array_equal(a, b, equal_nan=True)
+    finally:
+        ahead.close()
+    assert np.array_equal(ahead.foreground(N - 1)[0], plain.foreground(N - 1)[0])
+
+
+def test_nearest_points_are_scipys():
+    from scipy.spatial import cKDTree
+
+    from rose_usd.segment.motion import Nearest
+
+    rng = np.random.default_rng(3)
+    old, new = rng.normal(size=(3000, 3)) * 0.05, rng.normal(size=(2500, 3)) * 0.05
+    d, i = Nearest(old).query(new)
+    d_ref, i_ref = cKDTree(old).query(new)
+    assert np.array_equal(i, i_ref) and np.allclose(d, d_ref, rtol=0, atol=1e-12)

@@ -11,6 +11,7 @@ rim over the floor) are not mistaken for foreground after upsampling.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 
 import cv2
@@ -41,6 +42,7 @@ class StaticBackground:
         n = len(self.poses)
         self.refs = sorted(set(np.linspace(0, n - 1, min(n, n_refs)).round().astype(int).tolist()))
         self._last: dict[int, np.ndarray] = {}  # the latest frames' static depth (asked for 2-3 times each)
+        self._lock = threading.Lock()
         self._ref_points = []
         for r in self.refs:
             d = depth_of(r)[: self.h * stride : stride, : self.w * stride : stride]
@@ -56,12 +58,17 @@ class StaticBackground:
     def depth(self, t: int) -> np.ndarray:
         """Static depth seen from frame t at full resolution (H, W) [m], 0 where no reference sees
         it (read-only: the latest few frames' are kept and handed out again)."""
-        if t not in self._last:
-            if len(self._last) >= 2:
+        with self._lock:
+            kept = self._last.get(t)
+        if kept is not None:
+            return kept
+        depth = self._depth(t)
+        depth.setflags(write=False)
+        with self._lock:  # a prefetching thread may be keeping the next frame's
+            while len(self._last) >= 3:
                 del self._last[next(iter(self._last))]
-            self._last[t] = self._depth(t)
-            self._last[t].setflags(write=False)
-        return self._last[t]
+            self._last[t] = depth
+        return depth
 
     def _depth(self, t: int) -> np.ndarray:
         pose, k = self.poses[t], self._K(t)

@@ -32,6 +32,14 @@ def run(ctx: StageContext) -> None:
     background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
     support = SupportSurface(depth_of, cameras.world_from_cv, cameras.K, background.refs)
     seg = Segmenter(case.rgb, depth_of, cameras, cfg, background, support)
+    try:
+        _segment(ctx, seg, support, where)
+    finally:
+        seg.close()
+
+
+def _segment(ctx: StageContext, seg: Segmenter, support: SupportSurface, where) -> None:
+    case, n, cfg = ctx.case, ctx.time_info.n_frames, ctx.config
     specs = parse_prompts(cfg.prompts, list(case.config.objects))
     prompted = check_prompts(specs, case.width, case.height, n, where)
     if not specs:  # a static scene (rose.toml: objects = []): only the interactor
@@ -41,6 +49,8 @@ def run(ctx: StageContext) -> None:
         how = "prompt"
     else:
         starts, how = [], ""  # found below, once the hands are known
+    t0 = min((f for f, _ in starts), default=0)
+    seg.foregrounds_ahead([t for _, t in _order(t0, n)])  # made beside the hands' detector
     found_hands = find_hands(ctx, case.rgb) if cfg.classical.hands else None
     if found_hands is not None and cfg.classical.skin_peel_px > 0:
         seg.skin = skin_histogram(case.rgb, found_hands)
@@ -52,22 +62,53 @@ def run(ctx: StageContext) -> None:
         how = "hand-contact" if by_hand else "interactor-contact"
     t0 = min((f for f, _ in starts), default=0)
     masks = {s.name: [None] * n for s in specs}
+    hands = _follow(seg, specs, starts, _order(t0, n), found_hands, masks)
+    tracks_out = []
+    for spec in specs:
+        area = np.array([m.sum() for m in masks[spec.name]], dtype=float)
+        typical = float(np.median(area[area > 0])) if np.any(area > 0) else 1.0
+        tracks_out.append(MaskTrack(spec.name, iter(masks[spec.name]), np.clip(area / typical, 0.0, 1.0)))
+    tracks_out.append(MaskTrack(INTERACTOR, iter(hands)))
+    author_and_check(
+        ctx,
+        tracks_out,
+        lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"),
+        start=how,
+        frames_with_hands_found=None if found_hands is None else sum(bool(h) for h in found_hands),
+        lift_m=round(seg.lift, 4),
+        support_relief_mm=support.relief_mm(),
+    )
+
+
+def _order(t0: int, n: int) -> list[tuple[int, int]]:
+    """(direction, frame) in the order the masks are followed: forward from t0, then back from it."""
+    return [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
+
+
+def _follow(seg: Segmenter, specs, starts, order, found_hands, masks: dict) -> list[np.ndarray | None]:
+    """Every frame's object masks (into ``masks``) and interactor mask (returned), in ``order``
+    (forward from the first prompted frame, then back from it), each frame's reading and static
+    world made ahead on a second thread (``Segmenter.prefetch``)."""
+    n = len(order)
+    height, width = seg.height, seg.width
+    t0 = order[0][1]
     hands: list[np.ndarray | None] = [None] * n
     hand_hist = None
-    order = [(+1, t) for t in range(t0, n)] + [(-1, t) for t in range(t0 - 1, -1, -1)]
     tracks = []
-    for direction, t in progress(order, "segment", total=n):
+    for i, (direction, t) in enumerate(progress(order, "segment", total=n)):
+        if i + 1 < n:
+            seg.prefetch(order[i + 1][1])
         if not tracks or (direction < 0 and t == t0 - 1):  # (re)start from the prompts
             tracks = [tr.copy() for _, tr in starts]
         active = [k for k, (f, _) in enumerate(starts) if direction < 0 or f <= t]
-        found = hand_mask(found_hands[t], (case.height, case.width)) if found_hands and found_hands[t] else None
+        found = hand_mask(found_hands[t], (height, width)) if found_hands and found_hands[t] else None
         arm = (
             arm_mask(seg, t, found)
             if found is not None
             else following_arm(seg, t, hands[t - direction] if 0 <= t - direction < n else None)
         )
         out = seg.step(t, [tracks[k] for k in active], hand_hist, found, arm, arm_found=found is not None)
-        objs = [np.zeros((case.height, case.width), bool) for _ in specs]
+        objs = [np.zeros((height, width), bool) for _ in specs]
         for k, m in zip(active, out):
             objs[k] = m
         hand = interactor_mask(seg, t, objs, hand_hist)
@@ -87,21 +128,7 @@ def run(ctx: StageContext) -> None:
         for spec, m in zip(specs, objs):
             masks[spec.name][t] = m
         hands[t] = hand
-    tracks_out = []
-    for spec in specs:
-        area = np.array([m.sum() for m in masks[spec.name]], dtype=float)
-        typical = float(np.median(area[area > 0])) if np.any(area > 0) else 1.0
-        tracks_out.append(MaskTrack(spec.name, iter(masks[spec.name]), np.clip(area / typical, 0.0, 1.0)))
-    tracks_out.append(MaskTrack(INTERACTOR, iter(hands)))
-    author_and_check(
-        ctx,
-        tracks_out,
-        lambda name: InputError(f"object {name!r} was never found", path=where, hint="check its prompt box"),
-        start=how,
-        frames_with_hands_found=None if found_hands is None else sum(bool(h) for h in found_hands),
-        lift_m=round(seg.lift, 4),
-        support_relief_mm=support.relief_mm(),
-    )
+    return hands
 
 
 def _hand_pixels(seg: Segmenter, t: int, found_hands: list[list[Hand]]) -> np.ndarray:

@@ -45,6 +45,7 @@ under it (``geometry.support``: the table as the video sees it, which may bend a
 from __future__ import annotations
 
 import functools
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
@@ -149,8 +150,13 @@ class Segmenter:
         """The support's height per place (None: the world's z = 0 plane is the support)."""
         self.width, self.height = cameras.width, cameras.height
         self.scale_px = self.width * self.height / (640 * 480)
-        self.frame = functools.lru_cache(maxsize=5)(self._frame)
+        self.frame = functools.lru_cache(maxsize=5)(self._frame_or_ahead)
         """The ``Frame`` t (the last few are cached)."""
+        self._frames_ahead: dict[int, Future] = {}
+        """Frames ``prefetch`` was asked for, being made on a worker thread."""
+        self._foregrounds_ahead: dict[int, Future] = {}
+        """Foregrounds ``foregrounds_ahead`` was asked for (packed bits), being made on another."""
+        self._workers: dict[str, ThreadPoolExecutor] = {}
         self.foreground = functools.lru_cache(maxsize=2)(self._foreground)
         """(foreground, static) of frame t (``StaticBackground.foreground`` at ``foreground_m``;
         read-only: the peel, the arm and the interactor of a frame share it)."""
@@ -163,6 +169,47 @@ class Segmenter:
         """Color histogram of the hands' skin, learnt by the caller from the hands found so far, or
         None: fingers on an object are peeled off its mask (``peel_skin``) only with it."""
 
+    def foregrounds_ahead(self, frames: list[int]) -> None:
+        """Start making the foreground of ``frames``, in that order, on a worker thread (the static
+        world's depth warped from the reference frames: NumPy and OpenCV, which leave the GIL, so it
+        runs beside the hand detector and the tracking). ``foreground`` takes each one made, makes
+        those not started itself, and gives the same result either way."""
+        pool = self._worker("foregrounds")
+        for t in frames:
+            if t not in self._foregrounds_ahead:
+                self._foregrounds_ahead[t] = pool.submit(self._packed_foreground, t)
+
+    def prefetch(self, t: int) -> None:
+        """Start reading frame t (its ``Frame``) on a worker thread, for ``frame`` to take."""
+        if t in self._frames_ahead or not 0 <= t < len(self.cam.world_from_cv):
+            return
+        while len(self._frames_ahead) >= 3:
+            del self._frames_ahead[next(iter(self._frames_ahead))]
+        self._frames_ahead[t] = self._worker("frames").submit(self._frame, t)
+
+    def close(self) -> None:
+        """Stop the worker threads (what they have not started is dropped)."""
+        for pool in self._workers.values():
+            pool.shutdown(wait=True, cancel_futures=True)
+        self._workers.clear()
+        self._frames_ahead.clear()
+        self._foregrounds_ahead.clear()
+
+    def _worker(self, kind: str) -> ThreadPoolExecutor:
+        """The single-thread executor of one kind of work ahead (one each, so neither waits on the other)."""
+        if kind not in self._workers:
+            self._workers[kind] = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"segment-{kind}")
+        return self._workers[kind]
+
+    def _packed_foreground(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        return tuple(np.packbits(m) for m in self._make_foreground(t))
+
+    def _frame_or_ahead(self, t: int) -> Frame:
+        ahead = self._frames_ahead.pop(t, None)
+        if ahead is not None and not ahead.cancel():
+            return ahead.result()
+        return self._frame(t)
+
     def _frame(self, t: int) -> Frame:
         rgb, depth = self.rgb_of(t), self.depth_of(t)
         pts = world_points(depth, self.cam.K[t], self.cam.world_from_cv[t])
@@ -170,7 +217,15 @@ class Segmenter:
         return Frame(rgb, depth, pts, depth_edges(depth), color_index(rgb), height)
 
     def _foreground(self, t: int) -> tuple[np.ndarray, np.ndarray]:
-        return self.bg.foreground(t, self.frame(t).depth, tau_m=self.config.foreground_m)
+        ahead = self._foregrounds_ahead.pop(t, None)
+        if ahead is not None and not ahead.cancel():
+            shape, size = (self.height, self.width), self.height * self.width
+            fg, static = (np.unpackbits(m, count=size).view(bool).reshape(shape) for m in ahead.result())
+            return fg, static
+        return self._make_foreground(t)
+
+    def _make_foreground(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.bg.foreground(t, self.depth_of(t), tau_m=self.config.foreground_m)
 
     def _bridged(self, t: int) -> np.ndarray:
         return bridge_holes(self.foreground(t)[0], self.frame(t).depth)
