@@ -12,13 +12,12 @@ already taken (8-bit colours and which frames saw each texel: the plane scene's 
 from __future__ import annotations
 
 import functools
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from rose_usd.core import se3
+from rose_usd.sim.engine import in_chunks
 
 
 @dataclass(frozen=True)
@@ -181,7 +180,7 @@ class FrameMedian:
             out[a:b][got] = colors[got]
             seen[a:b] = got
 
-        _in_chunks(len(points), self.chunk, self.device, run)
+        in_chunks(len(points), self.chunk, self.device, run)
         return out, seen
 
     def _launch(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -199,16 +198,6 @@ class FrameMedian:
             device=self.device,
         )
         return colors.numpy(), count.numpy()
-
-
-def _in_chunks(n: int, chunk: int, device, run) -> None:
-    """``run(a, b)`` on every chunk [a, b) of ``n`` items. A CPU launch runs serially with the GIL
-    released: one thread a core runs chunks side by side (each item is its own, so the result
-    does not depend on the split); a GPU takes them one after another."""
-    starts = range(0, n, chunk)
-    workers = len(os.sched_getaffinity(0)) if device.is_cpu and hasattr(os, "sched_getaffinity") else 1
-    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(starts)))) as pool:
-        list(pool.map(lambda a: run(a, min(a + chunk, n)), starts))
 
 
 @functools.cache
@@ -257,5 +246,5 @@ def median_over_frames(
         wp.launch(kernel, dim=b - a, inputs=args, outputs=[med, got], device=dev)
         out[a:b], count[a:b] = med.numpy(), got.numpy()
 
-    _in_chunks(n, chunk, dev, run)
+    in_chunks(n, chunk, dev, run)
     return out, count

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from rose_usd.progress import say
@@ -52,6 +53,16 @@ def warp():
         with _native_stderr_silenced():  # Warp's driver probe prints a warning from C++ on CPU-only machines
             wp.init()
     return wp
+
+
+def in_chunks(n: int, chunk: int, device, run) -> None:
+    """``run(a, b)`` on every chunk [a, b) of ``n`` items. A CPU launch runs serially with the GIL
+    released: one thread a core runs chunks side by side (each item is its own, so the result
+    does not depend on the split); a GPU takes them one after another."""
+    starts = range(0, n, chunk)
+    workers = len(os.sched_getaffinity(0)) if device.is_cpu and hasattr(os, "sched_getaffinity") else 1
+    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(starts)))) as pool:
+        list(pool.map(lambda a: run(a, min(a + chunk, n)), starts))
 
 
 @functools.cache
