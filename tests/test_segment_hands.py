@@ -115,8 +115,7 @@ def test_sensor_holes_in_a_sleeve_are_bridged_and_nothing_else():
     region once bridged; a table pixel with depth between the sleeve and a blob 3 px away keeps its
     own answer (it is not foreground), so the blob is not joined through it; a hand with a few
     holes at its edge gets none added."""
-    from rose_usd.segment.regions import components
-    from rose_usd.segment.segmenter import bridge_holes
+    from rose_usd.segment.regions import bridge_holes, components
 
     depth = np.full((H, W), 0.8, np.float32)
     fg = np.zeros((H, W), bool)

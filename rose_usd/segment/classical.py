@@ -16,8 +16,9 @@ from rose_usd.progress import progress
 from rose_usd.segment.colors import histogram
 from rose_usd.segment.hands import found_hands as find_hands
 from rose_usd.segment.hands import skin_histogram
+from rose_usd.segment.interactor import arm_mask, following_arm, interactor_mask
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter, arm_mask, following_arm, interactor_mask
+from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 

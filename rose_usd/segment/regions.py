@@ -255,3 +255,21 @@ def grow_across_edges(
             region, grown = union, True
         if not grown:
             return region
+
+
+def bridge_holes(fg: np.ndarray, depth: np.ndarray, *, px: int = 5, speckled: float = 0.2) -> np.ndarray:
+    """``fg`` with its sensor holes bridged where it comes in specks: a dark sleeve reflects too
+    little for the sensor, and its foreground is specks among pixels without depth (realistic
+    place-mug's interactor IoU 0.60 without this, 0.85 with). A closing over ``px`` pixels joins
+    them; its pixels without depth are kept in the regions where they are at least ``speckled`` of
+    the closed region. Elsewhere (a hand with a sensor's shadow beside it) nothing is added:
+    there the holes are background seen past the hand's edge."""
+    closed = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((px, px), np.uint8)).astype(bool)
+    added = closed & ~fg & (depth <= 0)
+    if not added.any():
+        return fg
+    n, labels, areas = components(closed)
+    holes = np.bincount(labels[added], minlength=n)
+    keep = holes >= speckled * np.maximum(areas, 1)
+    keep[0] = False
+    return fg | (added & keep[labels])

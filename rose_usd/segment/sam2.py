@@ -13,7 +13,8 @@ from rose_usd.errors import ConfigError, InputError
 from rose_usd.geometry.background import StaticBackground
 from rose_usd.io.sam2 import read_masks, read_object_mask
 from rose_usd.layers.world import metric_depth_reader, read_cameras
-from rose_usd.segment.segmenter import Segmenter, interactor_mask
+from rose_usd.segment.interactor import interactor_mask
+from rose_usd.segment.segmenter import Segmenter
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 

@@ -27,7 +27,7 @@ under it (``geometry.support``: the table as the video sees it, which may bend a
    connected to a found hand (its fingers, its arm, what it holds) are the object's only within
    ``core_m`` of the moved points, inside the silhouette they show and not in front of their
    surface by more than ``occluder_m`` (fingers wrapped around it). With no hand found, the
-   interactor's region of the frame before, followed into this one (``following_arm``), is
+   interactor's region of the frame before, followed into this one (``interactor.following_arm``), is
    taken as the arm, by the same rule save the silhouette (a part the points never covered may
    join: a lying can's end cap beside the thumb). A pixel belongs to one
    object at most. Color models are updated as the object turns. The motion
@@ -62,6 +62,7 @@ from rose_usd.segment.colors import color_index, histogram, object_colored
 from rose_usd.segment.config import SegmentConfig
 from rose_usd.segment.motion import diameter, rigid_motion, rotation_matrix, subsample
 from rose_usd.segment.regions import (
+    bridge_holes,
     components,
     depth_edges,
     fill_holes,
@@ -70,7 +71,6 @@ from rose_usd.segment.regions import (
     off_surface,
     peel_skin,
     separate,
-    touching,
 )
 
 
@@ -701,62 +701,3 @@ class Segmenter:
         track.color = 0.5 * track.first_color + 0.5 * (
             0.8 * (2.0 * track.color - track.first_color) + 0.2 * histogram(cidx[mask])
         )
-
-
-def arm_mask(seg: Segmenter, t: int, hand: np.ndarray) -> np.ndarray:
-    """What stands in front of the static world (geometry.background) in frame t and connects to
-    ``hand`` (pixels of a hand found by its landmarks): the arm, and whatever the hand holds."""
-    return touching(seg.foreground(t)[0] | hand, hand, grow_px=2) & ~hand
-
-
-def bridge_holes(fg: np.ndarray, depth: np.ndarray, *, px: int = 5, speckled: float = 0.2) -> np.ndarray:
-    """``fg`` with its sensor holes bridged where it comes in specks: a dark sleeve reflects too
-    little for the sensor, and its foreground is specks among pixels without depth (realistic
-    place-mug's interactor IoU 0.60 without this, 0.85 with). A closing over ``px`` pixels joins
-    them; its pixels without depth are kept in the regions where they are at least ``speckled`` of
-    the closed region. Elsewhere (a hand with a sensor's shadow beside it) nothing is added:
-    there the holes are background seen past the hand's edge."""
-    closed = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((px, px), np.uint8)).astype(bool)
-    added = closed & ~fg & (depth <= 0)
-    if not added.any():
-        return fg
-    n, labels, areas = components(closed)
-    holes = np.bincount(labels[added], minlength=n)
-    keep = holes >= speckled * np.maximum(areas, 1)
-    keep[0] = False
-    return fg | (added & keep[labels])
-
-
-def following_arm(seg: Segmenter, t: int, last: np.ndarray | None) -> np.ndarray | None:
-    """Without a found hand: what stands in front of the static world (geometry.background) in
-    frame t, in regions that overlap ``last`` (the interactor's mask in the frame before): the
-    interactor followed from frame to frame, with what it now holds (``arm_mask``'s role). Sensor
-    holes on a dark sleeve break the region into specks: they are bridged first (``bridge_holes``)."""
-    if last is None or not last.any():
-        return None
-    return touching(seg.bridged(t), last, grow_px=2) & seg.foreground(t)[0]
-
-
-def interactor_mask(
-    seg: Segmenter, t: int, objects: list[np.ndarray], hand_hist: np.ndarray | None = None
-) -> np.ndarray:
-    """The other moving region: nearer than the static world, not an object. With a color model
-    of the hand, it grows through hand-colored pixels connected to it whose depth is missing or
-    disagrees with the static world (too near for the sensor, or misregistered at the rim)."""
-    rgb, depth, pts, edges, cidx, _ = seg.frame(t)
-    fg, static = seg.foreground(t)
-    taken = np.zeros_like(fg)
-    for m in objects:
-        taken |= m
-    taken = cv2.dilate(taken.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    fg = seg.bridged(t) & ~taken
-    fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
-    n, labels, areas = components(fg)
-    big = np.zeros(n, bool)
-    big[1:] = areas[1:] >= MIN_REGION_PX * seg.scale_px
-    hand = big[labels]
-    if hand_hist is not None and hand.any() and static.any():
-        bg_hist = histogram(cidx[static][:: max(1, int(static.sum()) // 20000)])
-        maybe = (hand_hist[cidx] > 2.0 * bg_hist[cidx]) & ~static & ~taken
-        hand = touching(hand | maybe, hand)
-    return hand
