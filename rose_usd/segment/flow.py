@@ -50,7 +50,7 @@ from rose_usd.segment.colors import color_index, histogram, surface_histogram
 from rose_usd.segment.hands import found_hands as find_hands
 from rose_usd.segment.hands import skin_histogram
 from rose_usd.segment.prompts import check_prompts, parse_prompts
-from rose_usd.segment.segmenter import components, fill_holes, touching
+from rose_usd.segment.regions import components, fill_holes, touching
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
