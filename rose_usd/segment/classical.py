@@ -88,8 +88,9 @@ def _order(t0: int, n: int) -> list[tuple[int, int]]:
 
 def _follow(seg: Segmenter, specs, starts, order, found_hands, masks: dict) -> list[np.ndarray | None]:
     """Every frame's object masks (into ``masks``) and interactor mask (returned), in ``order``
-    (forward from the first prompted frame, then back from it), each frame's reading and static
-    world made ahead on a second thread (``Segmenter.prefetch``)."""
+    (forward from the first prompted frame, then back from it), the next frame's reading made on a
+    worker thread meanwhile (``Segmenter.prefetch``; the foregrounds are already under way:
+    ``Segmenter.foregrounds_ahead``)."""
     n = len(order)
     height, width = seg.height, seg.width
     t0 = order[0][1]
