@@ -71,7 +71,7 @@ def _prompts(values: list[str]) -> tuple:
 
 def _api_args(args) -> dict:
     settings = _parse_assignments(args.set, "--set")
-    options = {}
+    options = {"isolate": not getattr(args, "in_process", False)}
     if getattr(args, "prompt", None):
         prompts = _prompts(args.prompt)
         settings.setdefault("segment", {})["prompts"] = prompts
@@ -393,6 +393,12 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
         " the prompted object sets the world's origin and metric scale)",
     )
     p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
+    p.add_argument(
+        "--in-process",
+        action="store_true",
+        help="run every stage in this process (for a debugger or profiler), not each in a child"
+        " process of its own (which keeps a stage's memory to its own)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -447,6 +453,12 @@ def _add_pipeline_commands(sub) -> None:
     p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="override a stage setting")
     p.add_argument("--force", action="store_true", help="re-run every stage")
     p.add_argument("--no-validate", action="store_true", help="skip validation at the end")
+    p.add_argument(
+        "--in-process",
+        action="store_true",
+        help="run every stage in this process (for a debugger or profiler), not each in a child"
+        " process of its own (which keeps a stage's memory to its own)",
+    )
     p.set_defaults(func=cmd_demo)
 
 

@@ -24,6 +24,11 @@ class RoseError(Exception):
         self.hint = hint
         super().__init__(self.one_line())
 
+    def __reduce__(self):
+        # pickled whole (an isolated stage's error crosses to the parent process): the keyword
+        # arguments are not in ``args``; attributes set on it come along as its state
+        return (_rebuild, (type(self), self.message, self.path, self.hint), self.__dict__)
+
     def one_line(self) -> str:
         parts = []
         if self.path:
@@ -58,3 +63,7 @@ class EnvironmentProblem(RoseError):
 
 class MeshError(RoseError):
     """A mesh is unusable (empty, non-manifold where that matters, wrong units)."""
+
+
+def _rebuild(cls: type, message: str, path: str | None, hint: str | None) -> RoseError:
+    return cls(message, path=path, hint=hint)

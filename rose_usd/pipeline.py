@@ -61,6 +61,12 @@ class Options:
     """What errors in ``settings`` name as their source."""
     prompt_source: str = "--set"
     """What errors in ``settings["segment"]["prompts"]`` name as their source."""
+    isolate: bool = False
+    """Run each stage in a child process of its own (``multiprocessing``'s spawn), which ends with
+    it: the memory a stage holds is its own libraries and data, not those of every stage before it
+    in the process (300 frames at 640x480: 2.3 GB peak in one process, the largest stage alone
+    1.3 GB). The layers are all that passes between stages either way. Off, stages run in the
+    caller's process (what tests that patch a stage's code need); the CLI turns it on."""
 
 
 @dataclass(frozen=True)
@@ -219,6 +225,8 @@ class Pipeline:
 
     # ------------------------------------------------------------------ running
     def run_stage(self, stage_def: StageDef) -> StageOutcome:
+        if self.options.isolate:
+            return _in_child_process(self, stage_def)
         config = self.config(stage_def)
         for need in stage_def.needs_of(config.backend.value):
             if not usd_stage.layer_file(self.out_dir, registry.get(need).layer).is_file():
@@ -289,6 +297,69 @@ class Pipeline:
         if usd_stage.existing_layers(self.out_dir) and not usd_stage.root_file(self.out_dir).is_file():
             usd_stage.write_root(self.out_dir, self.time_info)
         return outcomes
+
+
+def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
+    """``pipe.run_stage(stage_def)`` in a spawned child process; its outcome, or its error raised
+    here (a RoseError as the child raised it; a bug's traceback is printed by the child). The
+    child dies with this process (``PR_SET_PDEATHSIG``): a killed run leaves no stage running on."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    receive, send = ctx.Pipe(duplex=False)
+    options = dataclasses.replace(pipe.options, isolate=False)
+    child = ctx.Process(
+        target=_child_stage, args=(send, pipe.case, pipe.out_dir, options, stage_def.name), name=stage_def.name
+    )
+    child.start()
+    send.close()
+    try:
+        ok, result = receive.recv()
+    except EOFError:
+        ok, result = False, None
+    finally:
+        child.join()
+        receive.close()
+    if ok:
+        return result
+    if result is None:
+        raise StageError(
+            f"stage {stage_def.name!r}'s process ended (exit code {child.exitcode}) before it finished",
+            path=pipe.out_dir,
+            hint="its previous layer is kept; out of memory is the likely cause when the exit code is -9",
+        )
+    raise result
+
+
+def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str) -> None:
+    _die_with_parent()
+    try:
+        result = (True, Pipeline(case, out_dir, options).run_stage(registry.get(name)))
+    except RoseError as exc:
+        result = (False, exc)
+    except BaseException as exc:
+        import traceback
+
+        traceback.print_exc()
+        result = (False, exc)
+    try:
+        send.send(result)
+    except Exception as exc:  # an error that does not pickle: its text
+        send.send((False, RuntimeError(f"stage {name!r} failed: {type(result[1]).__name__}: {result[1]} ({exc})")))
+    send.close()
+
+
+def _die_with_parent() -> None:
+    """Linux: SIGKILL this process when its parent dies (elsewhere nothing)."""
+    import ctypes
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+        except OSError:
+            pass
 
 
 def _fresh_random_state() -> None:

@@ -75,6 +75,7 @@ def command(tmp: Path, case: Path, out: Path) -> list[str]:
         "--set",
         "segment.core_m=0.016",
         "--force",
+        "--in-process",  # the file operations counted are this process's
     ]
 
 

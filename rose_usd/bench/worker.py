@@ -119,7 +119,7 @@ def run_case(
 
     monitor = RssMonitor()
     t_start = time.perf_counter()
-    pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True))
+    pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True, isolate=True))
     stages = {}
     # the benchmark of Tables 2 and 3 ends at the gate; robot demonstrations (collect) run only
     # when asked for with --until collect

@@ -1,0 +1,82 @@
+"""Stages run each in a child process of its own (``Options.isolate``, the CLI's default): the same
+layer as in the caller's process, errors that cross back whole, and no child left running when
+the run is killed."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from conftest import oracle_options
+
+from rose_usd import registry
+from rose_usd.errors import InputError, MeshError
+from rose_usd.pipeline import Options, Pipeline
+from rose_usd.usd.stage import layer_file
+
+
+def test_errors_cross_processes_whole():
+    err = InputError("nothing stands on the support", path="/x/rose.toml", hint="draw the box around it")
+    err.finished_stages = {"capture": 1.0}
+    back = pickle.loads(pickle.dumps(err))
+    assert type(back) is InputError
+    assert (back.message, back.path, back.hint) == (err.message, err.path, err.hint)
+    assert back.one_line() == err.one_line() and str(back) == str(err)
+    assert back.finished_stages == {"capture": 1.0}
+    assert pickle.loads(pickle.dumps(MeshError("empty"))).one_line() == "empty."
+
+
+def test_isolated_stage_writes_the_layer_the_caller_would(tmp_path, oracle_out, sample_case):
+    layers = {}
+    for isolate in (False, True):
+        out = tmp_path / f"isolate-{isolate}"
+        shutil.copytree(oracle_out, out)
+        options = oracle_options()
+        pipe = Pipeline(sample_case, out, Options(backends=options.backends, force=True, isolate=isolate))
+        outcome = pipe.run_stage(registry.get("object"))
+        assert outcome.status == "ran" and outcome.backend == "oracle"
+        layers[isolate] = layer_file(out, "object").read_text()
+    strip = lambda text: "\n".join(line for line in text.splitlines() if "wall_time_s" not in line)  # noqa: E731
+    assert strip(layers[True]) == strip(layers[False])
+
+
+def _children(pid: int) -> list[int]:
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(v) for v in path.read_text().split()] if path.exists() else []
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_a_killed_run_leaves_no_stage_running(tmp_path, oracle_out, sample_case):
+    if not sys.platform.startswith("linux"):
+        return
+    out = tmp_path / "out"
+    shutil.copytree(oracle_out, out)
+    cmd = [sys.executable, "-m", "rose_usd.cli", "run", "gate", str(sample_case), "-o", str(out), "--force"]
+    cmd += ["--backend", "all=oracle"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=dict(os.environ))
+    deadline = time.monotonic() + 120
+    children: list[int] = []
+    while time.monotonic() < deadline and not children:
+        time.sleep(0.2)
+        children = [c for c in _children(proc.pid) if "multiprocessing" in Path(f"/proc/{c}/cmdline").read_text()]
+        # the spawn machinery's resource tracker is a child too: the stage's child imports rose_usd
+    assert children, "the stage never started in a child process"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    deadline = time.monotonic() + 5  # the gate alone takes longer: a child that outlived it fails
+    while time.monotonic() < deadline and any(_alive(c) for c in children):
+        time.sleep(0.2)
+    assert not any(_alive(c) for c in children)
