@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import hashlib
+import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -309,7 +310,9 @@ def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
     receive, send = ctx.Pipe(duplex=False)
     options = dataclasses.replace(pipe.options, isolate=False)
     child = ctx.Process(
-        target=_child_stage, args=(send, pipe.case, pipe.out_dir, options, stage_def.name), name=stage_def.name
+        target=_child_stage,
+        args=(send, pipe.case, pipe.out_dir, options, stage_def.name, os.getpid()),
+        name=stage_def.name,
     )
     child.start()
     send.close()
@@ -331,8 +334,10 @@ def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
     raise result
 
 
-def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str) -> None:
+def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, parent: int) -> None:
     _die_with_parent()
+    if os.getppid() != parent:  # it died before the line above (while this process started)
+        os._exit(1)
     try:
         result = (True, Pipeline(case, out_dir, options).run_stage(registry.get(name)))
     except RoseError as exc:
