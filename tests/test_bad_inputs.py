@@ -146,3 +146,12 @@ def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"), "--backend", "all=oracle")
     assert_one_line_error(code, err, "gt/scene.json", "has none", "--backend capture=oracle")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_command_line_prompt_on_nothing_names_the_prompt(capsys, sample_case, tmp_path):
+    """A --prompt box where nothing stands names --prompt, not rose.toml (the stage's own error,
+    raised in its child process)."""
+    out = tmp_path / "out"
+    code, err = run_cli(capsys, "run", "segment", str(sample_case), "-o", str(out), "--prompt", "0:2,2,12,12")
+    assert_one_line_error(code, err, "segment.prompts (--prompt)", "nothing stands on the support", "draw the box")
+    assert not (out / "layers" / "masks.usda").exists()

@@ -17,7 +17,7 @@ from rose_usd.segment.colors import histogram
 from rose_usd.segment.hands import found_hands as find_hands
 from rose_usd.segment.hands import skin_histogram
 from rose_usd.segment.interactor import arm_mask, following_arm, interactor_mask
-from rose_usd.segment.prompts import check_prompts, parse_prompts
+from rose_usd.segment.prompts import check_prompts, parse_prompts, prompts_source
 from rose_usd.segment.segmenter import MIN_REGION_PX, Segmenter
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
@@ -29,7 +29,7 @@ def run(ctx: StageContext) -> None:
     cfg = ctx.config
     cameras = read_cameras(ctx.stage, n)
     depth_of = metric_depth_reader(ctx.stage, case, cache=24)
-    where = case.folder / "rose.toml"
+    where = prompts_source(cfg.prompts, case)
     background = StaticBackground(depth_of, cameras.world_from_cv, cameras.K, case.width, case.height)
     support = SupportSurface(depth_of, cameras.world_from_cv, cameras.K, background.refs)
     seg = Segmenter(case.rgb, depth_of, cameras, cfg, background, support)

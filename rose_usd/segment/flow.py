@@ -49,7 +49,7 @@ from rose_usd.progress import progress
 from rose_usd.segment.colors import color_index, histogram, surface_histogram
 from rose_usd.segment.hands import found_hands as find_hands
 from rose_usd.segment.hands import skin_histogram
-from rose_usd.segment.prompts import check_prompts, parse_prompts
+from rose_usd.segment.prompts import check_prompts, parse_prompts, prompts_source
 from rose_usd.segment.regions import components, fill_holes, touching
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
@@ -511,7 +511,7 @@ def run(ctx: StageContext) -> None:
     case = ctx.case
     n = ctx.time_info.n_frames
     cfg = ctx.config
-    where = case.folder / "rose.toml"
+    where = prompts_source(cfg.prompts, case)
     specs = parse_prompts(cfg.prompts, list(case.config.objects))
     check_prompts(specs, case.width, case.height, n, where)
     if any(s.prompt is None for s in specs) or not specs:

@@ -23,6 +23,12 @@ def parse_prompts(prompts, specs) -> list:
     return list(out.values())
 
 
+def prompts_source(prompts, case):
+    """What an error about a prompt names: the command line's prompts (``segment.prompts``, from
+    ``--prompt`` or ``--set``) when there are any, else the case's rose.toml."""
+    return "segment.prompts (--prompt)" if prompts else case.folder / "rose.toml"
+
+
 def check_prompts(specs, width: int, height: int, n: int, where) -> list:
     """The objects that have a prompt, after checking each lies in the video and that either every
     object or none has one."""
