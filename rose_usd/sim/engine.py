@@ -58,11 +58,17 @@ def warp():
 def in_chunks(n: int, chunk: int, device, run) -> None:
     """``run(a, b)`` on every chunk [a, b) of ``n`` items. A CPU launch runs serially with the GIL
     released: one thread a core runs chunks side by side (each item is its own, so the result
-    does not depend on the split); a GPU takes them one after another."""
+    does not depend on the split); a GPU takes them one after another. The first chunk runs
+    alone on the calling thread: Warp loads a kernel's module on its first launch, and two
+    threads loading one module at once race in Warp (``KeyError`` in ``Module.load``)."""
     starts = range(0, n, chunk)
+    if not starts:
+        return
+    run(0, min(chunk, n))
+    rest = starts[1:]
     workers = len(os.sched_getaffinity(0)) if device.is_cpu and hasattr(os, "sched_getaffinity") else 1
-    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(starts)))) as pool:
-        list(pool.map(lambda a: run(a, min(a + chunk, n)), starts))
+    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(rest)))) as pool:
+        list(pool.map(lambda a: run(a, min(a + chunk, n)), rest))
 
 
 @functools.cache
