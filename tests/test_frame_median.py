@@ -100,23 +100,3 @@ def test_the_median_of_taken_samples_is_numpys_nanmedian_bit_for_bit():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: the unseen texels
             ref = np.nanmedian(np.where(seen[..., None], samples.astype(np.float32), np.nan), axis=0)
         assert np.array_equal(median[some], ref[some]) and not median[~some].any()
-
-
-def test_chunks_start_with_one_on_the_calling_thread():
-    """``in_chunks`` runs the first chunk alone on the caller (Warp loads a kernel's module on its
-    first launch, and two threads loading one module race), then every other chunk exactly once."""
-    import threading
-
-    from rose_usd.sim.engine import in_chunks, warp
-
-    caller, seen, lock = threading.get_ident(), [], threading.Lock()
-
-    def run(a, b):
-        with lock:
-            seen.append((a, b, threading.get_ident(), len(seen)))
-
-    in_chunks(10, 3, warp().get_device("cpu"), run)
-    assert seen[0][:3] == (0, 3, caller)
-    assert sorted(s[:2] for s in seen) == [(0, 3), (3, 6), (6, 9), (9, 10)]
-    in_chunks(0, 3, warp().get_device("cpu"), run)
-    assert len(seen) == 4

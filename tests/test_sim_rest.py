@@ -47,3 +47,34 @@ def test_only_triangles_near_the_objects_are_kept_and_a_far_mesh_stops_colliding
     assert not builder.shape_flags[far] & collides
     assert builder.shape_flags[floor] & collides
     builder.finalize(device="cpu")
+
+
+def test_warp_starts_once_when_threads_ask_for_it_together():
+    """The gate starts Newton's rest check on a thread while its renders begin: both ask for
+    Warp in a fresh process at once. Two ``wp.init()`` running side by side build two runtimes,
+    and the second marks every kernel module modified under a load in progress (Warp's
+    ``KeyError: 1`` in ``Module.load``, seen in CI); ``engine.warp()`` starts it once."""
+    import subprocess
+    import sys
+
+    script = """
+import threading
+import warp._src.context as ctx
+from rose_usd.sim import engine
+built, init = [], ctx.Runtime.__init__
+def counted(self, *a, **k):
+    built.append(1)
+    init(self, *a, **k)
+ctx.Runtime.__init__ = counted
+start = threading.Barrier(4)
+def ask():
+    start.wait()
+    engine.warp()
+threads = [threading.Thread(target=ask) for _ in range(4)]
+[t.start() for t in threads]
+[t.join() for t in threads]
+print(len(built))
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split()[-1] == "1"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -32,9 +33,21 @@ def _verbose() -> bool:
     return os.environ.get("ROSE_USD_VERBOSE", "") not in ("", "0")
 
 
-@functools.cache
+_STARTING = threading.Lock()
+"""Held while Warp starts: ``functools.cache`` alone lets two threads run the start at
+once, and two ``wp.init()`` side by side build two runtimes, the second marking every kernel
+module modified under another thread's load (Warp's ``KeyError`` in ``Module.load``)."""
+
+
 def warp():
-    """The ``warp`` module, initialized (quiet unless ROSE_USD_VERBOSE is set)."""
+    """The ``warp`` module, initialized once per process, from whichever thread asks first
+    (quiet unless ROSE_USD_VERBOSE is set)."""
+    with _STARTING:
+        return _start_warp()
+
+
+@functools.cache
+def _start_warp():
     import warp as wp
 
     verbose = _verbose()
@@ -58,17 +71,11 @@ def warp():
 def in_chunks(n: int, chunk: int, device, run) -> None:
     """``run(a, b)`` on every chunk [a, b) of ``n`` items. A CPU launch runs serially with the GIL
     released: one thread a core runs chunks side by side (each item is its own, so the result
-    does not depend on the split); a GPU takes them one after another. The first chunk runs
-    alone on the calling thread: Warp loads a kernel's module on its first launch, and two
-    threads loading one module at once race in Warp (``KeyError`` in ``Module.load``)."""
+    does not depend on the split); a GPU takes them one after another."""
     starts = range(0, n, chunk)
-    if not starts:
-        return
-    run(0, min(chunk, n))
-    rest = starts[1:]
     workers = len(os.sched_getaffinity(0)) if device.is_cpu and hasattr(os, "sched_getaffinity") else 1
-    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(rest)))) as pool:
-        list(pool.map(lambda a: run(a, min(a + chunk, n)), rest))
+    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(starts)))) as pool:
+        list(pool.map(lambda a: run(a, min(a + chunk, n)), starts))
 
 
 @functools.cache
