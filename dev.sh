@@ -66,7 +66,9 @@ cmd=${1:-help}
 case "$cmd" in
   setup) setup ;;
   demo) setup; exec "$VENV/bin/rose-usd" demo "$@" ;;
-  test) setup; ROSE_USD_QUIET=1 exec "$VENV/bin/python" -m pytest -q -m "not slow" "$@" ;;
+  # two worker processes, a test file to each (a file's module fixtures are made once)
+  test) setup; ROSE_USD_QUIET=1 exec "$VENV/bin/python" -m pytest -q -m "not slow" \
+      -n "${ROSE_TEST_WORKERS:-2}" --dist loadfile "$@" ;;
   bench) setup; ROSE_USD_QUIET=1 exec "$VENV/bin/python" -m pytest -q -m slow "$@" ;;
   lint) setup; "$VENV/bin/ruff" format --check --quiet . && exec "$VENV/bin/ruff" check --quiet . ;;
   rose-usd) setup; exec "$VENV/bin/rose-usd" "$@" ;;

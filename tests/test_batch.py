@@ -122,3 +122,39 @@ def test_ray_runs_the_same_cases_with_the_same_results(tmp_path, sample_case):
             b = (tmp_path / "ray" / c.name / "layers" / "world.usda").read_text()
             strip = [line for line in a.splitlines() if "customLayerData" not in line and "rose =" not in line]
             assert strip == [line for line in b.splitlines() if "customLayerData" not in line and "rose =" not in line]
+
+
+def test_a_video_decoded_by_two_workers_keeps_the_first_workers_frames(tmp_path, sample_case, monkeypatch):
+    """Two workers on one video decode it side by side: the one that finishes second leaves the
+    first's frames cache (which it may be reading) in place and uses it."""
+    import cv2
+
+    from rose_usd.case import layout
+
+    case = tmp_path / "case"
+    shutil.copytree(sample_case, case)
+    frames = sorted((case / "rgb").glob("*.png"))
+    writer = cv2.VideoWriter(str(case / "video.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 30, (320, 240))
+    for f in frames:
+        writer.write(cv2.imread(str(f)))
+    writer.release()
+    shutil.rmtree(case / "rgb")
+    monkeypatch.setenv("ROSE_USD_CACHE", str(tmp_path / "cache"))
+    imwrite, other = cv2.imwrite, []
+
+    def the_other_worker_finishes_first(path, image):
+        if not other:  # the other worker's complete cache appears beside this one's staging folder
+            folder = Path(path).parent.with_name(Path(path).parent.name.split("-")[0].lstrip("."))
+            folder.mkdir(parents=True)
+            for t in range(len(frames)):
+                imwrite(str(folder / f"{t:06d}.png"), image)
+            (folder / "reading").write_text("")
+            (folder / ".complete").write_text(str(len(frames)))
+            other.append(folder)
+        return imwrite(path, image)
+
+    monkeypatch.setattr(cv2, "imwrite", the_other_worker_finishes_first)
+    decoded = layout.load_case(case)._video_frames
+    assert other and (other[0] / "reading").is_file()
+    assert decoded[0].parent == other[0] and len(decoded) == len(frames)
+    assert not list(other[0].parent.glob(".*"))  # this worker's staging folder is gone

@@ -192,9 +192,12 @@ class Case:
                         "the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4"
                     )
                 (staging / ".complete").write_text(str(i))
-                if cache.exists():
-                    shutil.rmtree(cache)
-                os.replace(staging, cache)
+                # another process (a batch worker on the same video) may have finished first:
+                # its frames are these frames, and it may be reading them now
+                if not done.is_file():
+                    if cache.exists():
+                        shutil.rmtree(cache)
+                    os.replace(staging, cache)
             except OSError as exc:
                 raise InputError(
                     f"cannot write the decoded frames' cache ({getattr(exc, 'strerror', None) or exc})",
