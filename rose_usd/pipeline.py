@@ -4,6 +4,7 @@ code are unchanged; provenance for every layer."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import enum
 import hashlib
@@ -314,12 +315,16 @@ def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
         args=(send, pipe.case, pipe.out_dir, options, stage_def.name, os.getpid()),
         name=stage_def.name,
     )
-    child.start()
+    with _sigint_ignored():  # inherited: the child's start-up is never interrupted mid-import
+        child.start()
     send.close()
     try:
         ok, result = receive.recv()
     except EOFError:
         ok, result = False, None
+    except KeyboardInterrupt:
+        _interrupt(child)
+        raise
     finally:
         child.join()
         receive.close()
@@ -334,15 +339,56 @@ def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
     raise result
 
 
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored meanwhile (on the main thread; elsewhere signals cannot be set)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def _interrupt(child, *, settle_s: float = 2.0, rollback_s: float = 10.0) -> None:
+    """Ctrl-C reached this process while ``child`` runs a stage. A terminal's Ctrl-C reaches the
+    child too, which then rolls its layer back and ends: give it ``settle_s``. Otherwise send it
+    SIGINT, give it ``rollback_s``, then kill it (a killed commit is recovered at the next run)."""
+    import signal
+
+    child.join(settle_s)
+    if child.is_alive():
+        os.kill(child.pid, signal.SIGINT)
+        child.join(rollback_s)
+    if child.is_alive():
+        child.kill()
+
+
 def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, parent: int) -> None:
+    import signal
+
     _die_with_parent()
     if os.getppid() != parent:  # it died before the line above (while this process started)
         os._exit(1)
+    interrupted = []
+
+    def on_sigint(signum, frame):
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)  # it started ignoring SIGINT (_sigint_ignored)
     try:
         result = (True, Pipeline(case, out_dir, options).run_stage(registry.get(name)))
     except RoseError as exc:
         result = (False, exc)
     except BaseException as exc:
+        if interrupted:  # the layer is rolled back (an import interrupted raises ImportError)
+            os._exit(130)  # the parent says "interrupted"
         import traceback
 
         traceback.print_exc()
