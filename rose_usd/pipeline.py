@@ -317,8 +317,8 @@ def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
     )
     with _sigint_ignored():  # inherited: the child's start-up is never interrupted mid-import
         child.start()
-    send.close()
     try:
+        send.close()
         ok, result = receive.recv()
     except EOFError:
         ok, result = False, None
@@ -361,56 +361,52 @@ def _interrupt(child, *, settle_s: float = 2.0, rollback_s: float = 10.0) -> Non
     SIGINT, give it ``rollback_s``, then kill it (a killed commit is recovered at the next run)."""
     import signal
 
-    child.join(settle_s)
-    if child.is_alive():
-        os.kill(child.pid, signal.SIGINT)
-        child.join(rollback_s)
+    try:
+        child.join(settle_s)
+        if child.is_alive():
+            os.kill(child.pid, signal.SIGINT)
+            child.join(rollback_s)
+    except KeyboardInterrupt:  # asked again: do not wait
+        pass
     if child.is_alive():
         child.kill()
 
 
 def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, parent: int) -> None:
+    import pickle
     import signal
 
-    _die_with_parent()
-    if os.getppid() != parent:  # it died before the line above (while this process started)
-        os._exit(1)
+    from rose_usd.core.lifetime import die_with_parent
+
+    die_with_parent(parent)
     interrupted = []
 
     def on_sigint(signum, frame):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # one interrupt: the rollback runs to its end
         interrupted.append(signum)
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, on_sigint)  # it started ignoring SIGINT (_sigint_ignored)
     try:
         result = (True, Pipeline(case, out_dir, options).run_stage(registry.get(name)))
-    except RoseError as exc:
-        result = (False, exc)
     except BaseException as exc:
-        if interrupted:  # the layer is rolled back (an import interrupted raises ImportError)
-            os._exit(130)  # the parent says "interrupted"
-        import traceback
+        # an interrupted import can come out as another error (ImportError, a RoseError naming a
+        # missing library): after an interrupt, whatever ended the stage is the interrupt
+        if interrupted:  # the layer is rolled back; the parent says "interrupted"
+            os._exit(130)
+        if not isinstance(exc, RoseError):
+            import traceback
 
-        traceback.print_exc()
+            traceback.print_exc()
         result = (False, exc)
     try:
-        send.send(result)
-    except Exception as exc:  # an error that does not pickle: its text
-        send.send((False, RuntimeError(f"stage {name!r} failed: {type(result[1]).__name__}: {result[1]} ({exc})")))
+        pickle.loads(pickle.dumps(result))  # what the parent will rebuild
+    except Exception as exc:  # an error that does not cross whole: its text
+        error = result[1]
+        text = error.one_line() if isinstance(error, RoseError) else f"{type(error).__name__}: {error}"
+        result = (False, (StageError if isinstance(error, RoseError) else RuntimeError)(f"{text} ({exc})"))
+    send.send(result)
     send.close()
-
-
-def _die_with_parent() -> None:
-    """Linux: SIGKILL this process when its parent dies (elsewhere nothing)."""
-    import ctypes
-    import signal
-    import sys
-
-    if sys.platform.startswith("linux"):
-        try:
-            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
-        except OSError:
-            pass
 
 
 def _fresh_random_state() -> None:

@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from conftest import oracle_options
 
 from rose_usd import registry
@@ -81,36 +82,55 @@ def test_a_killed_run_leaves_no_stage_running(tmp_path, oracle_out, sample_case)
     assert not any(_alive(c) for c in children)
 
 
-def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sample_case):
+def _processes_running(module: str) -> list[int]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if module in (entry / "cmdline").read_text() and _alive(int(entry.name)):
+                    found.append(int(entry.name))
+            except OSError:
+                pass
+    return found
+
+
+@pytest.mark.parametrize(
+    "stage, backend, target",
+    [("gate", "all=oracle", "group"), ("gate", "all=oracle", "parent"), ("capture", "capture=rgbd", "group")],
+)
+def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sample_case, stage, backend, target):
     """Ctrl-C during an isolated stage, from a terminal (SIGINT to the process group) or sent to
-    the parent alone: exit 130 with "interrupted" and no traceback, no child left running, and
-    the stage's previous layer as it was."""
+    the parent alone: exit 130 with "interrupted" and no traceback, no process left running (the
+    capture's one-CPU tracker included), and the stage's previous layer as it was."""
     if not sys.platform.startswith("linux"):
         return
     start = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
     start += "from rose_usd.cli import main; sys.exit(main(sys.argv[1:]))"
-    for target in ("group", "parent"):
-        out = tmp_path / target
-        shutil.copytree(oracle_out, out)
-        before = layer_file(out, "gate").read_bytes()
-        cmd = [sys.executable, "-c", start, "run", "gate", str(sample_case), "-o", str(out), "--force"]
-        cmd += ["--backend", "all=oracle"]
-        proc = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
-        )
-        deadline = time.monotonic() + 120
-        children: list[int] = []
-        while time.monotonic() < deadline and not children:
-            time.sleep(0.2)
-            children = [c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
-        assert children, "the stage never started in a child process"
+    out = tmp_path / "out"
+    shutil.copytree(oracle_out, out)
+    layer = "world" if stage == "capture" else stage
+    before = layer_file(out, layer).read_bytes()
+    cmd = [sys.executable, "-c", start, "run", stage, str(sample_case), "-o", str(out), "--force"]
+    cmd += ["--backend", backend]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    children: list[int] = []
+    while time.monotonic() < deadline and not children:
+        time.sleep(0.2)
+        children = [c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
+    assert children, "the stage never started in a child process"
+    if stage == "capture":  # until its tracker runs
+        while time.monotonic() < deadline and not _processes_running("rose_usd.capture.tracking"):
+            time.sleep(0.1)
+    else:
         time.sleep(3.0)  # into the stage's work
-        if target == "group":
-            os.killpg(proc.pid, signal.SIGINT)
-        else:
-            proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-        assert proc.returncode == 130, err
-        assert err.strip().splitlines()[-1] == "interrupted" and "Traceback" not in err, err
-        assert not any(_alive(c) for c in children)
-        assert layer_file(out, "gate").read_bytes() == before
+    if target == "group":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "interrupted" and "Traceback" not in err, err
+    time.sleep(0.5)
+    assert not any(_alive(c) for c in children) and not _processes_running("rose_usd.capture.tracking")
+    assert layer_file(out, layer).read_bytes() == before

@@ -260,8 +260,11 @@ def track_on_one_cpu(case, frames: list[int], K: np.ndarray, params: TrackingPar
 
     with tempfile.TemporaryDirectory(prefix="rose-track-") as tmp:
         out = os.path.join(tmp, "result.pickle")
-        job = pickle.dumps((_current_cpu(), case, [int(f) for f in frames], K, params, out))
-        done = subprocess.run([sys.executable, "-m", "rose_usd.capture.tracking"], input=job, check=False)
+        job = pickle.dumps((os.getpid(), _current_cpu(), case, [int(f) for f in frames], K, params, out))
+        # a session of its own: a terminal's Ctrl-C interrupts this process, and subprocess.run
+        # then kills it (no second traceback); it dies with this process (die_with_parent)
+        command = [sys.executable, "-m", "rose_usd.capture.tracking"]
+        done = subprocess.run(command, input=job, check=False, start_new_session=True)
         if done.returncode != 0 or not os.path.isfile(out):
             raise RuntimeError(
                 f"the one-CPU tracking process failed (exit status {done.returncode}; its output is above)"
@@ -279,7 +282,10 @@ def _child() -> None:
     import pickle
     import sys
 
-    cpu, case, frames, K, params, out = pickle.load(sys.stdin.buffer)
+    from rose_usd.core.lifetime import die_with_parent
+
+    parent, cpu, case, frames, K, params, out = pickle.load(sys.stdin.buffer)
+    die_with_parent(parent)
     cpus = os.sched_getaffinity(0)
     _bind_cpu(cpu)  # before Open3D starts its threads
     try:

@@ -39,6 +39,24 @@ def cache_dir() -> Path:
     return Path.home() / ".cache" / "rose_usd"
 
 
+def _publish(staging: Path, cache: Path) -> None:
+    """Rename the complete folder ``staging`` to ``cache``. Another process (a batch worker on
+    the same video) may have put its own there first: its frames are these frames and it may be
+    reading them, so it stays and ``staging`` is dropped. A folder there without ``.complete``
+    (left by an older version) is replaced."""
+    for _ in range(2):
+        try:
+            os.replace(staging, cache)
+            return
+        except OSError:
+            if (cache / ".complete").is_file():
+                return
+            if not cache.exists():
+                raise
+            shutil.rmtree(cache, ignore_errors=True)
+    os.replace(staging, cache)
+
+
 def _frame_number(path: Path) -> int | None:
     nums = _NUMBER.findall(path.stem)
     return int(nums[-1]) if nums else None
@@ -192,12 +210,7 @@ class Case:
                         "the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4"
                     )
                 (staging / ".complete").write_text(str(i))
-                # another process (a batch worker on the same video) may have finished first:
-                # its frames are these frames, and it may be reading them now
-                if not done.is_file():
-                    if cache.exists():
-                        shutil.rmtree(cache)
-                    os.replace(staging, cache)
+                _publish(staging, cache)
             except OSError as exc:
                 raise InputError(
                     f"cannot write the decoded frames' cache ({getattr(exc, 'strerror', None) or exc})",

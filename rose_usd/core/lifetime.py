@@ -1,0 +1,22 @@
+"""A helper process's lifetime tied to the process that started it."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+
+def die_with_parent(parent: int | None = None) -> None:
+    """Linux: SIGKILL this process when its parent dies (``PR_SET_PDEATHSIG``; elsewhere
+    nothing). With ``parent`` (the pid that started it), end at once if that parent is already
+    gone: it may have died while this process started, before the request took effect."""
+    import ctypes
+    import signal
+
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+        except OSError:
+            pass
+    if parent is not None and os.getppid() != parent:
+        os._exit(1)
