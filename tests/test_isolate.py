@@ -60,6 +60,17 @@ def _alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
+def _stage_children(proc: subprocess.Popen, wait_s: float = 120.0) -> list[int]:
+    """The spawned stage process(es) of ``proc``, once there is one."""
+    deadline = time.monotonic() + wait_s
+    children: list[int] = []
+    while time.monotonic() < deadline and not children:
+        time.sleep(0.2)
+        children = [c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
+    assert children, "the stage never started in a child process"
+    return children
+
+
 def test_a_killed_run_leaves_no_stage_running(tmp_path, oracle_out, sample_case):
     if not sys.platform.startswith("linux"):
         return
@@ -68,12 +79,7 @@ def test_a_killed_run_leaves_no_stage_running(tmp_path, oracle_out, sample_case)
     cmd = [sys.executable, "-m", "rose_usd.cli", "run", "gate", str(sample_case), "-o", str(out), "--force"]
     cmd += ["--backend", "all=oracle"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=dict(os.environ))
-    deadline = time.monotonic() + 120
-    children: list[int] = []
-    while time.monotonic() < deadline and not children:
-        time.sleep(0.2)
-        children = [c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
-    assert children, "the stage never started in a child process"
+    children = _stage_children(proc)
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     deadline = time.monotonic() + 5  # the gate alone takes longer: a child that outlived it fails
@@ -113,12 +119,8 @@ def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sampl
     cmd = [sys.executable, "-c", start, "run", stage, str(sample_case), "-o", str(out), "--force"]
     cmd += ["--backend", backend]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.monotonic() + 120
-    children: list[int] = []
-    while time.monotonic() < deadline and not children:
-        time.sleep(0.2)
-        children = [c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
-    assert children, "the stage never started in a child process"
+    children = _stage_children(proc)
+    deadline = time.monotonic() + 60
     if stage == "capture":  # until its tracker runs
         while time.monotonic() < deadline and not _processes_running("rose_usd.capture.tracking"):
             time.sleep(0.1)
