@@ -25,9 +25,9 @@ from rose_usd.sim import panda
 
 def cuda_available() -> bool:
     """Whether Warp sees a CUDA device (the batched simulator needs one)."""
-    import warp as wp
+    from rose_usd.sim.engine import warp
 
-    return wp.get_cuda_device_count() > 0
+    return warp().get_cuda_device_count() > 0
 
 
 class BatchSimulator:
