@@ -9,6 +9,7 @@ import dataclasses
 import enum
 import hashlib
 import os
+import pickle
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -319,7 +320,7 @@ def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
         child.start()
     try:
         send.close()
-        ok, result = receive.recv()
+        ok, result = pickle.loads(receive.recv_bytes())  # rebuilt once in the child (_child_stage)
     except EOFError:
         ok, result = False, None
     except KeyboardInterrupt:
@@ -373,7 +374,6 @@ def _interrupt(child, *, settle_s: float = 2.0, rollback_s: float = 10.0) -> Non
 
 
 def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, parent: int) -> None:
-    import pickle
     import signal
 
     from rose_usd.core.lifetime import die_with_parent
@@ -400,12 +400,15 @@ def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, p
             traceback.print_exc()
         result = (False, exc)
     try:
-        pickle.loads(pickle.dumps(result))  # what the parent will rebuild
+        payload = pickle.dumps(result)
+        pickle.loads(payload)  # what the parent will rebuild
     except Exception as exc:  # an error that does not cross whole: its text
         error = result[1]
         text = error.one_line() if isinstance(error, RoseError) else f"{type(error).__name__}: {error}"
-        result = (False, (StageError if isinstance(error, RoseError) else RuntimeError)(f"{text} ({exc})"))
-    send.send(result)
+        payload = pickle.dumps(
+            (False, (StageError if isinstance(error, RoseError) else RuntimeError)(f"{text} ({exc})"))
+        )
+    send.send_bytes(payload)
     send.close()
 
 

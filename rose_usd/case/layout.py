@@ -44,17 +44,15 @@ def _publish(staging: Path, cache: Path) -> None:
     the same video) may have put its own there first: its frames are these frames and it may be
     reading them, so it stays and ``staging`` is dropped. A folder there without ``.complete``
     (left by an older version) is replaced."""
-    for _ in range(2):
-        try:
-            os.replace(staging, cache)
+    try:
+        os.replace(staging, cache)
+    except OSError:
+        if (cache / ".complete").is_file():
             return
-        except OSError:
-            if (cache / ".complete").is_file():
-                return
-            if not cache.exists():
-                raise
-            shutil.rmtree(cache, ignore_errors=True)
-    os.replace(staging, cache)
+        if not cache.exists():
+            raise
+        shutil.rmtree(cache)
+        os.replace(staging, cache)
 
 
 def _frame_number(path: Path) -> int | None:

@@ -6,10 +6,10 @@ import os
 import sys
 
 
-def die_with_parent(parent: int | None = None) -> None:
+def die_with_parent(parent: int) -> None:
     """Linux: SIGKILL this process when its parent dies (``PR_SET_PDEATHSIG``; elsewhere
-    nothing). With ``parent`` (the pid that started it), end at once if that parent is already
-    gone: it may have died while this process started, before the request took effect."""
+    nothing), and end at once if ``parent`` (the pid that started it) is already gone: it may have
+    died while this process started, before the request took effect."""
     import ctypes
     import signal
 
@@ -18,5 +18,5 @@ def die_with_parent(parent: int | None = None) -> None:
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
         except OSError:
             pass
-    if parent is not None and os.getppid() != parent:
+    if os.getppid() != parent:
         os._exit(1)
