@@ -43,7 +43,7 @@ from rose_usd.case.layout import load_case
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
 from rose_usd.layers.masks import INTERACTOR, read_masks
-from rose_usd.layers.objects import object_paths, visual_mesh
+from rose_usd.layers.objects import default_pose, object_paths, visual_mesh
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras, read_scale
 from rose_usd.usd import paths
@@ -125,7 +125,7 @@ def silhouette_ious(stage, case, name: str) -> dict:
     carried, in_carry = carried_frames(poses), []
     masks = read_masks(stage, n, (case.height, case.width))
     mesh = visual_mesh(stage, name)
-    local = se3.transform_points(se3.invert(poses[0]), mesh.vertices)
+    local = se3.transform_points(se3.invert(default_pose(stage, name)), mesh.vertices)  # its default pose's
     every, held = [], []
     for t in range(n):
         m = masks.mask(name, t)

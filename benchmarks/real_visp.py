@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from rose_usd.core import se3
-from rose_usd.layers.objects import object_paths, visual_mesh
+from rose_usd.layers.objects import default_pose, object_paths, visual_mesh
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras
 from rose_usd.usd.stage import open_stage
@@ -93,14 +93,15 @@ def score_object(stage, name: str, clip: Path, folder: str, cams: np.ndarray) ->
     n = len(cams)
     mesh = visual_mesh(stage, name)
     poses = object_poses(stage, name, n)
-    ours0 = surface_points(mesh.vertices, mesh.faces)
+    ours0 = surface_points(mesh.vertices, mesh.faces)  # at the default pose
+    rest = se3.invert(default_pose(stage, name))
     truth_mesh = trimesh.load(clip / "mesh" / folder / f"{folder}.obj", force="mesh")
     truth0 = surface_points(np.asarray(truth_mesh.vertices), np.asarray(truth_mesh.faces))
     t_err, r_err = [], []
     for t in range(n):
         truth_pose = np.loadtxt(clip / f"ob_in_cam_{folder}" / f"{t:06d}.txt")
         gt = se3.transform_points(truth_pose, truth0)
-        ours = se3.transform_points(se3.invert(cams[t]) @ poses[t] @ se3.invert(poses[0]), ours0)
+        ours = se3.transform_points(se3.invert(cams[t]) @ poses[t] @ rest, ours0)
         src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ours))
         dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(gt))
         fit = o3d.pipelines.registration.registration_icp(

@@ -19,7 +19,7 @@ from rose_usd.case.layout import Case
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
 from rose_usd.layers.masks import INTERACTOR, read_masks
-from rose_usd.layers.objects import object_paths, visual_mesh
+from rose_usd.layers.objects import default_pose, object_paths, visual_mesh
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras
 from rose_usd.usd.stage import open_stage
@@ -78,12 +78,13 @@ def object_sheet(
     names = list(object_paths(stage))
     meshes = {name: visual_mesh(stage, name) for name in names}
     poses = {name: object_poses(stage, name, n) for name in names}
+    rest = {name: se3.invert(default_pose(stage, name)) for name in names}  # the meshes are posed there
     tiles = []
     for t in range(0, n, every):
         rgb = case.rgb(t)
         image = rgb.copy()
         for k, name in enumerate(names):
-            moved = poses[name][t] @ se3.invert(poses[name][0])
+            moved = poses[name][t] @ rest[name]
             vertices = se3.transform_points(moved, meshes[name].vertices)
             sil = silhouette(vertices, meshes[name].faces, cams.world_from_cv[t], cams.K[t], case.width, case.height)
             colour = COLOURS[k % len(COLOURS)]
