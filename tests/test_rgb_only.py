@@ -265,6 +265,49 @@ def test_silhouettes_track_a_moving_box():
         assert se3.rotation_angle_deg(est[:3, :3].T @ target[:3, :3]) < 4.0
 
 
+def test_an_object_held_up_at_the_start_is_fitted_free_and_a_resting_one_keeps_its_pose():
+    """The silhouette trajectory's first pose: a box held 6 cm over the support, turned 20 deg,
+    whose default pose (the object stage's, in the air where it is seen) is not turned: the free
+    fit from it is taken, within 5 mm and 3 deg of the truth. A default standing on the support
+    is kept, even where the mask shows the box turned: a resting object's depth is the support's."""
+    from rose_usd.trajectory.config import SilhouetteConfig
+    from rose_usd.trajectory.silhouette import _held_up, _resting
+
+    cfg = SilhouetteConfig()
+    pose_cam = _camera(0.3, 35.0, position_xy=(0.0, -0.25))
+    v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.09, 0.06, 0.05]))
+    held = se3.make_pose(cv2.Rodrigues(np.radians([12.0, -8.0, 14.0]))[0], np.array([0.0, 0.095, 0.06]))
+    mask = silhouette(se3.transform_points(held, v), f, pose_cam, K, W, H, closed=True)
+    view = crop_view(mask, None, K, pose_cam, max_side=320)
+    found = {}
+    for name, default in (
+        ("in the air", se3.make_pose(np.eye(3), np.array([0.005, 0.1, 0.055]))),
+        ("standing", se3.make_pose(np.eye(3), np.array([0.0, 0.1, 0.0]))),
+    ):
+        world = se3.transform_points(default, v)
+        posed = iou([view], world, f, convex=True)
+        resting = _resting(world, [], 0.0, cfg.settle_m)
+        found[name] = None if resting else _held_up(v, f, view, default, posed, cfg, True)
+    assert found["standing"] is None
+    pose, score = found["in the air"]
+    assert score > 0.95
+    assert np.linalg.norm(pose[:3, 3] - held[:3, 3]) < 0.005
+    assert se3.rotation_angle_deg(pose[:3, :3].T @ held[:3, :3]) < 3.0
+
+
+def test_an_object_on_another_rests_and_one_above_it_does_not():
+    """``_resting``: a box standing on the support, one standing on it (a stack), and the same
+    box 4 cm over the lower one (held) or beside it at that height (held)."""
+    from rose_usd.trajectory.silhouette import _resting
+
+    v, _ = primitive_mesh(PrimitiveKind.BOX, np.array([0.09, 0.06, 0.05]))
+    base = v + [0.0, 0.1, 0.0]
+    assert _resting(base, [], 0.0, 0.02)
+    assert _resting(v + [0.01, 0.1, 0.05], [base], 0.0, 0.02)
+    assert not _resting(v + [0.01, 0.1, 0.09], [base], 0.0, 0.02)
+    assert not _resting(v + [0.2, 0.1, 0.05], [base], 0.0, 0.02)
+
+
 def test_the_color_posterior_finds_the_object_where_its_mask_is_wrong():
     """A yellow object on a patterned grey table: the posterior learned in one frame is high on the
     object in another frame and low around it; a soft IoU against it peaks at the object."""

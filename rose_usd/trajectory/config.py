@@ -84,6 +84,10 @@ class SilhouetteConfig:
     """An object still for this many frames near the support is set down on it (default 8)."""
     settle_m: float = 0.02
     """... when its lowest point is within this of the support [m] (default 0.02)."""
+    start_gain: float = 0.03
+    """Where the default pose holds the object ``settle_m`` clear of the support and of any object
+    under it (in the hand at the start), the first frame's pose is fitted free from it and taken
+    when its IoU is higher by this much [-] (default 0.03)."""
 
 
 @dataclass(frozen=True, kw_only=True)
