@@ -79,12 +79,12 @@ def run(ctx: StageContext) -> None:
     cameras = read_cameras(ctx.stage, n)
     layer = read_masks(ctx.stage, n, (case.height, case.width))
     pads = support_heights(ctx.stage)
-    at_rest = {spec.name: visual_mesh(ctx.stage, spec.name).vertices for spec in case.config.objects}
+    meshes = {spec.name: visual_mesh(ctx.stage, spec.name) for spec in case.config.objects}  # at their defaults
     facts = {}
     for spec in case.config.objects:
         layer.require(spec.name)
         default = default_pose(ctx.stage, spec.name)
-        mesh = visual_mesh(ctx.stage, spec.name)
+        mesh = meshes[spec.name]
         local = se3.transform_points(se3.invert(default), mesh.vertices)
         # a proxy's silhouette is its hull's (a mug's handle loop is not worth its triangles)
         convex = is_proxy(ctx.stage, spec.name) or is_convex(local, mesh.faces)
@@ -99,8 +99,8 @@ def run(ctx: StageContext) -> None:
                 tm = decimate(tm, cfg.max_faces, check=False)
             v, f = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
         support_z = float(pads.get(spec.name, 0.0))
-        others = [w for other, w in at_rest.items() if other != spec.name]
-        air = not _resting(at_rest[spec.name], others, support_z, cfg.settle_m)
+        others = [m.vertices for other, m in meshes.items() if other != spec.name]
+        air = not _resting(mesh.vertices, others, support_z, cfg.settle_m)
         poses, conf, record = _track(ctx, spec.name, v, f, default, layer, cameras, support_z, cfg, convex, in_air=air)
         record["convex"] = convex
         author_trajectory(ctx, spec.name, poses, conf, "silhouette")
