@@ -2,8 +2,9 @@
 
 A monocular reconstruction (a static camera over a support plane at an unknown height, or a
 structure-from-motion map) is right up to one scale factor. The prompted object is segmented in
-its prompt frame (GrabCut in the prompt box) and a shape standing on the support plane is fitted
-to that silhouette in the reconstruction's units (``geometry.silhouette.fit_standing``):
+its prompt frame (GrabCut in the prompt box) and a shape resting on the support plane (a can
+standing or lying) is fitted to that silhouette in the reconstruction's units
+(``geometry.silhouette.fit_standing``):
 
 - ``mesh``: the object's metric mesh (rose.toml's ``mesh``, not TRELLIS's unit cube), its scale
   free: meters per unit = 1 / the fitted scale (a few % on a clean silhouette);
@@ -30,14 +31,23 @@ from rose_usd.core import se3
 from rose_usd.core.grabcut import SEEDS, box_grabcut
 from rose_usd.geometry.primitives import (
     MUG_REACH_SIGMA,
+    RESTING_MARGIN,
     PrimitiveKind,
     hull_points,
     largest_dimension,
+    resting_kinds,
     turns,
     typical,
     yaw_starts,
 )
-from rose_usd.geometry.silhouette import View, crop_view, fit_standing, footprint_xy, log_normal_ratio
+from rose_usd.geometry.silhouette import (
+    View,
+    crop_view,
+    fit_standing,
+    footprint_xy,
+    log_normal_ratio,
+    lying_start,
+)
 
 CAMERA_HEIGHT_M = (0.5, 0.5)
 """A tabletop video's camera height over the support: (typical [m], relative sigma)."""
@@ -96,46 +106,70 @@ def _standing_start(mask: np.ndarray, K, world_from_cv) -> tuple[float, np.ndarr
 
 
 def fit_primitive(
-    spec: ObjectSpec, view: View, mask: np.ndarray, K, world_from_cv, *, maxfev: int = 300
+    spec: ObjectSpec,
+    view: View,
+    mask: np.ndarray,
+    K,
+    world_from_cv,
+    *,
+    maxfev: int = 300,
+    kinds: tuple[PrimitiveKind, ...] | None = None,
 ) -> dict | None:
-    """The category's primitive standing on z = 0 fitted to the silhouette, in the world's units:
-    its dimensions, largest dimension, pose and IoU; None when the object's foot is not below the
+    """The category's primitive resting on z = 0 fitted to the silhouette, in the world's units:
+    its kind (a can standing, or lying where that fits clearly better: ``resting_kinds``, or
+    ``kinds``),
+    dimensions, largest dimension, pose and IoU; None when the object's foot is not below the
     horizon."""
     typ, _ = typical(spec.category)
     start = _standing_start(mask, K, world_from_cv)
     if start is None:
         return None
-    width_units, xy0 = start
-    # start from the typical shape scaled to the object's width at its foot's depth
-    dims0 = np.asarray(typ.dims) * width_units / max(typ.size_m, 1e-6)
-    turn, yaws = turns(typ.kind), yaw_starts(typ.kind)
-    # the overall size is what is measured; only a mug's handle reach, which a view from behind
-    # leaves open, is held near its typical proportion to the radius
-    shape_cost = (
-        log_normal_ratio(2, 0, typ.dims[2] / typ.dims[0], MUG_REACH_SIGMA) if typ.kind is PrimitiveKind.MUG else None
-    )
-    fit = fit_standing(
-        lambda d: hull_points(typ.kind, d),
-        dims0,
-        [view],
-        xy0,
-        yaws=yaws,
-        turn=turn,
-        convex=True,
-        maxfev=maxfev,
-        size_cost=shape_cost,
-    )
-    size = largest_dimension(typ.kind, fit.size)
+    best = None
+    for kind in kinds or resting_kinds(typ.kind):
+        fit = _fit_kind(kind, typ, view, mask, K, world_from_cv, start, maxfev)
+        if best is None or fit.iou > best[1].iou + RESTING_MARGIN:
+            best = (kind, fit)
+    kind, fit = best
     return {
-        "kind": typ.kind.value,
+        "kind": kind.value,
         "dims": fit.size,
-        "size_units": size,
+        "size_units": largest_dimension(kind, fit.size),
         "iou": fit.iou,
         "pose": fit.pose(),
         "typical_size_m": typ.size_m,
         "typical_sigma": typ.sigma,
         "typical_source": typ.source,
     }
+
+
+def _fit_kind(kind: PrimitiveKind, typ, view: View, mask, K, world_from_cv, start, maxfev: int):
+    """One resting kind's fit, from the typical shape scaled to the mask's width at its foot's
+    depth (a lying one's: to the length of the mask's axis on the plane, along it)."""
+    width_units, xy0 = start
+    dims0 = np.asarray(typ.dims) * width_units / max(typ.size_m, 1e-6)
+    yaws = yaw_starts(kind)
+    if kind is PrimitiveKind.LYING_CYLINDER:
+        lying = lying_start(mask, K, world_from_cv)
+        if lying is not None:
+            x, y, yaw, length = lying
+            xy0, yaws = np.array([x, y]), (yaw, *yaws)
+            dims0 = np.asarray(typ.dims) * max(length, width_units) / max(typ.size_m, 1e-6)
+    # the overall size is what is measured; only a mug's handle reach, which a view from behind
+    # leaves open, is held near its typical proportion to the radius
+    shape_cost = (
+        log_normal_ratio(2, 0, typ.dims[2] / typ.dims[0], MUG_REACH_SIGMA) if kind is PrimitiveKind.MUG else None
+    )
+    return fit_standing(
+        lambda d: hull_points(kind, d),
+        dims0,
+        [view],
+        xy0,
+        yaws=yaws,
+        turn=turns(kind),
+        convex=True,
+        maxfev=maxfev,
+        size_cost=shape_cost,
+    )
 
 
 def level_by_object(
@@ -163,12 +197,14 @@ def level_by_object(
     from rose_usd.geometry.silhouette import nelder_mead
 
     span = level_search_deg(sigma_deg)
+    at_level = fit_primitive(spec, crop_view(mask, None, K, world_from_cv, max_side=240), mask, K, world_from_cv)
+    kinds = (PrimitiveKind(at_level["kind"]),) if at_level is not None else None  # the tilt searched for it
 
     def cost(tilt_deg):
         if np.hypot(*tilt_deg) > span:
             return 2.0
         pose = _tilt(tilt_deg) @ world_from_cv
-        fit = fit_primitive(spec, crop_view(mask, None, K, pose, max_side=240), mask, K, pose, maxfev=150)
+        fit = fit_primitive(spec, crop_view(mask, None, K, pose, max_side=240), mask, K, pose, maxfev=150, kinds=kinds)
         iou = fit["iou"] if fit is not None else 0.0
         return 1.0 - iou + 0.01 * float(np.sum(np.square(tilt_deg))) / max(sigma_deg, 0.5) ** 2
 

@@ -105,6 +105,13 @@ TYPICAL: dict[str, Typical] = {
 """Category -> its primitive and typical dimensions. Categories without an entry use ``generic``."""
 
 
+RESTING_MARGIN = 0.05
+"""Silhouette IoU by which a primitive's other way of resting must beat its usual one to be kept.
+A lying can's outline fits a standing cylinder at IoU 0.51-0.94 (0.94 seen end on), a lying one
+at 0.999; a standing can's silhouette seen from above a box it stands on, fitted on the table
+below, fits lying 0.03 better than standing (the wrong support makes neither fit), which must not
+turn it over."""
+
 MUG_REACH_SIGMA = 0.2
 """Relative one-sigma of a mug's handle reach over its radius (0.9 for the typical mug; 8-15 oz
 mugs' handles reach 2.8-4.5 cm beyond a 3.6-4.5 cm radius)."""
@@ -116,11 +123,20 @@ def turns(kind: PrimitiveKind) -> bool:
 
 
 def yaw_starts(kind: PrimitiveKind) -> tuple[float, ...]:
-    """Where a standing fit's yaw starts [rad]: a mug's handle may point anywhere; a box (and a
-    lying cylinder) repeats every 90 (180) deg; a solid of revolution needs none but 0."""
+    """Where a standing fit's yaw starts [rad]: a mug's handle may point anywhere; a box repeats
+    every 90 deg, a lying cylinder every 180; a solid of revolution needs none but 0."""
     if kind is PrimitiveKind.MUG:
         return tuple(np.radians([0.0, 90.0, 180.0, 270.0]))
+    if kind is PrimitiveKind.LYING_CYLINDER:
+        return tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
     return tuple(np.radians([0.0, 30.0, 60.0])) if turns(kind) else (0.0,)
+
+
+def resting_kinds(kind: PrimitiveKind) -> tuple[PrimitiveKind, ...]:
+    """The ways a category's primitive may rest on a support, its usual one first: a cylinder (a
+    can, a bottle) standing, or lying on its side with the same dims (radius, length). Each is
+    fitted; a later one is kept where its silhouette IoU beats the kept one's by ``RESTING_MARGIN``."""
+    return (kind, PrimitiveKind.LYING_CYLINDER) if kind is PrimitiveKind.CYLINDER else (kind,)
 
 
 def typical(category: str) -> tuple[Typical, bool]:

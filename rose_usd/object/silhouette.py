@@ -49,10 +49,12 @@ from rose_usd.core import se3
 from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate, longest_edge
 from rose_usd.geometry.primitives import (
+    RESTING_MARGIN,
     PrimitiveKind,
     hull_points,
     largest_dimension,
     primitive_mesh,
+    resting_kinds,
     turns,
     typical,
     yaw_starts,
@@ -326,42 +328,40 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
         ctx.warn(f"object {spec.name!r}: no primitive for category {spec.category!r}: a box stands in for it")
     width = _object_width_m(views[0], xy)
     expected, sigma = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
-    turn = turns(typ.kind)
-    yaws = (
-        tuple(np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0]))
-        if typ.kind is PrimitiveKind.LYING_CYLINDER
-        else yaw_starts(typ.kind)
-    )
-    xy0 = _start(xy, views, width)
-    lying = (
-        lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)
-        if typ.kind is PrimitiveKind.LYING_CYLINDER
-        else None
-    )
-    if lying is not None:
-        xy0, yaws = np.array(lying[:2]), (lying[2], *yaws)  # a pen: on its mask's axis, along it
-    fit = fit_standing(
-        lambda d: hull_points(typ.kind, d),
-        expected,
-        views,
-        xy0,
-        support_z=support_z,
-        yaws=yaws,
-        turn=turn,
-        convex=True,
-        size_cost=log_normal_sizes(expected, sigma),
-    )
-    v, f = primitive_mesh(typ.kind, fit.size, segments=48)
+    kind, fit = None, None
+    for candidate in resting_kinds(typ.kind):  # a can standing, or lying where that fits clearly better
+        yaws, xy0 = yaw_starts(candidate), _start(xy, views, width)
+        lying = (
+            lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)
+            if candidate is PrimitiveKind.LYING_CYLINDER
+            else None
+        )
+        if lying is not None:
+            xy0, yaws = np.array(lying[:2]), (lying[2], *yaws)  # on its mask's axis, along it
+        tried = fit_standing(
+            lambda d, candidate=candidate: hull_points(candidate, d),
+            expected,
+            views,
+            xy0,
+            support_z=support_z,
+            yaws=yaws,
+            turn=turns(candidate),
+            convex=True,
+            size_cost=log_normal_sizes(expected, sigma),
+        )
+        if fit is None or tried.iou > fit.iou + RESTING_MARGIN:
+            kind, fit = candidate, tried
+    v, f = primitive_mesh(kind, fit.size, segments=48)
     v, f = _dense(v, f, 0.008)
     pose = fit.pose(support_z)
     colors = vertex_colors(se3.transform_points(pose, v), f, picked, ctx.case.rgb, masks, cameras)
     mesh = MeshData(vertices=v, faces=f, vertex_colors=colors)
     physics, mass = physics_for(spec, v, f, ctx)
-    size = largest_dimension(typ.kind, fit.size)
+    size = largest_dimension(kind, fit.size)
     fact = {
         "shape": "primitive",
         "proxy": True,
-        "primitive": typ.kind.value,
+        "primitive": kind.value,
         "dims_m": [round(float(d), 5) for d in fit.size],
         "size_m": round(size, 5),
         "size_given_m": spec.overrides.get("size_m"),
@@ -371,7 +371,7 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
         "yaw_deg": round(float(np.degrees(fit.yaw)), 2),
         "held": False,
     }
-    return ObjectModel(spec.name, mesh, pose, mass, physics), fact, ("primitive", True, typ.kind.value, fit.iou)
+    return ObjectModel(spec.name, mesh, pose, mass, physics), fact, ("primitive", True, kind.value, fit.iou)
 
 
 def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
