@@ -18,7 +18,8 @@ render and compare, for videos without depth (capture ``sfm``).
    ``max_speed_m_s`` since its last tracked frame, or swells its silhouette over twice the mask
    (``SWELL``), is lost: the pose holds (confidence 0), and frames lost between tracked ones are
    interpolated on SE(3) (confidence 0.5). The color posterior is left out where it would pull
-   the object toward the camera (``NEARER``).
+   the object toward the camera (``NEARER``) or lights so much around it that the first pose
+   overlaps it poorly (``BROAD``).
 4. **Rest on the support.** When the object holds still again for ``settle_frames`` frames with its
    lowest point within ``settle_m`` of the support, it is set down: turned onto its nearest stable
    face (the convex hull's face nearest its center of mass facing down), lowered onto the support,
@@ -315,11 +316,19 @@ the target is broad, a larger silhouette overlaps more of it, and a track that f
 toward the camera."""
 
 
+BROAD = 0.75
+"""The color posterior is followed only where, in the frame it was learned in, the blended target
+scores the posed silhouette at least this fraction of what the mask alone does: a can whose
+colors the cloth and clutter around it share (realistic lift-can: 0.47 of the mask's 0.985) lights
+a target so broad that no pose overlaps it well, and every refit is lost."""
+
+
 def _posterior_agrees(colors, case, layer, name, t, mask, pose, v, f, cameras, cfg, convex) -> bool:
-    """Whether the blended target (color posterior and mask) prefers the posed object to the same
-    object brought nearer the camera (``NEARER``), and a fit to it from the pose does not swell over
-    the mask (``SWELL``: a clear pen's body takes the desk's colors, and a refit comes toward the
-    camera, turned far from the pose, which the nearer poses alone do not reach)."""
+    """Whether the blended target (color posterior and mask) is not broad (``BROAD``), prefers the
+    posed object to the same object brought nearer the camera (``NEARER``), and a fit to it from
+    the pose does not swell over the mask (``SWELL``: a clear pen's body takes the desk's colors,
+    and a refit comes toward the camera, turned far from the pose, which the nearer poses alone
+    do not reach)."""
     binary, soft = _target(mask, colors(case.rgb(t)), cfg.color_weight)
     box = _projected_box(pose, v, cameras, t, mask.shape[1], mask.shape[0])
     view = _view(layer, name, t, binary, cameras, cfg, soft=soft, box=box, segmented=mask)
@@ -331,6 +340,9 @@ def _posterior_agrees(colors, case, layer, name, t, mask, pose, v, f, cameras, c
         return iou([view], se3.transform_points(moved, v), f, convex=convex)
 
     posed = score(1.0)
+    alone = _view(layer, name, t, mask, cameras, cfg, box=box, segmented=mask)
+    if posed < BROAD * iou([alone], se3.transform_points(pose, v), f, convex=convex):
+        return False
     if posed <= max(score(k) for k in NEARER):
         return False
     (fitted, _), _ = _refit(v, f, view, pose, np.eye(4), posed, cfg, convex)
