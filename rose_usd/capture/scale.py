@@ -38,7 +38,6 @@ from rose_usd.geometry.primitives import (
     resting_kinds,
     turns,
     typical,
-    yaw_starts,
 )
 from rose_usd.geometry.silhouette import (
     View,
@@ -46,7 +45,7 @@ from rose_usd.geometry.silhouette import (
     fit_standing,
     footprint_xy,
     log_normal_ratio,
-    lying_start,
+    resting_start,
 )
 
 CAMERA_HEIGHT_M = (0.5, 0.5)
@@ -146,14 +145,8 @@ def _fit_kind(kind: PrimitiveKind, typ, view: View, mask, K, world_from_cv, star
     """One resting kind's fit, from the typical shape scaled to the mask's width at its foot's
     depth (a lying one's: to the length of the mask's axis on the plane, along it)."""
     width_units, xy0 = start
-    dims0 = np.asarray(typ.dims) * width_units / max(typ.size_m, 1e-6)
-    yaws = yaw_starts(kind)
-    if kind is PrimitiveKind.LYING_CYLINDER:
-        lying = lying_start(mask, K, world_from_cv)
-        if lying is not None:
-            x, y, yaw, length = lying
-            xy0, yaws = np.array([x, y]), (yaw, *yaws)
-            dims0 = np.asarray(typ.dims) * max(length, width_units) / max(typ.size_m, 1e-6)
+    xy0, yaws, length = resting_start(kind, mask, K, world_from_cv, xy0)
+    dims0 = np.asarray(typ.dims) * max(length or 0.0, width_units) / max(typ.size_m, 1e-6)
     # the overall size is what is measured; only a mug's handle reach, which a view from behind
     # leaves open, is held near its typical proportion to the radius
     shape_cost = (

@@ -29,6 +29,7 @@ from scipy.optimize import minimize
 from rose_usd.core import se3
 from rose_usd.core.pinhole import project, silhouette
 from rose_usd.core.raster import convex_spans, fill_convex, row_sums, running_sums
+from rose_usd.geometry.primitives import PrimitiveKind, yaw_starts
 
 
 @dataclass
@@ -260,6 +261,19 @@ def lying_start(view_mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray,
     d = ends[1] - ends[0]
     center = (ends[0] + ends[1]) / 2.0
     return float(center[0]), float(center[1]), float(np.arctan2(d[1], d[0])), float(np.hypot(*d))
+
+
+def resting_start(kind: PrimitiveKind, view_mask: np.ndarray, K, world_from_cv, xy0, support_z: float = 0.0):
+    """Where a fit of a primitive resting as ``kind`` starts: (x, y), its yaw starts [rad] and the
+    length its mask shows along it [world units] (None but for a lying cylinder): a lying
+    cylinder's on its mask's axis cast onto the plane, along it first (``lying_start``), where it
+    has one; else ``xy0`` and the kind's ``yaw_starts``."""
+    yaws = yaw_starts(kind)
+    lying = lying_start(view_mask, K, world_from_cv, support_z) if kind is PrimitiveKind.LYING_CYLINDER else None
+    if lying is None:
+        return np.asarray(xy0), yaws, None
+    x, y, yaw, length = lying
+    return np.array([x, y]), (yaw, *yaws), length
 
 
 def fit_standing(

@@ -50,14 +50,12 @@ from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate, longest_edge
 from rose_usd.geometry.primitives import (
     RESTING_MARGIN,
-    PrimitiveKind,
     hull_points,
     largest_dimension,
     primitive_mesh,
     resting_kinds,
     turns,
     typical,
-    yaw_starts,
 )
 from rose_usd.geometry.silhouette import (
     View,
@@ -66,7 +64,7 @@ from rose_usd.geometry.silhouette import (
     fit_standing,
     footprint_xy,
     log_normal_sizes,
-    lying_start,
+    resting_start,
     search_free,
 )
 from rose_usd.geometry.texture import transfer_colors
@@ -329,15 +327,11 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
     width = _object_width_m(views[0], xy)
     expected, sigma = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
     kind, fit = None, None
+    first = views[0]
     for candidate in resting_kinds(typ.kind):  # a can standing, or lying where that fits clearly better
-        yaws, xy0 = yaw_starts(candidate), _start(xy, views, width)
-        lying = (
-            lying_start(views[0].mask, views[0].K, views[0].world_from_cv, support_z)
-            if candidate is PrimitiveKind.LYING_CYLINDER
-            else None
+        xy0, yaws, _ = resting_start(
+            candidate, first.mask, first.K, first.world_from_cv, _start(xy, views, width), support_z
         )
-        if lying is not None:
-            xy0, yaws = np.array(lying[:2]), (lying[2], *yaws)  # on its mask's axis, along it
         tried = fit_standing(
             lambda d, candidate=candidate: hull_points(candidate, d),
             expected,
