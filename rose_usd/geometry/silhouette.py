@@ -14,6 +14,9 @@ pixels a simplex of a few pixels' moves finds its way.
 - ``search_free`` and ``fit_free``: a metric mesh anywhere (6-DoF), for an object held in the air:
   orientations spread over the sphere, each placed where its silhouette's centroid and area match
   the mask's, the best refined.
+- ``fit_edges``: a fit's pose refined with its outline asked onto the frame's image edges of its
+  own direction (a view made with the frame's gray image has their distance maps,
+  ``edge_distance``): where a mask is a pixel or two off the object, its edges are not.
 """
 
 from __future__ import annotations
@@ -51,6 +54,11 @@ class View:
     soft: np.ndarray | None = None
     """Float (h, w) in [0, 1]: how likely each pixel is the object's (a color posterior blended
     with the mask); when given, the IoU is the soft one against it."""
+    edges: np.ndarray | None = None
+    """Float (EDGE_BINS, h, w) in [0, 1]: per direction, each pixel's distance to the frame's
+    nearest image edge of about that direction (outside what is ignored) over ``EDGE_REACH_PX``,
+    capped at 1 (``edge_distance``); where given, a fit can ask its outline to lie on edges
+    (``edge_cost``)."""
 
     def render(
         self, vertices_world: np.ndarray, faces: np.ndarray, *, closed: bool = True, convex: bool = False
@@ -61,6 +69,59 @@ class View:
         if hull is not None:
             return fill_convex(hull, w, h)
         return silhouette(vertices_world, faces, self.world_from_cv, self.K, w, h, closed=closed)
+
+    def outline(self, vertices_world: np.ndarray, faces: np.ndarray, *, convex: bool = False):
+        """Points along the mesh's silhouette outline in the crop (M, 2) [px], about a pixel apart,
+        and the direction of the outline's normal at each (M,) [rad, mod pi]; None when it has none
+        (behind the camera)."""
+        hull = self._hull(vertices_world) if convex else None
+        if hull is not None:
+            ends = np.roll(hull, -1, axis=0)
+            steps = np.maximum(np.ceil(np.linalg.norm(ends - hull, axis=1)).astype(int), 1)
+            at = np.repeat(np.arange(len(hull)), steps)
+            frac = np.concatenate([np.arange(k) / k for k in steps])
+            tangent = (ends - hull)[at]
+            return hull[at] + frac[:, None] * tangent, np.arctan2(tangent[:, 0], -tangent[:, 1])
+        drawn = self.render(vertices_world, faces, convex=convex).astype(np.uint8)
+        contours, _ = cv2.findContours(drawn, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        contours = [c.reshape(-1, 2).astype(float) for c in contours if len(c) >= 3]
+        if not contours:
+            return None
+        pts = np.concatenate(contours)
+        # the tangent over two pixels each way: a pixel chain's own steps are 45 deg apart
+        tangent = np.concatenate([np.roll(c, -2, axis=0) - np.roll(c, 2, axis=0) for c in contours])
+        return pts, np.arctan2(tangent[:, 0], -tangent[:, 1])
+
+    def edge_cost(self, vertices_world: np.ndarray, faces: np.ndarray, *, convex: bool = False) -> float:
+        """How far the mesh's outline lies from the frame's image edges of its own direction, in
+        [0, 1]: the mean along it of ``edges`` in the bin of the outline's normal (bilinear), an
+        outline point off the crop counting 1 and one where the object may be hidden
+        ``EDGE_HIDDEN``; 0 without an edge map."""
+        if self.edges is None:
+            return 0.0
+        got = self.outline(vertices_world, faces, convex=convex)
+        if got is None or not len(got[0]):
+            return 1.0
+        pts, normal = got
+        _, h, w = self.edges.shape
+        x, y = pts[:, 0], pts[:, 1]
+        inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+        cost = np.ones(len(pts))
+        xi, yi = x[inside], y[inside]
+        b = np.rint(np.mod(normal[inside], np.pi) / (np.pi / EDGE_BINS)).astype(int) % EDGE_BINS
+        x0, y0 = np.minimum(xi.astype(int), w - 2), np.minimum(yi.astype(int), h - 2)
+        fx, fy = xi - x0, yi - y0
+        e = self.edges
+        cost[inside] = (
+            e[b, y0, x0] * (1 - fx) * (1 - fy)
+            + e[b, y0, x0 + 1] * fx * (1 - fy)
+            + e[b, y0 + 1, x0] * (1 - fx) * fy
+            + e[b, y0 + 1, x0 + 1] * fx * fy
+        )
+        hidden = np.zeros(len(pts), bool)
+        hidden[inside] = self.ignore[np.rint(yi).astype(int), np.rint(xi).astype(int)]
+        cost[hidden] = EDGE_HIDDEN
+        return float(cost.mean())
 
     def _hull(self, vertices_world: np.ndarray) -> np.ndarray | None:
         """The projected vertices' convex hull (M, 2) [px]; None when one is not in front of the camera."""
@@ -93,6 +154,47 @@ class View:
         return inside, drawn + total - inside
 
 
+EDGE_REACH_PX = 4.0
+"""An outline point this far (working pixels) or farther from an image edge costs the most (1)."""
+EDGE_BINS = 8
+"""Edge directions are told apart in this many bins over 180 deg (``edge_distance``)."""
+EDGE_BAND_PX = 6
+"""Only image edges within this many working px of the mask's outline count (``edge_distance``)."""
+EDGE_HIDDEN = 0.5
+"""What an outline point costs where the object may be hidden (under the hand): neither on an edge
+nor off one."""
+
+
+def edge_distance(gray: np.ndarray, ignore: np.ndarray | None, mask: np.ndarray | None = None) -> np.ndarray:
+    """Per direction bin, each pixel's distance to the nearest Canny edge of ``gray`` (uint8, a
+    view's crop) whose gradient lies in that bin or the next ones (``EDGE_BINS`` over 180 deg, so
+    within about 34 deg), over ``EDGE_REACH_PX`` and capped at 1: (EDGE_BINS, h, w) float32.
+    Edges within 2 px of ``ignore`` are left out, and so, given ``mask``, are those farther than
+    ``EDGE_BAND_PX`` from its outline (a printed object's own edges are no outline). Canny's
+    thresholds follow the crop's gradients (the 90th percentile of the Sobel magnitude, and 0.4
+    of it), so a low-contrast outline still has its edges; the directions keep a checked cloth's
+    crossing lines off an outline's side."""
+    g = cv2.GaussianBlur(gray, (0, 0), 1.0)
+    gx, gy = cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1)
+    high = max(float(np.percentile(cv2.magnitude(gx, gy), 90)), 8.0)
+    edges = cv2.Canny(g, 0.4 * high, high, L2gradient=True) > 0
+    if ignore is not None and ignore.any():
+        edges &= cv2.dilate(ignore.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
+    if mask is not None and mask.any():
+        # only edges near the mask's outline: an object's own print (a textured cube's) is no outline
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * EDGE_BAND_PX + 1, 2 * EDGE_BAND_PX + 1))
+        m8 = mask.astype(np.uint8)
+        edges &= (cv2.dilate(m8, disc) > 0) & (cv2.erode(m8, disc) == 0)
+    bins = np.rint(np.mod(np.arctan2(gy, gx), np.pi) / (np.pi / EDGE_BINS)).astype(int) % EDGE_BINS
+    out = np.ones((EDGE_BINS, *gray.shape), np.float32)
+    for k in range(EDGE_BINS):
+        near = edges & ((bins == k) | (bins == (k + 1) % EDGE_BINS) | (bins == (k - 1) % EDGE_BINS))
+        if near.any():
+            dist = cv2.distanceTransform((~near).astype(np.uint8), cv2.DIST_L2, 3)
+            out[k] = np.minimum(dist / EDGE_REACH_PX, 1.0)
+    return out
+
+
 def crop_view(
     mask: np.ndarray,
     ignore: np.ndarray | None,
@@ -104,10 +206,12 @@ def crop_view(
     max_side: int = 320,
     box: tuple[float, float, float, float] | None = None,
     soft: np.ndarray | None = None,
+    gray: np.ndarray | None = None,
 ) -> View:
     """The view of ``mask`` (bool, video size) cropped to its bounding box (or ``box``) grown by
     ``grow`` of its size on every side and downscaled so its long side is at most ``max_side``;
-    ``soft`` (float, video size) is cropped with it."""
+    ``soft`` (float, video size) is cropped with it, and ``gray`` (the frame, uint8) gives it its
+    edge map (``edge_distance``)."""
     h, w = mask.shape
     if box is None:
         ys, xs = np.nonzero(mask)
@@ -137,7 +241,13 @@ def crop_view(
     if soft is not None:
         part = np.ascontiguousarray(soft[y0:y1, x0:x1], dtype=np.float32)
         soft_crop = cv2.resize(part, (cw, ch), interpolation=cv2.INTER_AREA) if s < 1 else part
-    return View(cut(mask8), cut(ignore8), kc, np.asarray(world_from_cv, float), frame, s, (x0, y0), soft_crop)
+    ignore_crop = cut(ignore8)
+    edges = None
+    if gray is not None:
+        part = np.ascontiguousarray(gray[y0:y1, x0:x1], dtype=np.uint8)
+        small = cv2.resize(part, (cw, ch), interpolation=cv2.INTER_AREA) if s < 1 else part
+        edges = edge_distance(small, ignore_crop, cut(mask8))
+    return View(cut(mask8), ignore_crop, kc, np.asarray(world_from_cv, float), frame, s, (x0, y0), soft_crop, edges)
 
 
 def is_convex(vertices: np.ndarray, faces: np.ndarray, tolerance: float = 0.01) -> bool:
@@ -431,6 +541,21 @@ def perturb(world_from_object: np.ndarray, view: View, p: np.ndarray) -> np.ndar
     return view.world_from_cv @ se3.make_pose(rot @ cam[:3, :3], t_new)
 
 
+def _pose_cost(vertices, faces, views: list[View], world_from_object, convex: bool, cost_extra, edge_weight: float):
+    """The cost of ``perturb(world_from_object, views[0], p)``: 1 - IoU, plus ``cost_extra(pose)``,
+    plus ``edge_weight`` times the views' mean ``View.edge_cost`` where it is above 0."""
+
+    def cost(p):
+        pose = perturb(world_from_object, views[0], p)
+        extra = cost_extra(pose) if cost_extra is not None else 0.0
+        world = se3.transform_points(pose, vertices)
+        if edge_weight > 0:
+            extra += edge_weight * float(np.mean([view.edge_cost(world, faces, convex=convex) for view in views]))
+        return 1.0 - iou(views, world, faces, convex=convex) + extra
+
+    return cost
+
+
 def fit_free(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -445,13 +570,7 @@ def fit_free(
 ) -> tuple[np.ndarray, float]:
     """The 6-DoF pose of a mesh (object frame) best fitting the views' silhouettes, from
     ``world_from_object``: (pose, IoU). ``cost_extra(pose)`` is added to 1 - IoU."""
-    ref = views[0]
-
-    def cost(p):
-        pose = perturb(world_from_object, ref, p)
-        extra = cost_extra(pose) if cost_extra is not None else 0.0
-        return 1.0 - iou(views, se3.transform_points(pose, vertices), faces, convex=convex) + extra
-
+    cost = _pose_cost(vertices, faces, views, world_from_object, convex, cost_extra, 0.0)
     steps = np.array([np.radians(step_deg)] * 3 + [step_shift, step_shift, 2 * step_shift])
     p, c = nelder_mead(cost, np.zeros(6), steps, maxfev=maxfev)
     for scale in (0.5, 0.25, 0.125):  # restarts: a collapsed simplex stalls on IoU's plateaus
@@ -460,7 +579,33 @@ def fit_free(
             p, c = q, d
         elif scale < 0.25:
             break
-    pose = perturb(world_from_object, ref, p)
+    pose = perturb(world_from_object, views[0], p)
+    return pose, iou(views, se3.transform_points(pose, vertices), faces, convex=convex)
+
+
+def fit_edges(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    views: list[View],
+    world_from_object: np.ndarray,
+    edge_weight: float,
+    *,
+    maxfev: int = 160,
+    step_deg: float = 1.0,
+    step_shift: float = 0.0025,
+    cost_extra: Callable[[np.ndarray], float] | None = None,
+    convex: bool = False,
+) -> tuple[np.ndarray, float]:
+    """A silhouette fit's pose refined with its outline asked onto the frames' image edges: 1 - IoU
+    + ``edge_weight`` x the views' mean ``View.edge_cost`` (+ ``cost_extra``), from a small
+    simplex: the silhouette finds the object, its edges the last pixels a mask has wrong.
+    (pose, IoU); the pose unchanged where no view has an edge map."""
+    if edge_weight <= 0 or all(view.edges is None for view in views):
+        return world_from_object, iou(views, se3.transform_points(world_from_object, vertices), faces, convex=convex)
+    cost = _pose_cost(vertices, faces, views, world_from_object, convex, cost_extra, edge_weight)
+    steps = np.array([np.radians(step_deg)] * 3 + [step_shift, step_shift, 2 * step_shift])
+    p, _ = nelder_mead(cost, np.zeros(6), steps, maxfev=maxfev)
+    pose = perturb(world_from_object, views[0], p)
     return pose, iou(views, se3.transform_points(pose, vertices), faces, convex=convex)
 
 

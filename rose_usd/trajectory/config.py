@@ -58,6 +58,11 @@ class SilhouetteConfig:
     """The silhouette is compared with this much of the color posterior P(object | color) (object
     and surroundings' color histograms from the first frame) plus the rest of the mask, by soft
     IoU; 0: the mask alone (default 0.7: the posterior follows an object the masks lose)."""
+    edge_weight: float = field(default=1.0, metadata=limits(0.0))
+    """Each refit is refined with this times how far its outline lies from the frame's image
+    edges of its direction (``geometry.silhouette.fit_edges``, 0-1) added to 1 - IoU: the
+    outline put on the object's contour where the mask's is a pixel or two off. A given mesh's
+    only: a category proxy is the object's shape only roughly [-] (default 1; 0: off)."""
     hold_drop: float = 0.04
     """The pose holds while its silhouette IoU with the frame's target is within this fraction of
     the first frame's IoU of where it was when set [-] (default 0.04)."""
