@@ -57,6 +57,7 @@ from rose_usd.capture.world import author_world
 from rose_usd.case.config import Prompt
 from rose_usd.core import se3
 from rose_usd.core.grabcut import SEEDS
+from rose_usd.core.pinhole import resized_K
 from rose_usd.errors import InputError
 from rose_usd.geometry.silhouette import crop_view
 from rose_usd.geometry.vanishing import up_from_lines, upright_prior
@@ -117,8 +118,7 @@ def _up_from_image(ctx: StageContext, K: np.ndarray, ref: int) -> tuple[np.ndarr
     gray = cv2.cvtColor(ctx.case.rgb(ref), cv2.COLOR_RGB2GRAY)
     s = min(1.0, 640 / max(gray.shape))  # LSD's segments (and their length threshold) at a 640 px image
     small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
-    k = np.array([[K[0, 0] * s, 0, (K[0, 2] + 0.5) * s - 0.5], [0, K[1, 1] * s, (K[1, 2] + 0.5) * s - 0.5], [0, 0, 1]])
-    est = up_from_lines(small, k)
+    est = up_from_lines(small, resized_K(K, s))
     if est is not None:
         return (
             est.up_cam,

@@ -29,6 +29,20 @@ def masked_world_points(
     return se3.transform_points(world_from_cv, backproject(u, v, depth[v, u], K)), (v, u)
 
 
+def resized_K(K: np.ndarray, s: float, origin: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """Intrinsics (3, 3) of the image cut at pixel ``origin`` (x0, y0) and resized by ``s``, pixel
+    centers kept (a pixel's center u maps to (u - x0 + 0.5) s - 0.5)."""
+    k = np.asarray(K, dtype=float)
+    x0, y0 = origin
+    return np.array(
+        [
+            [k[0, 0] * s, 0.0, (k[0, 2] - x0 + 0.5) * s - 0.5],
+            [0.0, k[1, 1] * s, (k[1, 2] - y0 + 0.5) * s - 0.5],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+
+
 def project(points_cam: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates (u, v), as floats with pixel centers at integers, of camera points
     (..., 3) in OpenCV axes in front of the camera: the inverse of ``backproject``."""

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from rose_usd.core import se3
-from rose_usd.core.pinhole import project, silhouette
+from rose_usd.core.pinhole import project, resized_K, silhouette
 from rose_usd.core.raster import convex_spans, fill_convex, row_sums, running_sums
 from rose_usd.geometry.primitives import PrimitiveKind, yaw_starts
 
@@ -227,14 +227,7 @@ def crop_view(
         part = image[y0:y1, x0:x1].astype(np.uint8)
         return cv2.resize(part, (cw, ch), interpolation=cv2.INTER_AREA) >= 128 if s < 1 else part.astype(bool)
 
-    k = np.array(K, dtype=float)
-    kc = np.array(
-        [
-            [k[0, 0] * s, 0.0, (k[0, 2] - x0 + 0.5) * s - 0.5],
-            [0.0, k[1, 1] * s, (k[1, 2] - y0 + 0.5) * s - 0.5],
-            [0.0, 0.0, 1.0],
-        ]
-    )
+    kc = resized_K(K, s, (x0, y0))
     mask8 = mask.astype(np.uint8) * 255
     ignore8 = (np.zeros_like(mask) if ignore is None else ignore).astype(np.uint8) * 255
     soft_crop = None
