@@ -116,6 +116,17 @@ def test_static_scene_declares_no_objects(tmp_path, case_copy):
     assert not (out / "masks" / "Object").exists()
 
 
+def test_static_scene_with_the_flow_backend_masks_only_the_hands(tmp_path, case_copy):
+    """RGB only, ``objects = []``: the flow backend writes an interactor track (the hands it
+    finds; the sample's proxy hand is none) and no object track, where it refused before."""
+    (case_copy / "rose.toml").write_text("fps = 30\nobjects = []\n")
+    out = tmp_path / "out"
+    Pipeline(case_copy, out, _flow()).run("segment")
+    results = read_provenance(layer_file(out, "masks"))["results"]
+    assert set(results["visible_frames"]) == {"Interactor"}
+    assert not (out / "masks" / "Object").exists()
+
+
 def test_support_is_the_plane_under_the_object_even_when_a_floor_is_bigger():
     """A floor seen all video long can hold 5x the points of the table the object stands on."""
     up = np.array([0.0, 0.0, 1.0])

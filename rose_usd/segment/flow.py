@@ -1,6 +1,7 @@
 """The ``flow`` segment backend: object masks in 2D, for videos without depth (RGB only).
 
-No learned model and no capture stage: it needs a prompt box (or point) per object, and works at
+No learned model and no capture stage: it needs a prompt box (or point) per object (a static
+scene, ``objects = []``, gets the hands MediaPipe finds as its interactor alone), and works at
 a working resolution whose long side is at most ``segment.flow.max_side_px``.
 
 1. **Start.** GrabCut inside the prompt box gives the object; its color model is learned against
@@ -514,7 +515,7 @@ def run(ctx: StageContext) -> None:
     where = prompts_source(cfg.prompts, case)
     specs = parse_prompts(cfg.prompts, list(case.config.objects))
     check_prompts(specs, case.width, case.height, n, where)
-    if any(s.prompt is None for s in specs) or not specs:
+    if any(s.prompt is None for s in specs):
         raise InputError(
             "the flow backend needs a prompt (box or point) for every object",
             path=where,
@@ -535,10 +536,14 @@ def run(ctx: StageContext) -> None:
         point = tuple(v * s for v in p.point) if p.point is not None else None
         prompts.append((spec.name, p.frame, box, point))
     found = find_hands(ctx, frame_of) if cfg.flow.hands else None
-    skin = skin_histogram(frame_of, found) if found else None
-    masks, hands, visible = segment_video(
-        frame_of, n, (w, h), prompts, looks=_looks(case, specs), found=found, skin=skin
-    )
+    if specs:
+        skin = skin_histogram(frame_of, found) if found else None
+        masks, hands, visible = segment_video(
+            frame_of, n, (w, h), prompts, looks=_looks(case, specs), found=found, skin=skin
+        )
+    else:  # a static scene (objects = []): nothing to track, the interactor is the hands found
+        masks, visible = {}, {}
+        hands = [hand_mask(f, (h, w)) if f else np.zeros((h, w), bool) for f in (found or [[]] * n)]
 
     def full(frames):
         for m in frames:
