@@ -34,7 +34,7 @@ from rose_usd.geometry.silhouette import (
     lying_start,
 )
 from rose_usd.geometry.vanishing import up_from_lines
-from rose_usd.scene.plane import backdrop_points, slab
+from rose_usd.scene.backdrop import backdrop_points, slab
 from rose_usd.synth import shapes
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
@@ -464,7 +464,7 @@ def test_the_support_reaches_the_farthest_object_foot():
     its corners), the distance the plane scene's support must reach past."""
     from types import SimpleNamespace
 
-    from rose_usd.scene.plane import farthest_foot
+    from rose_usd.scene.backdrop import farthest_foot
 
     pose = _camera(0.4, 30.0)
     v, f = primitive_mesh(PrimitiveKind.BOX, np.array([0.10, 0.08, 0.06]))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rose_usd.scene.tsdf import fill_support_holes
+from rose_usd.scene.fused import fill_support_holes
 
 
 def _table(z: float = -0.03, hole=(0.4, 0.6, 0.4, 0.6)) -> np.ndarray:
@@ -45,7 +45,7 @@ def test_a_pad_lays_the_support_flat_under_an_object_and_leaves_the_rest():
     """Bumps of 5-11 mm under a resting object (MegaSaM's table under push-box) are replaced by a
     flat pad at the surface's height over its footprint grown by the margin; the table around it,
     and what stands above the band, keep their points."""
-    from rose_usd.scene.tsdf import SupportPad, _footprint, lay_pads
+    from rose_usd.scene.fused import SupportPad, _footprint, lay_pads
 
     pts = _table(z=0.0, hole=(0, 0, 0, 0))
     rng = np.random.default_rng(0)
@@ -81,7 +81,7 @@ def test_the_wrapped_collider_is_exactly_flat_over_a_pad_and_still_valid():
     from rose_usd.core.watertight import collider_problems
     from rose_usd.geometry.mesh import self_intersects
     from rose_usd.geometry.wrap import alpha_wrap
-    from rose_usd.scene.tsdf import SupportPad, _footprint, flatten_pads
+    from rose_usd.scene.fused import SupportPad, _footprint, flatten_pads
 
     rng = np.random.default_rng(1)
     g = np.arange(0.0, 0.4, 0.004)
@@ -150,7 +150,7 @@ def test_the_fused_surface_comes_out_the_same_from_the_same_frames():
     # Open3D allocates the grid's blocks from several threads: before the sort, the same frames
     # gave the same points in a different order, which everything downstream would take in
     from rose_usd.core import se3
-    from rose_usd.scene.tsdf import Fusion
+    from rose_usd.scene.fused import Fusion
 
     w, h = 160, 120
     K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])

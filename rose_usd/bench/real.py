@@ -114,7 +114,7 @@ def _scene_against_recorded(
     from rose_usd.render.lighting import Lighting
     from rose_usd.render.scene import RenderItem, RenderScene
     from rose_usd.scene.config import SceneConfig
-    from rose_usd.scene.tsdf import Fusion
+    from rose_usd.scene.fused import Fusion
     from rose_usd.usd.geom import MeshData, read_mesh
 
     case = load_case(folder)
