@@ -436,6 +436,24 @@ def run_seven_scenes(args) -> dict:
     down_true = np.einsum("nji,j->ni", truth[:, :3, :3], gravity)
     in_camera = np.degrees(np.arccos(np.clip((down_ours * down_true).sum(axis=1), -1.0, 1.0)))
     prov = read_provenance(layer_file(run_dir, "world")) or {}
+    scenes = {}
+    if args.scene:
+        from rose_usd.bench.real import _scene_against_recorded
+
+        # our world into the recording's: the similarity that maps our camera centres onto its
+        align = np.eye(4)
+        align[:3, :3] = scale * rot
+        align[:3, 3] = mb - scale * rot @ ma
+        for backend in args.scene:
+            t1 = time.perf_counter()
+            Pipeline(case_dir, run_dir, Options(settings=settings, backends={"scene": backend})).run("scene")
+            seconds = round(time.perf_counter() - t1, 1)
+            out = args.output / f"scene-{backend}"
+            out.mkdir(parents=True, exist_ok=True)
+            score = _scene_against_recorded(folder, run_dir, truth, align, out)
+            scene_prov = read_provenance(layer_file(run_dir, "scene")) or {}
+            results = {k: v for k, v in (scene_prov.get("results") or {}).items() if k != "reference_frames"}
+            scenes[backend] = {"wall_time_s": seconds, **score, "scene_results": results}
     result = {
         "sequence": folder.name,
         "frames": len(truth),
@@ -452,6 +470,7 @@ def run_seven_scenes(args) -> dict:
         },
         "capture_results": {k: v for k, v in (prov.get("results") or {}).items() if k != "scale_cues"},
         "capture_warnings": prov.get("warnings", []),
+        "scenes": scenes,
     }
     args.output.mkdir(parents=True, exist_ok=True)
     name = "result-no-k.json" if args.no_k else "result.json"
@@ -475,6 +494,12 @@ def main() -> None:
     parser.add_argument("--every", type=int, default=12)
     parser.add_argument("--set", action="append")
     parser.add_argument("--no-k", action="store_true", help="7scenes: no intrinsics (self-calibrated)")
+    parser.add_argument(
+        "--scene",
+        action="append",
+        help="7scenes: also run the scene stage with this backend (stereo, plane; repeatable) and score"
+        " its collider against a fusion of the recorded depth",
+    )
     parser.add_argument("--keep", action="store_true", help="keep an earlier run (current layers are skipped)")
     parser.add_argument(
         "--no-run", action="store_true", help="clip: only read the earlier run again (OUT's result.json)"

@@ -6,7 +6,8 @@ Every stage's default backend is ``auto``, resolved here from what the case hold
 capture     ``rgbd`` with ``depth/``, else ``megasam`` with MegaSaM's npz, else ``sfm`` (RGB only)
 segment     ``sam2`` with SAM 2's masks, else ``classical`` with depth (a sensor's or MegaSaM's),
             else ``flow``
-scene       ``tsdf`` with depth, else ``plane``
+scene       ``tsdf`` with depth, else ``stereo`` (which builds ``plane``'s scene when the camera
+            moves too little for stereo)
 object      with depth: ``imported`` when every object has a mesh (rose.toml ``mesh``,
             ``perception/<Name>.glb``, FoundationPose's ``mesh/``), else ``fusion``; without:
             ``silhouette`` (the mesh, or a category primitive, fitted to the masks)
@@ -66,7 +67,7 @@ def _trajectory(case: Case) -> str:
 AUTO_RULES: dict[str, Callable[[Case], str]] = {
     "capture": _capture,
     "segment": _segment,
-    "scene": lambda case: "tsdf" if _has_depth(case) else "plane",
+    "scene": lambda case: "tsdf" if _has_depth(case) else "stereo",
     "object": _object,
     "trajectory": _trajectory,
     "gate": lambda case: "mitsuba-newton",
@@ -128,7 +129,7 @@ def _need_metric_depth(case: Case, plan: Mapping[str, str], stage: str) -> None:
         f"(no depth/, no MegaSaM output{', capture=sfm' if capture == 'sfm' else ''})",
         path=case.folder / "depth",
         hint="add depth maps there or MegaSaM's npz under perception/, or use the RGB-only backends"
-        " (scene=plane, object=silhouette, trajectory=silhouette)",
+        " (scene=stereo, object=silhouette, trajectory=silhouette)",
     )
 
 

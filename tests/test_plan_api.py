@@ -59,7 +59,7 @@ def test_auto_resolves_each_stage_from_what_the_case_holds(case_copy):
     plan = _plan(case_copy)  # frames alone: the RGB-only backends
     assert (plan["capture"], plan["scene"], plan["object"], plan["trajectory"]) == (
         "sfm",
-        "plane",
+        "stereo",
         "silhouette",
         "silhouette",
     )

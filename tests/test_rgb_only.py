@@ -493,8 +493,8 @@ def test_the_backdrop_meets_the_floor_without_a_seam_and_the_slab_is_closed():
 @pytest.mark.slow
 def test_the_sample_without_depth_reconstructs_to_a_valid_stage(tmp_path, sample_case):
     """Frames alone (the sample with depth/ and cam_K.txt removed): every RGB-only backend runs and
-    writes a valid stage whose world says it has no metric depth; the box is a proxy (a category
-    primitive), tracked by its hull's silhouette."""
+    writes a valid stage whose world says it has no metric depth; the scene comes from stereo (the
+    camera moves); the box is a proxy (a category primitive), tracked by its hull's silhouette."""
     import rose_usd
     from rose_usd.layers.objects import is_proxy
     from rose_usd.layers.world import has_metric_depth, read_scale
@@ -508,7 +508,7 @@ def test_the_sample_without_depth_reconstructs_to_a_valid_stage(tmp_path, sample
     assert result.plan == {
         "capture": "sfm",
         "segment": "flow",
-        "scene": "plane",
+        "scene": "stereo",
         "object": "silhouette",
         "trajectory": "silhouette",
         "gate": "mitsuba-newton",
@@ -520,6 +520,9 @@ def test_the_sample_without_depth_reconstructs_to_a_valid_stage(tmp_path, sample
     assert result.gate.ssim_mean > 0.6
     assert is_proxy(result.stage, "Box")
     assert read_provenance(layer_file(tmp_path / "out", "trajectory"))["results"]["objects"]["Box"]["convex"]
+    # the hand-held camera moves enough for stereo: its references measured the support
+    scene = read_provenance(layer_file(tmp_path / "out", "scene"))["results"]
+    assert len(scene["reference_frames"]) >= 2 and scene["support_area_m2"] > 0
 
 
 def test_a_pen_starts_on_its_mask_axis_cast_onto_the_table():

@@ -59,7 +59,8 @@ def metric_depth_reader(stage: Usd.Stage, case: Case, *, cache: int = 8) -> Call
         raise StageError(
             "the world layer has no metric depth (an RGB-only video: capture backend sfm)",
             path=stage.GetRootLayer().identifier,
-            hint="use the depth-free backends (scene plane, object silhouette, trajectory silhouette), or give depth",
+            hint="use the depth-free backends (scene stereo or plane, object silhouette, trajectory silhouette),"
+            " or give depth",
         )
     if source in SENSOR_SOURCES:
         if not case.has_depth:

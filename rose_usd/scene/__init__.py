@@ -10,6 +10,7 @@ STAGE = StageDef(
     config=SceneConfig,
     backends={
         "tsdf": "rose_usd.scene.tsdf:run",
+        "stereo": "rose_usd.scene.stereo:run",
         "plane": "rose_usd.scene.plane:run",
         "oracle": "rose_usd.scene.oracle:run",
     },

@@ -9,6 +9,7 @@ from rose_usd.stage_config import limits
 class SceneBackend(enum.Enum):
     AUTO = "auto"  # chosen from what the case holds (rose_usd.plan)
     TSDF = "tsdf"  # fuse static pixels (TSDF), CGAL alpha wrap, 3-NN vertex colors, xatlas texture from the frames
+    STEREO = "stereo"  # RGB only: plane-sweep stereo of a moving camera, fused and wrapped as tsdf; else plane
     PLANE = "plane"  # RGB only: the support plane as a textured slab, the rest a textured backdrop (visual only)
     ORACLE = "oracle"  # ground-truth scene parts, materials and lights from gt/ (benchmark cases)
 
@@ -70,8 +71,57 @@ class PlaneConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class StereoConfig:
+    """Settings of the stereo backend (RGB only, a moving camera; fusion, wrap and texture take
+    scene.tsdf's)."""
+
+    keyframes: int = field(default=24, metadata=limits(2))
+    """Reference frames whose depth stereo finds, spread over the video (default 24)."""
+    sources: int = field(default=4, metadata=limits(2))
+    """Source frames compared with each reference (default 4)."""
+    min_baseline: float = field(default=0.05, metadata=limits(0.0))
+    """A source camera stands at least this many times the reference camera's distance to the
+    world origin from it (the next one twice that) [-] (default 0.05: about 3 deg of parallax)."""
+    max_turn_deg: float = field(default=30.0, metadata=limits(0.0, 90.0))
+    """... and looks within this many degrees of the reference's direction (default 30)."""
+    max_side_px: int = field(default=320, metadata=limits(64))
+    """Stereo works on frames downscaled to this long side [px] (default 320)."""
+    planes: int = field(default=128, metadata=limits(8))
+    """Depth planes swept, even in inverse depth (default 128)."""
+    window_px: int = field(default=7, metadata=limits(3))
+    """Side of the window compared by ZNCC [px] (default 7)."""
+    min_zncc: float = field(default=0.5, metadata=limits(-1.0, 1.0))
+    """A depth is kept where its match's ZNCC is at least this (default 0.5)."""
+    near: float = field(default=0.2, metadata=limits(0.01))
+    """The nearest plane, in times the reference camera's distance to the world origin (default 0.2)."""
+    far: float = field(default=4.0, metadata=limits(0.1))
+    """The farthest plane, likewise (default 4)."""
+    agree_rel: float = field(default=0.01, metadata=limits(0.0))
+    """A depth is kept where a neighbouring reference's depth map agrees within this fraction of
+    it (default 0.01)."""
+    support_band_m: float = field(default=0.02, metadata=limits(0.0))
+    """Stereo's surface more than this above the support as stereo sees it stands on it (the rest
+    is the support) [m] (default 0.02: stereo put 95 % of a table 0.6-1 m away within 15 mm)."""
+    standing_rel: float = field(default=0.03, metadata=limits(0.0))
+    """... and more than this fraction of its distance to the nearest reference camera (default
+    0.03: the 90th percentile of stereo's depth error on the realistic suite's tables, 3-5 %)."""
+    min_standing_points: int = field(default=30, metadata=limits(1))
+    """What stands on the support is stereo's surface in clusters of at least this many fused
+    points (voxels); smaller ones are stray matches (default 30)."""
+    min_rise_m: float = field(default=0.01, metadata=limits(0.0))
+    """... whose highest point rises at least this much over that band [m]: stereo's noise over a
+    plain stretch of table makes low sheets (default 0.01)."""
+    through_rel: float = field(default=0.05, metadata=limits(0.0))
+    """A reference pixel whose depth lies beyond the support plane by more than this fraction of
+    the plane's depth sees through it (default 0.05)."""
+    support_cell_m: float = field(default=0.02, metadata=limits(0.001))
+    """The support is modeled in cells this wide [m] (default 0.02)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class SceneConfig:
     backend: SceneBackend = SceneBackend.AUTO
-    """Which backend reconstructs the scene (default auto: tsdf with depth, else plane)."""
+    """Which backend reconstructs the scene (default auto: tsdf with depth, else stereo)."""
     tsdf: TsdfConfig = field(default_factory=TsdfConfig)
+    stereo: StereoConfig = field(default_factory=StereoConfig)
     plane: PlaneConfig = field(default_factory=PlaneConfig)
