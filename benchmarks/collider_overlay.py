@@ -59,7 +59,7 @@ def main() -> None:
     width = max(r.shape[1] for r in rows)
     rows = [cv2.copyMakeBorder(r, 0, 0, 0, width - r.shape[1], cv2.BORDER_CONSTANT) for r in rows]
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(args.output), np.concatenate(rows, axis=0))
+    cv2.imwrite(str(args.output), np.concatenate(rows, axis=0), [cv2.IMWRITE_JPEG_QUALITY, 75])
 
 
 if __name__ == "__main__":
