@@ -136,3 +136,14 @@ def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sampl
     time.sleep(0.5)
     assert not any(_alive(c) for c in children) and not _processes_running("rose_usd.capture.tracking")
     assert layer_file(out, layer).read_bytes() == before
+
+
+def test_a_tracker_whose_parent_sent_nothing_leaves_quietly():
+    """The capture's one-CPU tracker started, then its parent was interrupted before it sent the
+    work (its stdin closed empty): exit 1 and nothing on stderr, not an EOFError traceback under
+    the parent's "interrupted" (seen once in a fresh clone's test run)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "rose_usd.capture.tracking"], input=b"", capture_output=True, timeout=120
+    )
+    assert proc.returncode == 1
+    assert proc.stderr.decode().strip() == ""

@@ -284,7 +284,10 @@ def _child() -> None:
 
     from rose_usd.core.lifetime import die_with_parent
 
-    parent, cpu, case, frames, K, params, out = pickle.load(sys.stdin.buffer)
+    try:
+        parent, cpu, case, frames, K, params, out = pickle.load(sys.stdin.buffer)
+    except EOFError:  # the parent ended (Ctrl-C) before it sent the work: nothing to do, nothing to say
+        sys.exit(1)
     die_with_parent(parent)
     cpus = os.sched_getaffinity(0)
     _bind_cpu(cpu)  # before Open3D starts its threads
