@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from rose_usd.core import se3
+from rose_usd.core.pinhole import backproject
 
 
 @dataclass(frozen=True)
@@ -133,8 +134,7 @@ def consistent(
     h, w = depth.shape
     v, u = np.nonzero(depth > 0)
     z = depth[v, u].astype(np.float64)
-    rays = np.stack([u, v, np.ones_like(u)], axis=1).astype(np.float64) @ np.linalg.inv(view.K).T
-    world = se3.transform_points(view.world_from_cv, rays * z[:, None])
+    world = se3.transform_points(view.world_from_cv, backproject(u, v, z, view.K))
     agree = np.zeros(len(z), np.int32)
     for other_depth, other in others:
         cam = se3.transform_points(se3.invert(other.world_from_cv), world)

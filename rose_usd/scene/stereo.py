@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rose_usd.core.color import srgb8_to_linear
-from rose_usd.core.pinhole import resized_K, view_counts
+from rose_usd.core.pinhole import backproject, resized_K, view_counts
 from rose_usd.geometry.mesh import submesh
 from rose_usd.geometry.stereo import SweepParams, View, consistent, sweep
 from rose_usd.geometry.support import SupportSurface
@@ -98,26 +98,23 @@ def choose_sources(
     return sorted(before[:take_b] + after[:take_a])
 
 
-def _cast_on_support(mask: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:
-    """Where the rays of a mask's pixels meet the plane z = 0 (M, 2) [m], those going down only."""
-    v, u = np.nonzero(mask)
-    rays = (
-        np.column_stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones(len(u))]) @ world_from_cv[:3, :3].T
-    )
-    down = rays[:, 2] < -1e-6
-    s = -world_from_cv[2, 3] / rays[down, 2]
-    return world_from_cv[:2, 3] + s[:, None] * rays[down, :2]
+def support_hits(u, v, K: np.ndarray, world_from_cv: np.ndarray):
+    """Where the rays of pixels (u, v) meet the plane z = 0: their depth there (the distance along
+    the optical axis; inf for a ray that goes up), the points' xy (..., 2) and which rays go down."""
+    rays = backproject(u, v, 1.0, K) @ world_from_cv[:3, :3].T
+    down = rays[..., 2] < -1e-6
+    depth = np.where(down, -world_from_cv[2, 3] / np.where(down, rays[..., 2], -1.0), np.inf)
+    xy = world_from_cv[:2, 3] + np.where(down, depth, 0.0)[..., None] * rays[..., :2]
+    return depth, xy, down
 
 
-def object_pads(ctx: StageContext, cameras, margin_m: float) -> tuple[list[SupportPad], dict[str, str]]:
+def object_pads(ctx: StageContext, cameras, layer, margin_m: float) -> tuple[list[SupportPad], dict[str, str]]:
     """A flat pad at z = 0 under each object: where its first clear mask's pixels meet the support
     plane (those within 1.5 times the median distance from the camera, so a ray that grazes the
     plane does not stretch it), grown by ``margin_m``. Returns the pads and, per object without
     one, why."""
-    case, n = ctx.case, ctx.time_info.n_frames
-    layer = read_masks(ctx.stage, n, (case.height, case.width))
     pads, skipped = [], {}
-    for spec in case.config.objects:
+    for spec in ctx.case.config.objects:
         if not layer.has(spec.name):
             skipped[spec.name] = "no masks"
             continue
@@ -127,7 +124,9 @@ def object_pads(ctx: StageContext, cameras, margin_m: float) -> tuple[list[Suppo
             skipped[spec.name] = "never visible"
             continue
         t = int(clear[0])
-        xy = _cast_on_support(layer.mask(spec.name, t), cameras.K[t], cameras.world_from_cv[t])
+        v, u = np.nonzero(layer.mask(spec.name, t))
+        _, xy, down = support_hits(u, v, cameras.K[t], cameras.world_from_cv[t])
+        xy = xy[down]
         if len(xy) < 10:
             skipped[spec.name] = f"its mask at frame {t} lies above the horizon"
             continue
@@ -189,11 +188,11 @@ def _raycast_depth(vertices: np.ndarray, faces: np.ndarray, cameras, width: int,
         o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
         o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)),
     )
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    v, u = np.indices((height, width), dtype=np.float64)
 
     def depth_of(t: int) -> np.ndarray:
-        K, pose = cameras.K[t], cameras.world_from_cv[t]
-        dirs = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1) @ pose[:3, :3].T
+        pose = cameras.world_from_cv[t]
+        dirs = backproject(u, v, 1.0, cameras.K[t]) @ pose[:3, :3].T
         rays = np.concatenate([np.broadcast_to(pose[:3, 3], dirs.shape), dirs], axis=-1).astype(np.float32)
         hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()  # along a ray of unit depth: the depth
         return np.where(np.isfinite(hit), hit, 0.0).astype(np.float32)
@@ -204,13 +203,8 @@ def _raycast_depth(vertices: np.ndarray, faces: np.ndarray, cameras, width: int,
 def plane_depth(view: View, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel of a view (``shape``), the depth at which its ray meets the plane z = 0 (inf where
     it goes up) and that point's xy: ((H, W), (H, W, 2))."""
-    h, w = shape
-    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
-    K, pose = view.K, view.world_from_cv
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1) @ pose[:3, :3].T
-    down = rays[..., 2] < -1e-6
-    depth = np.where(down, -pose[2, 3] / np.where(down, rays[..., 2], -1.0), np.inf)
-    xy = pose[:2, 3] + np.where(down, depth, 0.0)[..., None] * rays[..., :2]
+    v, u = np.indices(shape, dtype=float)
+    depth, xy, _ = support_hits(u, v, view.K, view.world_from_cv)
     return depth, xy
 
 
@@ -248,11 +242,15 @@ class SupportGrid:
             r, c, ok = self.cells(xy[sel])
             np.add.at(counts, (r[ok], c[ok]), 1)
 
+    def seen_through(self) -> np.ndarray:
+        """The hull's cells (bool) seen through more often than seen, and at least twice."""
+        return (self.inside > 0) & (self.through >= 2) & (self.through > self.on)
+
     def kept(self, anchors_xy: np.ndarray) -> np.ndarray:
         """The cells (bool) of the support: inside the hull, not seen through more often than seen
         (and at least twice) unless closed in by the support (``CLOSE_CELLS``), in the connected
         parts that hold an anchor (the world origin, the objects' pads), or all when none does."""
-        keep = (self.inside > 0) & ~((self.through >= 2) & (self.through > self.on))
+        keep = (self.inside > 0) & ~self.seen_through()
         # a support has no holes a hand wide: stray far matches carve none
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (CLOSE_CELLS, CLOSE_CELLS))
         keep = (cv2.morphologyEx(keep.astype(np.uint8), cv2.MORPH_CLOSE, disc) > 0) & (self.inside > 0)
@@ -345,13 +343,14 @@ def run(ctx: StageContext) -> None:
         author_plane(ctx)
         ctx.record(stereo=f"{len(refs)} reference frames with parallax: the plane backend's scene")
         return
-    base = plane_scene(ctx, cameras, read_masks(ctx.stage, n, (case.height, case.width)), ctx.config.plane)
+    layer = read_masks(ctx.stage, n, (case.height, case.width))
+    base = plane_scene(ctx, cameras, layer, ctx.config.plane)
     depths, kept = stereo_depths(ctx, cameras, refs, cfg, tcfg.mask_margin_px)
     # the support: the plane backend's, less where stereo sees through it
     grid = SupportGrid(base.support_xy(), cfg.support_cell_m)
     for depth, view in depths.values():
         grid.add(depth, view, cfg.through_rel)
-    pads, no_pad = object_pads(ctx, cameras, tcfg.pad_margin_m)
+    pads, no_pad = object_pads(ctx, cameras, layer, tcfg.pad_margin_m)
     support = grid.kept(np.concatenate([np.zeros((1, 2))] + [p.xy for p in pads]))
     standing, colors, normals, surface = standing_points(ctx, depths, grid, support, pads, cfg, tcfg)
     # the collider: the support's cells at z = 0 and what stands on them, wrapped
@@ -361,13 +360,13 @@ def run(ctx: StageContext) -> None:
     normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(floor), 1)), normals])
     points, colors, normals, padded = lay_pads(points, colors, normals, pads)
     vertices, faces, first_triangles, alpha, flattened = wrap_collider(points, normals, pads, tcfg)
-    up, textured = _author(ctx, base, vertices, faces, points, colors, cfg, tcfg)
+    up, textured = _author(ctx, cameras, base, vertices, faces, points, colors, cfg, tcfg)
     ctx.record(
         reference_frames={str(r): {"sources": refs[r], "depth": kept[r][0], "agreed": kept[r][1]} for r in depths},
         working_px=list(next(iter(depths.values()))[0].shape[::-1]),
         support_area_m2=round(float(support.sum()) * cfg.support_cell_m**2, 3),
         support_hull_area_m2=round(float(grid.inside.sum()) * cfg.support_cell_m**2, 3),
-        support_cells_seen_through=int(((grid.through >= 2) & (grid.through > grid.on) & (grid.inside > 0)).sum()),
+        support_cells_seen_through=int(grid.seen_through().sum()),
         standing_points=int(len(standing)),
         support_relief_mm=surface.relief_mm(),
         support_pads={p.name: {"height_m": 0.0, "area_cm2": round(1e4 * p.area_m2, 1)} for p in pads},
@@ -385,7 +384,7 @@ def run(ctx: StageContext) -> None:
     )
 
 
-def _author(ctx: StageContext, base, vertices, faces, points, colors, cfg, tcfg):
+def _author(ctx: StageContext, cameras, base, vertices, faces, points, colors, cfg, tcfg):
     """Write the scene layer: the plane scene's visual parts, the wrap's standing triangles as
     ``Standing`` (textured from the frames, their visibility from the wrap), the wrap as the
     collider. Returns which triangles stand and the texture's record."""
@@ -393,7 +392,6 @@ def _author(ctx: StageContext, base, vertices, faces, points, colors, cfg, tcfg)
     up = _standing_faces(vertices, faces, cfg.support_band_m)
     frame_colors = None
     if tcfg.texture_frames > 0 and up.any():
-        cameras = read_cameras(ctx.stage, n)
         depth_of = _raycast_depth(vertices, faces, cameras, case.width, case.height)
         frame_colors = FrameColors(ctx, depth_of, spread_frames(n, tcfg.texture_frames), margin_px=tcfg.mask_margin_px)
     with tempfile.TemporaryDirectory() as tmp:
