@@ -12,7 +12,9 @@ Values are converted to the field's type only where nothing is lost: ``"3"`` and
 int 3, ``2.9`` is an error; a field may name its own parser in ``metadata["parse"]``. Numbers are
 range-checked: an int must be at least 1 and a float above 0 unless the field's metadata says
 otherwise (``min``/``max`` inclusive, ``below`` exclusive), so ``track_width = 0`` or
-``depth_max_m = -1`` is a one-line error, not a crash or a silent nonsense run.
+``depth_max_m = -1`` is a one-line error, not a crash or a silent nonsense run. Settings that must
+agree with each other (a nearest depth below the farthest) are checked by the config class's own
+``problems()``.
 """
 
 from __future__ import annotations
@@ -130,7 +132,17 @@ def build_config(
         (per_backend.setdefault(owner, {}) if owner else shared)[name] = converted
     for owner, values in per_backend.items():
         shared[owner] = nested[owner](**values)
-    return cls(**shared)
+    return _consistent(stage, cls(**shared), source)
+
+
+def _consistent(stage: str, config: Any, source: str | None) -> Any:
+    """``config``, or a ConfigError for the first setting that contradicts another: a config class
+    (or a backend's nested one) may list them in ``problems()``, as (setting, message, hint)."""
+    nested = backend_configs(type(config))
+    for owner, value in [("", config)] + [(f"{name}.", getattr(config, name)) for name in nested]:
+        for name, message, hint in getattr(value, "problems", lambda: [])():
+            raise ConfigError(f"{stage}.{owner}{name} {message}", path=source, hint=hint)
+    return config
 
 
 def _setting_hint(key: str, names: list[str], stage: str) -> str:
@@ -186,7 +198,7 @@ def check_config(stage: str, config: Any, *, source: str | None) -> Any:
             check_config(f"{stage}.{f.name}", value, source=source)
         elif f.metadata.get("parse") is None:
             coerce(f"{stage}.{f.name}", value, hints[f.name], f, source)
-    return config
+    return _consistent(stage, config, source) if "." not in stage else config
 
 
 def _default(field: dataclasses.Field) -> Any:

@@ -54,6 +54,19 @@ def test_a_value_that_does_not_fit_is_one_line_error(values, needle):
     assert needle in err.value.one_line(), err.value.one_line()
 
 
+def test_settings_that_contradict_each_other_are_one_line_error():
+    """scene.stereo's far plane must lie beyond its near one, from the command line or the API."""
+    from rose_usd.scene.config import SceneConfig, StereoConfig
+    from rose_usd.stage_config import check_config
+
+    with pytest.raises(ConfigError) as err:
+        build_config("scene", SceneConfig, {"stereo.near": 2, "stereo.far": 1}, source="--set")
+    assert "scene.stereo.far = 1 is not beyond near = 2" in err.value.one_line(), err.value.one_line()
+    with pytest.raises(ConfigError):
+        check_config("scene", SceneConfig(stereo=StereoConfig(near=0.5, far=0.5)), source=None)
+    assert build_config("scene", SceneConfig, {"stereo.near": 0.5, "stereo.far": 0.6}, source=None).stereo.far == 0.6
+
+
 def test_whole_numbers_are_kept():
     assert _object(**{"imported.scale_search_steps": "9"}).imported.scale_search_steps == 9
     assert _object(**{"imported.scale_search_steps": 9.0}).imported.scale_search_steps == 9

@@ -95,7 +95,7 @@ class StereoConfig:
     near: float = field(default=0.2, metadata=limits(0.01))
     """The nearest plane, in times the reference camera's distance to the world origin (default 0.2)."""
     far: float = field(default=4.0, metadata=limits(0.1))
-    """The farthest plane, likewise (default 4)."""
+    """The farthest plane, likewise (default 4); beyond ``near``."""
     agree_rel: float = field(default=0.01, metadata=limits(0.0))
     """A depth is kept where a neighbouring reference's depth map agrees within this fraction of
     it (default 0.01)."""
@@ -116,6 +116,12 @@ class StereoConfig:
     the plane's depth sees through it (default 0.05)."""
     support_cell_m: float = field(default=0.02, metadata=limits(0.001))
     """The support is modeled in cells this wide [m] (default 0.02)."""
+
+    def problems(self) -> list[tuple[str, str, str]]:
+        """Settings that contradict each other: (setting, what is wrong, the fix)."""
+        if self.far <= self.near:
+            return [("far", f"= {self.far:g} is not beyond near = {self.near:g}", "give a far above near")]
+        return []
 
 
 @dataclass(frozen=True, kw_only=True)
