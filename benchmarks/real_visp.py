@@ -86,6 +86,59 @@ def score_cameras(ours: np.ndarray, truth: np.ndarray) -> dict:
     }
 
 
+def _pair_residuals(k_from_ref: np.ndarray, ref: int, k: int, clip: Path, K: np.ndarray) -> tuple[float, float]:
+    """Frame ``ref``'s depth moved into frame ``k`` by ``k_from_ref`` (4, 4): the median depth
+    difference there [mm] and the median gray-level difference on ``ref``'s strong edges."""
+    import cv2
+
+    def depth(i):
+        return cv2.imread(str(clip / "depth" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED).astype(float) / 1000.0
+
+    def gray(i):
+        return cv2.cvtColor(cv2.imread(str(clip / "rgb" / f"{i:06d}.png")), cv2.COLOR_BGR2GRAY).astype(float)
+
+    d0, dk, g0, gk = depth(ref), depth(k), gray(ref), gray(k)
+    v, u = np.nonzero((d0 > 0.1) & (d0 < 1.5))
+    z = d0[v, u]
+    pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+    q = se3.transform_points(k_from_ref, pts)
+    uu = np.round(K[0, 0] * q[:, 0] / np.maximum(q[:, 2], 1e-6) + K[0, 2]).astype(int)
+    vv = np.round(K[1, 1] * q[:, 1] / np.maximum(q[:, 2], 1e-6) + K[1, 2]).astype(int)
+    ok = (uu >= 0) & (uu < d0.shape[1]) & (vv >= 0) & (vv < d0.shape[0]) & (q[:, 2] > 0.1)
+    ok[ok] &= dk[vv[ok], uu[ok]] > 0
+    dz = np.abs(dk[vv[ok], uu[ok]] - q[ok, 2])
+    edges = np.hypot(cv2.Sobel(g0, cv2.CV_64F, 1, 0), cv2.Sobel(g0, cv2.CV_64F, 0, 1))[v[ok], u[ok]] > 100
+    di = np.abs(gk[vv[ok], uu[ok]] - g0[v[ok], u[ok]])[edges]
+    return float(np.median(dz) * 1000.0), float(np.median(di))
+
+
+def image_consistency(ours: np.ndarray, truth: np.ndarray, clip: Path, step: int = 10, gaps=(10, 30)) -> dict:
+    """How well each set of camera poses explains the images themselves: for frame pairs (every
+    ``step``-th frame and the frames ``gaps`` later), the depth and the strong edges of the first
+    moved into the second by the pair's relative pose. A correct pose leaves only sensor noise;
+    the board's poses carry their PnP jitter. Medians over the pairs, and in how many pairs our
+    poses leave the smaller residual."""
+    K = np.loadtxt(clip / "cam_K.txt").reshape(3, 3)
+    pairs = [(r, r + g) for r in range(0, len(truth), step) for g in gaps if r + g < len(truth)]
+    rows = {"ours": [], "truth": []}
+    for ref, k in pairs:
+        for key, poses in (("ours", ours), ("truth", truth)):
+            rows[key].append(_pair_residuals(se3.invert(poses[k]) @ poses[ref], ref, k, clip, K))
+    a, b = np.array(rows["ours"]), np.array(rows["truth"])
+    return {
+        "pairs": len(pairs),
+        "depth_residual_median_mm": {
+            "ours": round(float(np.median(a[:, 0])), 2),
+            "truth": round(float(np.median(b[:, 0])), 2),
+        },
+        "edge_gray_residual_median": {
+            "ours": round(float(np.median(a[:, 1])), 1),
+            "truth": round(float(np.median(b[:, 1])), 1),
+        },
+        "pairs_ours_lower": {"depth": int((a[:, 0] < b[:, 0]).sum()), "edges": int((a[:, 1] < b[:, 1]).sum())},
+    }
+
+
 def score_object(stage, name: str, clip: Path, folder: str, cams: np.ndarray) -> dict:
     import open3d as o3d
     import trimesh
@@ -134,6 +187,7 @@ def main() -> None:
         "cameras": score_cameras(cams, truth),
         "cameras_vs_smoothed_truth": score_cameras(cams, smoothed(truth)),
         "truth_jitter": score_cameras(smoothed(truth), truth),
+        "image_consistency": image_consistency(cams, truth, args.clip),
         "objects": {},
     }
     present = object_paths(stage)
