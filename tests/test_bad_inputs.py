@@ -155,3 +155,24 @@ def test_a_command_line_prompt_on_nothing_names_the_prompt(capsys, sample_case, 
     code, err = run_cli(capsys, "run", "segment", str(sample_case), "-o", str(out), "--prompt", "0:2,2,12,12")
     assert_one_line_error(code, err, "segment.prompts (--prompt)", "nothing stands on the support", "draw the box")
     assert not (out / "layers" / "masks.usda").exists()
+
+
+def _video(path, frames: int = 5):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (320, 240))
+    for t in range(frames):
+        writer.write(np.full((240, 320, 3), 40 * t, np.uint8))
+    writer.release()
+
+
+def test_a_video_inside_rgb_is_the_cases_frames(capsys, tmp_path):
+    """Real clips come as rgb/<name>.mp4 (openreal2sim-marker-rgb, visp-cube-hand-rgb): one video
+    and no images in rgb/ are the frames; two videos there are one line naming them."""
+    case = tmp_path / "clip"
+    (case / "rgb").mkdir(parents=True)
+    _video(case / "rgb" / "demo_video.avi")
+    loaded = load_case(case)
+    assert loaded.video == case / "rgb" / "demo_video.avi" and loaded.n_frames == 5
+    _video(case / "rgb" / "second.avi")
+    with pytest.raises(InputError, match="two or more videos") as err:
+        load_case(case)
+    assert "demo_video.avi" in err.value.one_line() and "second.avi" in err.value.one_line()

@@ -1,8 +1,8 @@
 """Finding and validating a case's inputs before any stage authors anything.
 
-A case is a folder (``rgb/`` or ``video.mp4``, optional ``depth/``, ``cam_K.txt``, ``rose.toml``,
-``perception/``, ``gt/``) or a video file. Every check here raises an InputError naming the file
-and the fix, so a bad case fails before a single layer is written.
+A case is a folder (``rgb/`` with frames or one video, or ``video.mp4``, optional ``depth/``,
+``cam_K.txt``, ``rose.toml``, ``perception/``, ``gt/``) or a video file. Every check here raises
+an InputError naming the file and the fix, so a bad case fails before a single layer is written.
 """
 
 from __future__ import annotations
@@ -92,6 +92,14 @@ def _sorted_frames(folder: Path, suffixes: tuple[str, ...], what: str, infix: st
     return files
 
 
+def _videos_only(folder: Path) -> list[Path]:
+    """The videos in ``folder`` when it holds no image frames (real clips come as rgb/clip.mp4)."""
+    names = sorted(p for p in folder.iterdir() if p.is_file())
+    if any(p.suffix.lower() in images.IMAGE_SUFFIXES for p in names):
+        return []
+    return [p for p in names if p.suffix.lower() in VIDEO_SUFFIXES]
+
+
 class Case:
     """A validated input case. Frames are read lazily; sizes and counts are checked up front."""
 
@@ -117,7 +125,16 @@ class Case:
             self.config = load_case_config(self.root, stage_names)
             rgb_dir = self.root / "rgb"
             videos = [self.root / f"video{s}" for s in VIDEO_SUFFIXES if (self.root / f"video{s}").is_file()]
-            if rgb_dir.is_dir():
+            inside = _videos_only(rgb_dir) if rgb_dir.is_dir() else []
+            if len(inside) > 1:
+                raise InputError(
+                    f"rgb/ holds two or more videos and no frames: {', '.join(v.name for v in inside)}",
+                    path=rgb_dir,
+                    hint="keep one video there, or give the video file itself as the case",
+                )
+            if inside:
+                self.video = inside[0]
+            elif rgb_dir.is_dir():
                 self.frame_paths = _sorted_frames(rgb_dir, images.IMAGE_SUFFIXES, "RGB")
             elif videos:
                 self.video = videos[0]
