@@ -56,7 +56,7 @@ from rose_usd.capture.static import still_fraction
 from rose_usd.capture.world import author_world
 from rose_usd.case.config import Prompt
 from rose_usd.core import se3
-from rose_usd.core.grabcut import SEEDS
+from rose_usd.core.grabcut import SEEDS, split_shared
 from rose_usd.core.pinhole import resized_K
 from rose_usd.errors import InputError
 from rose_usd.geometry.silhouette import crop_view
@@ -73,6 +73,11 @@ _IMAGE_GRAVITY = ("vanishing-points", "upright-prior")
 
 def _prompted(ctx: StageContext):
     """The first object with a prompt (``capture.prompts`` over rose.toml's), or None."""
+    return next(iter(_all_prompted(ctx)), None)
+
+
+def _all_prompted(ctx: StageContext) -> list:
+    """The objects with a prompt on a frame of the video (``capture.prompts`` over rose.toml's)."""
     specs = {s.name: s for s in ctx.case.config.objects}
     for item in ctx.config.prompts:
         name = item.name or (next(iter(specs)) if len(specs) == 1 else "")
@@ -83,7 +88,7 @@ def _prompted(ctx: StageContext):
                 hint=f"objects: {', '.join(specs) or 'none'}",
             )
         specs[name] = replace(specs[name], prompt=item.prompt)
-    return next((s for s in specs.values() if s.prompt is not None and 0 <= s.prompt.frame < ctx.case.n_frames), None)
+    return [s for s in specs.values() if s.prompt is not None and 0 <= s.prompt.frame < ctx.case.n_frames]
 
 
 def _box(prompt: Prompt, width: int, height: int) -> tuple[float, float, float, float]:
@@ -178,7 +183,7 @@ def run(ctx: StageContext) -> None:
     up = gravity.up / np.linalg.norm(gravity.up)
 
     # ---------------------------------------------------------------- world frame (units) and scale
-    mask = _prompt_mask(ctx, spec)
+    mask, hidden = _prompt_mask(ctx, spec)
     anchor_pt = _anchor_on_plane(ctx, mask, poses[ref], K, support)
     world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
     world_units = np.einsum("ij,njk->nik", world_from_track, poses)
@@ -203,7 +208,7 @@ def run(ctx: StageContext) -> None:
                 world_units = np.einsum("ij,njk->nik", world_from_track, poses)
             else:
                 record["planar_levelled_rejected"] = again
-    cues, chosen, agreement = _scale(ctx, spec, mask, K, world_units[ref], record)
+    cues, chosen, agreement = _scale(ctx, spec, mask, K, world_units[ref], record, hidden)
     world_from_camera = _author(ctx, world_units, world_from_track, K, k_source, gravity, chosen, cues)
     height = float(world_from_camera[ref, 2, 3])
     if not PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]:
@@ -302,10 +307,10 @@ def _level(spec, mask, K, gravity, world_from_track, world_units, poses, ref: in
     return world_from_track, world_units, gravity
 
 
-def _scale(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np.ndarray, record: dict):
+def _scale(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np.ndarray, record: dict, hidden=None):
     """The scale cues, the most certain of them and their agreement: (cues, chosen, agreement);
     a warning when the chosen one is a prior."""
-    cues, fit_record = _scale_cues(ctx, spec, mask, K, world_from_cv_units)
+    cues, fit_record = _scale_cues(ctx, spec, mask, K, world_from_cv_units, hidden)
     record["scale_fit"] = fit_record
     chosen, agreement = choose(cues)
     if chosen.name == "camera-height":
@@ -456,15 +461,23 @@ def _plane_along(up: np.ndarray, points: np.ndarray, anchor: np.ndarray | None) 
 # ---------------------------------------------------------------------------- origin and scale
 
 
-def _prompt_mask(ctx: StageContext, spec) -> np.ndarray | None:
-    """The prompted object's silhouette in its prompt frame (GrabCut in the box), None without a
-    usable one."""
+def _prompt_mask(ctx: StageContext, spec) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The prompted object's silhouette in its prompt frame (GrabCut in the box, less what the
+    other objects prompted on that frame take: ``core.grabcut.split_shared``), None without a
+    usable one; and those other objects' pixels (None without any), where they may hide it."""
     if spec is None:
-        return None
+        return None, None
     case = ctx.case
-    seeds = SEEDS if spec.prompt.box is not None else 1  # a point's box says nothing of the extent
-    mask = prompt_silhouette(case.rgb(spec.prompt.frame), _box(spec.prompt, case.width, case.height), seeds=seeds)
-    return mask if mask is not None and mask.sum() >= 30 else None
+    rgb = case.rgb(spec.prompt.frame)
+    masks, boxes = {}, {}
+    for other in [s for s in _all_prompted(ctx) if s.prompt.frame == spec.prompt.frame]:
+        seeds = SEEDS if other.prompt.box is not None else 1  # a point's box says nothing of the extent
+        masks[other.name] = prompt_silhouette(rgb, _box(other.prompt, case.width, case.height), seeds=seeds)
+        boxes[other.name] = other.prompt.box
+    split = split_shared(masks, boxes)
+    mask = split.pop(spec.name)
+    hidden = np.any(list(split.values()), axis=0) if split else None
+    return (mask if mask.sum() >= 30 else None), hidden
 
 
 def _anchor_on_plane(ctx: StageContext, mask, ref_pose: np.ndarray, K: np.ndarray, support: Plane) -> np.ndarray:
@@ -486,14 +499,15 @@ def _anchor_on_plane(ctx: StageContext, mask, ref_pose: np.ndarray, K: np.ndarra
     return origin + s * ray
 
 
-def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np.ndarray):
-    """Every scale cue that can be measured, and what the fits found."""
+def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np.ndarray, hidden=None):
+    """Every scale cue that can be measured, and what the fits found; ``hidden``: the pixels of the
+    other prompted objects, which may hide this one (the fits neither reward nor punish there)."""
     height_units = float(world_from_cv_units[2, 3])
     cues = [ScaleCue("camera-height", CAMERA_HEIGHT_M[0] / max(height_units, 1e-9), CAMERA_HEIGHT_M[1])]
     record: dict = {"camera_height_units": round(height_units, 5)}
     if spec is None or mask is None or mask.sum() < 30:
         return cues, record
-    view = crop_view(mask, None, K, world_from_cv_units, max_side=320)
+    view = crop_view(mask, hidden, K, world_from_cv_units, max_side=320)
     prim = fit_primitive(spec, view, mask, K, world_from_cv_units)
     if prim is not None:
         record["primitive"] = {

@@ -62,3 +62,41 @@ def _box_iou(a, b) -> float:
     inter = max(w, 0) * max(h, 0)
     union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
     return inter / max(union, 1)
+
+
+def split_shared(
+    masks: dict[str, np.ndarray], boxes: dict[str, tuple[float, float, float, float] | None]
+) -> dict[str, np.ndarray]:
+    """The masks of several objects prompted on one frame, each pixel in one at most.
+
+    A prompt box drawn around an object holds whatever stands in front of it or on it, and its
+    GrabCut takes part of that (a can standing on a box: the box's prompt holds the can's lower
+    half, and takes it). Each connected patch of pixels that two masks claim goes to the object
+    that the box prompts then fit best: the sum over the objects of the IoU of each mask's bounding
+    box with its prompt box (``boxes``; None for a point prompt, which says nothing of the
+    extent, and counts for nothing). The can without its lower half no longer reaches the bottom
+    of its box; the box without the can's half still fills its own. What an object loses may
+    leave it in parts, of which it keeps the largest."""
+    names = list(masks)
+    out = {n: np.asarray(masks[n], bool).copy() for n in names}
+    shared = np.sum([out[n] for n in names], axis=0) > 1 if len(names) > 1 else None
+    if shared is None or not shared.any():
+        return out
+    count, labels = cv2.connectedComponents(shared.astype(np.uint8), connectivity=8)
+    for patch_label in range(1, count):
+        patch = labels == patch_label
+        claimants = [n for n in names if (out[n] & patch).any()]
+        fits = []
+        for winner in claimants:
+            total = 0.0
+            for n in claimants:
+                if boxes.get(n) is None:
+                    continue
+                mask = out[n] | patch if n == winner else out[n] & ~patch
+                total += _box_iou(_bounds(mask), boxes[n]) if mask.any() else 0.0
+            fits.append(total)
+        winner = claimants[int(np.argmax(fits))]
+        for n in claimants:
+            if n != winner:
+                out[n] &= ~patch
+    return {n: largest_part(m) if m.any() else m for n, m in out.items()}

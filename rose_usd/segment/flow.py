@@ -4,8 +4,10 @@ No learned model and no capture stage: it needs a prompt box (or point) per obje
 scene, ``objects = []``, gets the hands MediaPipe finds as its interactor alone), and works at
 a working resolution whose long side is at most ``segment.flow.max_side_px``.
 
-1. **Start.** GrabCut inside the prompt box gives the object; its color model is learned against
-   the ring of pixels around the box, half and half with the colors of its whole surface where its
+1. **Start.** GrabCut inside the prompt box gives the object (prompts of one frame share no pixel:
+   a patch two of them take goes to the object whose box it helps fill, ``core.grabcut.split_shared``;
+   a box's prompt holds the lower half of the can standing on it); its color model is learned
+   against the ring of pixels around the box, half and half with the colors of its whole surface where its
    mesh (rose.toml's ``mesh``, ``perception/``) has a texture or vertex colors (the faces a hand
    turns up later are not in the prompt frame; the share fades as the track learns, see
    ``LOOK_WEIGHT``). Regions elsewhere in the prompt frame that the object's
@@ -42,7 +44,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from rose_usd.core.grabcut import SEEDS, box_grabcut
+from rose_usd.core.grabcut import SEEDS, box_grabcut, split_shared
 from rose_usd.errors import InputError
 from rose_usd.geometry.hands import Hand, hand_mask
 from rose_usd.io.meshfile import read_mesh_file, surface_colors
@@ -151,20 +153,12 @@ class FlowTracker:
         self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
 
     # ----------------------------------------------------------------- start
-    def start(
-        self,
-        name: str,
-        t: int,
-        box: tuple[int, int, int, int] | None,
-        point: tuple[int, int] | None,
-        look: np.ndarray | None = None,
-    ) -> tuple[Track2D, np.ndarray]:
-        """GrabCut of the prompt; returns the track and the background color model of its
-        surroundings. ``look``: the color model of the object's whole surface (its mesh's
-        texture, ``surface_histogram``), mixed into the track's by ``LOOK_WEIGHT``."""
+    def cut(self, name: str, t: int, box, point) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+        """GrabCut of a prompt (a box, or a point: a box around it, a tenth of the image wide, not
+        the object's extent): the mask and the box (x0, y0, x1, y1) clipped to the image."""
         rgb = self.frame_of(t)
         seeds = SEEDS
-        if box is None:  # a point: a box around it, a tenth of the image wide (not the object's extent)
+        if box is None:
             seeds = 1
             r = max(self.w, self.h) // 20
             box = (point[0] - r, point[1] - r, point[0] + r, point[1] + r)
@@ -175,6 +169,17 @@ class FlowTracker:
                 f"GrabCut found nothing inside the prompt of {name!r} on frame {t}",
                 hint="draw the box tightly around the object",
             )
+        return mask, (x0, y0, x1, y1)
+
+    def start(
+        self, name: str, t: int, mask: np.ndarray, box: tuple[int, int, int, int], look: np.ndarray | None = None
+    ) -> tuple[Track2D, np.ndarray]:
+        """A track of the object ``mask`` shows in frame t (its prompt's cut, ``box``); returns it
+        and the background color model of the prompt's surroundings. ``look``: the color model of
+        the object's whole surface (its mesh's texture, ``surface_histogram``), mixed into the
+        track's by ``LOOK_WEIGHT``."""
+        rgb = self.frame_of(t)
+        x0, y0, x1, y1 = box
         bw, bh = x1 - x0, y1 - y0
         ring = np.zeros_like(mask)
         ring[max(0, y0 - bh) : y1 + bh, max(0, x0 - bw) : x1 + bw] = True
@@ -428,9 +433,23 @@ def segment_video(
     else that ran before): it is reset here, so the masks depend on the video alone."""
     cv2.setRNGSeed(0)  # the generator's initial state (0 selects OpenCV's default seed)
     tracker = FlowTracker(frame_of, size)
+    cuts = {name: tracker.cut(name, t, box, point) for name, t, box, point in prompts}
+    for t in {t for _, t, _, _ in prompts}:  # prompts of one frame share no pixel
+        names = [name for name, frame, _, _ in prompts if frame == t]
+        boxed = {name for name, _, box, _ in prompts if box is not None}
+        split = split_shared(
+            {name: cuts[name][0] for name in names}, {name: cuts[name][1] if name in boxed else None for name in names}
+        )
+        cuts.update({name: (split[name], cuts[name][1]) for name in names})
     starts = []
-    for name, t, box, point in prompts:
-        track, bg = tracker.start(name, t, box, point, (looks or {}).get(name))
+    for name, t, _, _ in prompts:
+        mask, box = cuts[name]
+        if not mask.any():
+            raise InputError(
+                f"the prompt of {name!r} on frame {t} holds nothing that another prompt does not claim",
+                hint="draw each object's box around that object",
+            )
+        track, bg = tracker.start(name, t, mask, box, (looks or {}).get(name))
         starts.append((t, track, bg))
     t0 = min(t for t, _, _ in starts)
     bg = np.mean([b for _, _, b in starts], axis=0)
