@@ -54,8 +54,8 @@ class CollectResult:
                 f"{100 * self.final_error_m[b]:.1f} cm final, slip {100 * self.drift_m[b]:.1f} cm"
             )
         return (
-            f"collect {self.status}: {self.robot} moved {self.object_name}, {self.successes}/{self.rollouts} "
-            f"rollouts succeeded ({100 * self.success_rate:.0f} %){best}"
+            f"collect {self.status}: {self.successes}/{self.rollouts} rollouts of {self.robot} moving "
+            f"{self.object_name} succeeded ({100 * self.success_rate:.0f} %){best}"
         )
 
 
