@@ -198,6 +198,9 @@ def cmd_diff(args) -> int:
 
 
 def cmd_validate(args) -> int:
+    from rose_usd import registry
+    from rose_usd.usd import paths
+    from rose_usd.usd.stage import existing_layers
     from rose_usd.usd.validate import validate as validate_stage
 
     report = validate_stage(args.stage, with_newton=not args.no_newton)
@@ -207,6 +210,12 @@ def cmd_validate(args) -> int:
         print(f"warning: {line}")
     newton = f"; Newton: {report.newton['bodies']} bodies, {report.newton['shapes']} shapes" if report.newton else ""
     print(f"{report.validators} validators: {len(report.errors)} error(s), {len(report.warnings)} warning(s){newton}")
+    path = Path(args.stage)
+    if path.name == paths.ROOT_FILE:  # an output folder: say which stages' layers it lacks
+        present = set(existing_layers(path.parent))
+        missing = [s.name for s in registry.STAGES if s.layer not in present]
+        if missing:
+            print(f"incomplete: no layer of {', '.join(missing)} (rose-usd reconstruct on its case finishes it)")
     report.raise_if_invalid()
     return 0
 

@@ -176,3 +176,19 @@ def test_a_video_inside_rgb_is_the_cases_frames(capsys, tmp_path):
     with pytest.raises(InputError, match="two or more videos") as err:
         load_case(case)
     assert "demo_video.avi" in err.value.one_line() and "second.avi" in err.value.one_line()
+
+
+def test_validate_says_which_layers_an_output_folder_lacks(capsys, sample_case, oracle_out, tmp_path):
+    """An output folder stopped after capture (Ctrl-C, or `run capture`) is valid USD; validate says
+    which stages' layers it lacks, and says nothing of the kind for a complete one."""
+    from conftest import oracle_options
+
+    from rose_usd.pipeline import Pipeline
+
+    out = tmp_path / "out"
+    Pipeline(sample_case, out, oracle_options()).run("capture")
+    assert main(["validate", str(out / "rose.usda"), "--no-newton"]) == 0
+    text = capsys.readouterr().out
+    assert "incomplete: no layer of segment, scene, object, trajectory" in text, text
+    assert main(["validate", str(oracle_out / "rose.usda"), "--no-newton"]) == 0
+    assert "incomplete" not in capsys.readouterr().out
