@@ -493,7 +493,7 @@ def _add_stage_commands(sub) -> None:
     p = sub.add_parser(
         "validate",
         help="run every pxr.UsdValidation validator and Newton's add_usd on a stage; in an output folder, also"
-        " check that its layers were made from one another and one case",
+        " check that its layers were made from one another and one case, and name the stages whose layers it lacks",
     )
     p.add_argument("stage")
     p.add_argument("--no-newton", action="store_true", help="skip the Newton load")
