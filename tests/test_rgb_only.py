@@ -887,3 +887,18 @@ def test_only_edges_near_the_mask_s_outline_count():
     assert without[vertical, 40, 38] == pytest.approx(0.0, abs=0.3)  # the stripe's edge
     assert with_mask[vertical, 40, 38] == 1.0
     assert with_mask[vertical, 40, 20] == pytest.approx(0.0, abs=0.3)  # the outline's
+
+
+def test_stereo_without_parallax_says_it_made_the_plane_scene(tmp_path, sample_case):
+    """A camera with no pair of frames far enough apart for stereo gets the plane backend's scene,
+    and the scene layer warns that it did (a user reading `inspect` saw only "backend stereo")."""
+    import rose_usd
+    from rose_usd.usd.stage import layer_file, read_provenance
+
+    case = tmp_path / "case"
+    shutil.copytree(sample_case, case)
+    shutil.rmtree(case / "depth")
+    settings = {"scene": {"stereo": {"min_baseline": 50.0}}}  # no source is that far from a reference
+    rose_usd.reconstruct(case, tmp_path / "out", until="scene", backends={"scene": "stereo"}, settings=settings)
+    prov = read_provenance(layer_file(tmp_path / "out", "scene"))
+    assert any("too little for stereo" in w for w in prov.get("warnings", [])), prov.get("warnings")

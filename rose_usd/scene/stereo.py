@@ -43,7 +43,7 @@ from rose_usd.geometry.support import SupportSurface
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.layers.masks import read_masks
 from rose_usd.layers.world import read_cameras
-from rose_usd.progress import progress, say
+from rose_usd.progress import progress
 from rose_usd.render.lighting import Lighting
 from rose_usd.scene.author import author_scene
 from rose_usd.scene.backdrop import author_plane, plane_scene
@@ -339,8 +339,11 @@ def run(ctx: StageContext) -> None:
     cameras = read_cameras(ctx.stage, n)
     refs = references(cameras, cfg)
     if len(refs) < 2:
-        say("scene: the camera moves too little for stereo: the support plane as a slab (plane backend)")
         author_plane(ctx)
+        ctx.warn(
+            f"the camera moves too little for stereo ({len(refs)} reference frames with parallax): the scene is"
+            " the plane backend's (the support as a slab, the rest a backdrop)"
+        )
         ctx.record(stereo=f"{len(refs)} reference frames with parallax: the plane backend's scene")
         return
     layer = read_masks(ctx.stage, n, (case.height, case.width))
