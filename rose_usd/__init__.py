@@ -12,7 +12,14 @@ mitsuba, drjit, warp, newton and open3d are imported only where they are used. T
 below load on first use.
 """
 
-from rose_usd.errors import (
+import os
+
+# FFmpeg (under OpenCV's video reader) prints its own complaints about a damaged file ("moov atom not
+# found", "Invalid NAL unit size") to the terminal before rose's one-line error; quiet unless the
+# user asked for them.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
+from rose_usd.errors import (  # noqa: E402 (the FFmpeg setting must precede any import of cv2)
     ConfigError,
     EnvironmentProblem,
     InputError,

@@ -192,3 +192,29 @@ def test_validate_says_which_layers_an_output_folder_lacks(capsys, sample_case, 
     assert "incomplete: no layer of segment, scene, object, trajectory" in text, text
     assert main(["validate", str(oracle_out / "rose.usda"), "--no-newton"]) == 0
     assert "incomplete" not in capsys.readouterr().out
+
+
+def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):
+    """FFmpeg's own complaints about a cut-off H.264/MPEG-4 file ("Invalid NAL unit size", "partial
+    file") went to the terminal before rose's one-line error; now the error line is all there is."""
+    import os
+    import subprocess
+    import sys
+
+    path = tmp_path / "cut.mp4"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        writer.write(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8))
+    writer.release()
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"}
+    done = subprocess.run(
+        [sys.executable, "-m", "rose_usd.cli", "reconstruct", str(path), "-o", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), done.stderr
