@@ -18,7 +18,7 @@ from rose_usd.capture.scale import ScaleCue, choose, fit_primitive
 from rose_usd.case.config import ObjectSpec
 from rose_usd.core import se3
 from rose_usd.core.pinhole import silhouette
-from rose_usd.geometry.primitives import TYPICAL, PrimitiveKind, hull_points, largest_dimension, primitive_mesh
+from rose_usd.geometry.primitives import TYPICAL, PrimitiveKind, hull_points, largest_dimension, primitive_mesh, typical
 from rose_usd.geometry.silhouette import (
     EDGE_HIDDEN,
     PRIOR_WEIGHT,
@@ -229,6 +229,9 @@ def test_category_sizes_are_their_primitives_largest_dimension():
     assert TYPICAL["marker"].size_m == pytest.approx(0.138)
     assert largest_dimension(PrimitiveKind.CYLINDER, np.array([0.07, 0.1])) == pytest.approx(0.14)
     assert all(len(t.source) > 10 and 0 < t.sigma < 1 for t in TYPICAL.values())
+    # rose.toml's default category is the generic guess, not a category of its own (the object
+    # stage then says a box stands in for it)
+    assert typical("generic") == (TYPICAL["generic"], False) and typical("Cup")[1]
 
 
 def _plane_texture(pose: np.ndarray) -> np.ndarray:

@@ -140,9 +140,10 @@ def resting_kinds(kind: PrimitiveKind) -> tuple[PrimitiveKind, ...]:
 
 
 def typical(category: str) -> tuple[Typical, bool]:
-    """The category's entry, and whether it has its own (False: the generic guess)."""
+    """The category's entry, and whether it has its own (False: the generic guess, also for
+    ``generic``, rose.toml's default)."""
     key = category.strip().lower()
-    return (TYPICAL[key], True) if key in TYPICAL else (TYPICAL["generic"], False)
+    return (TYPICAL[key], key != "generic") if key in TYPICAL else (TYPICAL["generic"], False)
 
 
 def largest_dimension(kind: PrimitiveKind, dims: np.ndarray) -> float:
