@@ -433,24 +433,7 @@ def segment_video(
     else that ran before): it is reset here, so the masks depend on the video alone."""
     cv2.setRNGSeed(0)  # the generator's initial state (0 selects OpenCV's default seed)
     tracker = FlowTracker(frame_of, size)
-    cuts = {name: tracker.cut(name, t, box, point) for name, t, box, point in prompts}
-    for t in {t for _, t, _, _ in prompts}:  # prompts of one frame share no pixel
-        names = [name for name, frame, _, _ in prompts if frame == t]
-        boxed = {name for name, _, box, _ in prompts if box is not None}
-        split = split_shared(
-            {name: cuts[name][0] for name in names}, {name: cuts[name][1] if name in boxed else None for name in names}
-        )
-        cuts.update({name: (split[name], cuts[name][1]) for name in names})
-    starts = []
-    for name, t, _, _ in prompts:
-        mask, box = cuts[name]
-        if not mask.any():
-            raise InputError(
-                f"the prompt of {name!r} on frame {t} holds nothing that another prompt does not claim",
-                hint="draw each object's box around that object",
-            )
-        track, bg = tracker.start(name, t, mask, box, (looks or {}).get(name))
-        starts.append((t, track, bg))
+    starts = _starts(tracker, frame_of, prompts, looks)
     t0 = min(t for t, _, _ in starts)
     bg = np.mean([b for _, _, b in starts], axis=0)
     names = [tr.name for _, tr, _ in starts]
@@ -497,6 +480,30 @@ def segment_video(
             untaken = hand.hand & ~everything
             hands[t] = untaken if hands[t] is None else hands[t] | untaken
     return masks, hands, visible
+
+
+def _starts(tracker: FlowTracker, frame_of, prompts, looks) -> list[tuple[int, Track2D, np.ndarray]]:
+    """Each prompt's track and background color model, (frame, track, background), from its cut;
+    the cuts of one frame share no pixel (``core.grabcut.split_shared``)."""
+    cuts = {name: tracker.cut(name, t, box, point) for name, t, box, point in prompts}
+    for t in {t for _, t, _, _ in prompts}:  # prompts of one frame share no pixel
+        names = [name for name, frame, _, _ in prompts if frame == t]
+        boxed = {name for name, _, box, _ in prompts if box is not None}
+        split = split_shared(
+            {name: cuts[name][0] for name in names}, {name: cuts[name][1] if name in boxed else None for name in names}
+        )
+        cuts.update({name: (split[name], cuts[name][1]) for name in names})
+    starts = []
+    for name, t, _, _ in prompts:
+        mask, box = cuts[name]
+        if not mask.any():
+            raise InputError(
+                f"the prompt of {name!r} on frame {t} holds nothing that another prompt does not claim",
+                hint="draw each object's box around that object",
+            )
+        track, bg = tracker.start(name, t, mask, box, (looks or {}).get(name))
+        starts.append((t, track, bg))
+    return starts
 
 
 def _hand_pixels(found: list[Hand], moving: np.ndarray | None, skin, shape) -> HandPixels:
