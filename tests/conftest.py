@@ -6,6 +6,7 @@ import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("ROSE_USD_QUIET", "1")
@@ -58,3 +59,17 @@ def out_copy(tmp_path, oracle_out) -> Path:
     dst = tmp_path / "out"
     shutil.copytree(oracle_out, dst)
     return dst
+
+
+def can_on_box():
+    """A green can standing on a purple box on a noisy grey table, seen from the front: the box's
+    prompt holds the can's lower half. Returns the image, the two prompts and the true masks."""
+    rng = np.random.default_rng(5)
+    rgb = rng.integers(120, 170, (240, 320, 3)).astype(np.uint8)
+    box, can = np.zeros((240, 320), bool), np.zeros((240, 320), bool)
+    box[140:200, 100:220] = True
+    can[70:160, 130:190] = True
+    rgb[box] = (110, 40, 140)
+    rgb[can] = (40, 170, 60)
+    rgb[can & (np.arange(320)[None, :] % 12 < 2)] = (20, 90, 30)  # a print on the can
+    return rgb, {"Box": (95, 135, 225, 205), "Can": (125, 65, 195, 165)}, {"Box": box & ~can, "Can": can}

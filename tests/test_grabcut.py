@@ -5,6 +5,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import can_on_box
 
 from rose_usd.capture.scale import prompt_silhouette
 from rose_usd.core.grabcut import _bounds, _box_iou, box_grabcut, split_shared
@@ -51,24 +52,10 @@ def test_box_grabcut_takes_the_object_in_the_box():
     assert not box_grabcut(np.zeros((40, 40, 3), np.uint8), (5, 5, 35, 35)).any()
 
 
-def _stack():
-    """A green can standing on a purple box on a noisy grey table, seen from the front: the box's
-    prompt holds the can's lower half. Returns the image, the two prompts and the true masks."""
-    rng = np.random.default_rng(5)
-    rgb = rng.integers(120, 170, (240, 320, 3)).astype(np.uint8)
-    box, can = np.zeros((240, 320), bool), np.zeros((240, 320), bool)
-    box[140:200, 100:220] = True
-    can[70:160, 130:190] = True
-    rgb[box] = (110, 40, 140)
-    rgb[can] = (40, 170, 60)
-    rgb[can & (np.arange(320)[None, :] % 12 < 2)] = (20, 90, 30)  # a print on the can
-    return rgb, {"Box": (95, 135, 225, 205), "Can": (125, 65, 195, 165)}, {"Box": box & ~can, "Can": can}
-
-
 def test_overlapping_prompts_share_no_pixel():
     """GrabCut in the box's prompt takes the can's lower half too; split among the prompts of the
     frame, the shared patch goes to the can, whose box it fills: both masks near the truth."""
-    rgb, prompts, truth = _stack()
+    rgb, prompts, truth = can_on_box()
     alone = {name: box_grabcut(rgb, b) for name, b in prompts.items()}
     assert (alone["Box"] & truth["Can"]).sum() > 0.3 * truth["Can"][140:160].sum()  # the case this is for
     split = split_shared(alone, prompts)

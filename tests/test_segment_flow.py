@@ -256,21 +256,16 @@ def test_the_motion_rule_leaves_a_resting_object_whole_where_something_crosses_i
 
 
 def test_a_can_on_a_box_prompted_both_gives_each_its_own_pixels():
-    """A printed green can stands on a purple block (still, 6 frames); the block's prompt box holds
-    the can's lower half, which its GrabCut takes (1500 px). The prompts of one frame share no
-    pixel, so the block's mask is the block's and the can's the can's (IoU >= 0.9 each, every
-    frame; before, the block kept the can's half, 0.8, and the can lost it from frame 1, 0.72)."""
+    """A printed green can stands on a purple box (still, 6 frames); the box's prompt holds the
+    can's lower half, which its GrabCut takes (1500 px). The prompts of one frame share no pixel,
+    so the box's mask is the box's and the can's the can's (IoU >= 0.9 each, every frame; before,
+    the box kept the can's half, 0.8, and the can lost it from frame 1, 0.72)."""
+    from conftest import can_on_box
+
     from rose_usd.segment.flow import segment_video
 
-    image = np.random.default_rng(5).integers(120, 170, (240, 320, 3)).astype(np.uint8)
-    block, can = np.zeros((240, 320), bool), np.zeros((240, 320), bool)
-    block[140:200, 100:220] = True
-    can[70:160, 130:190] = True
-    image[block] = (110, 40, 140)
-    image[can] = (40, 170, 60)
-    image[can & (np.arange(320)[None, :] % 12 < 2)] = (20, 90, 30)  # a print on the can
-    truth = {"Block": block & ~can, "Can": can}
-    prompts = [("Block", 0, (95, 135, 225, 205), None), ("Can", 0, (125, 65, 195, 165), None)]
+    image, boxes, truth = can_on_box()
+    prompts = [(name, 0, box, None) for name, box in boxes.items()]
     masks, _, _ = segment_video(lambda t: image, 6, (320, 240), prompts)
     for name, frames in masks.items():
         ious = [(m & truth[name]).sum() / (m | truth[name]).sum() for m in frames]
