@@ -14,8 +14,7 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
    color model also claims (other red cups in a shell game) become *look-alikes*: they are
    tracked with the objects, so that when they touch, every pixel goes to the track it came from.
 2. **Propagate** (forward from the prompt frame, then backward). Dense optical flow (OpenCV's DIS)
-   moves each track's mask from the previous frame; pixels the color model claims (colors the
-   object was seen with, ``SEEN_FLOOR``, likelier under it than under its surroundings') are given to
+   moves each track's mask from the previous frame; pixels the color model claims are given to
    the nearest moved shape within reach of it; GrabCut in the track's neighborhood refines the
    boundary, with the other tracks' pixels as sure background. Each track keeps its whole shape
    from its last clear view and moves it rigidly by the median flow of what is seen of it, so a
@@ -79,20 +78,6 @@ MOVER_PX = 3.0
 where the track's color model is broad (``Track2D.broad``). Not for every track: in sam2-cups the
 shape of a cup pushed by a hand lags it, the cup's own pixels then look like movers (its visible
 fraction fell from 0.82 to 0.68)."""
-
-SEEN_FLOOR = 2.0 / 16**3
-"""A color is an object's only where its color model holds it at this many times the uniform level
-(a color the object was seen with), not merely where the background's holds it less: a model
-learned from fewer pixels than its background's keeps more of its floor for the colors neither
-saw, and took them all (a hand that wraps a can: unstack-can-s300's top can, mask IoU 0.21 -> 0.76). At
-4 times, deepac-cat-rgb's cat lost what its turns showed anew (IoU with its truth 0.81 -> 0.69)."""
-
-
-def _claims(fg: np.ndarray, bg: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Whether a track's color model ``fg`` claims each pixel's color (``idx``) over the
-    background's ``bg``: likelier under it, and seen on it (``SEEN_FLOOR``)."""
-    return (fg[idx] > bg[idx]) & (fg[idx] > SEEN_FLOOR)
-
 
 SKIN_RATIO = 1.0
 """Inside a found hand's landmark mask, a pixel stays a track's only where its color model is this
@@ -294,7 +279,7 @@ class FlowTracker:
         visible = []
         for k, tr in enumerate(tracks):
             mine = reachable & (owner == k)
-            claimed = mine & _claims(tr.fg, bg, idx)
+            claimed = mine & (tr.fg[idx] > bg[idx])
             if carried[k] and still is not None:  # None: the camera moves
                 claimed &= ~still
             others = [moved[j] for j in range(len(tracks)) if j != k]
