@@ -378,6 +378,25 @@ def wrap_collider(points: np.ndarray, normals: np.ndarray, pads: list[SupportPad
     return vertices, faces, first_triangles, alpha, flattened
 
 
+def collider_record(pads: list[SupportPad], no_pad: dict, padded: int, wrapped: tuple) -> dict:
+    """What the scene layer records of its collider: the pads (``no_pad``: the objects that got
+    none, and why), the fused points they replaced (``lay_pads``) and the wrap (``wrapped``,
+    ``wrap_collider``'s result), which passed its checks."""
+    _, faces, first_triangles, alpha, flattened = wrapped
+    pad_facts = {p.name: {"height_m": round(p.height_m, 4), "area_cm2": round(1e4 * p.area_m2, 1)} for p in pads}
+    return {
+        "support_pads": pad_facts,
+        "no_support_pad": no_pad,
+        "pad_replaced_points": padded,
+        "pad_flattened_vertices": flattened,
+        "wrap_triangles": first_triangles,
+        "alpha_m": round(alpha, 4),
+        "triangles": int(len(faces)),
+        "watertight": True,
+        "self_intersections": False,
+    }
+
+
 def textured_parts(
     ctx: StageContext, vertices, faces, points, colors, frame_colors, cfg, folder: Path, name: str = "Reconstruction"
 ) -> tuple[list[ScenePart], dict]:

@@ -55,6 +55,7 @@ from rose_usd.scene.fused import (
     _mask_files,
     _moving,
     _read_frame_masks,
+    collider_record,
     lay_pads,
     spread_frames,
     textured_parts,
@@ -362,7 +363,8 @@ def run(ctx: StageContext) -> None:
     points, colors = np.concatenate([floor, standing]), np.concatenate([floor_colors, colors])
     normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(floor), 1)), normals])
     points, colors, normals, padded = lay_pads(points, colors, normals, pads)
-    vertices, faces, first_triangles, alpha, flattened = wrap_collider(points, normals, pads, tcfg)
+    wrapped = wrap_collider(points, normals, pads, tcfg)
+    vertices, faces = wrapped[:2]
     up, textured = _author(ctx, cameras, base, vertices, faces, points, colors, cfg, tcfg)
     ctx.record(
         reference_frames={str(r): {"sources": refs[r], "depth": kept[r][0], "agreed": kept[r][1]} for r in depths},
@@ -372,16 +374,8 @@ def run(ctx: StageContext) -> None:
         support_cells_seen_through=int(grid.seen_through().sum()),
         standing_points=int(len(standing)),
         support_relief_mm=surface.relief_mm(),
-        support_pads={p.name: {"height_m": 0.0, "area_cm2": round(1e4 * p.area_m2, 1)} for p in pads},
-        no_support_pad=no_pad,
-        pad_replaced_points=padded,
-        pad_flattened_vertices=flattened,
-        wrap_triangles=first_triangles,
-        alpha_m=round(alpha, 4),
-        triangles=int(len(faces)),
+        **collider_record(pads, no_pad, padded, wrapped),
         standing_triangles=int(up.sum()),
-        watertight=True,
-        self_intersections=False,
         **base.record(),
         standing_texture=textured,
     )

@@ -55,6 +55,7 @@ from rose_usd.scene.fused import (
     _mask_files,
     _read_frame_masks,
     _static_pixels,
+    collider_record,
     fill_support_holes,
     lay_pads,
     spread_frames,
@@ -218,7 +219,8 @@ def run(ctx: StageContext) -> None:
         colors = np.concatenate([colors, transfer_colors(filled, points, colors)])
         points = np.concatenate([points, filled])
         normals = np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(filled), 1))])
-    vertices, faces, first_triangles, alpha, flattened = wrap_collider(points, normals, pads, cfg)
+    wrapped = wrap_collider(points, normals, pads, cfg)
+    vertices, faces = wrapped[:2]
     frame_colors = sensor_frame_colors(ctx, cfg)
     with tempfile.TemporaryDirectory() as tmp:
         parts, textured = textured_parts(ctx, vertices, faces, points, colors, frame_colors, cfg, Path(tmp))
@@ -228,15 +230,7 @@ def run(ctx: StageContext) -> None:
         fused_frames=used,
         fused_points=int(len(points)),
         support_hole_points=int(len(filled)),
-        support_pads={p.name: {"height_m": round(p.height_m, 4), "area_cm2": round(1e4 * p.area_m2, 1)} for p in pads},
-        no_support_pad=no_pad,
-        pad_replaced_points=padded,
-        pad_flattened_vertices=flattened,
         carved_points=carved,
-        wrap_triangles=first_triangles,
-        alpha_m=round(alpha, 4),
-        triangles=int(len(faces)),
-        watertight=True,
-        self_intersections=False,
+        **collider_record(pads, no_pad, padded, wrapped),
         **textured,
     )
