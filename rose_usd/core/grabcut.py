@@ -79,8 +79,10 @@ def split_shared(
     leave it in parts, of which it keeps the largest."""
     names = list(masks)
     out = {n: np.asarray(masks[n], bool).copy() for n in names}
-    shared = np.sum([out[n] for n in names], axis=0) > 1 if len(names) > 1 else None
-    if shared is None or not shared.any():
+    if len(names) < 2:
+        return out
+    shared = np.sum([out[n] for n in names], axis=0) > 1
+    if not shared.any():
         return out
     count, labels = cv2.connectedComponents(shared.astype(np.uint8), connectivity=8)
     for patch_label in range(1, count):
