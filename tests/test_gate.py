@@ -23,12 +23,15 @@ def test_oracle_ssim_at_least_098(oracle_out):
 
 
 def test_object_rests_in_newton(oracle_out):
-    """Loaded in Newton, the object at frame 0 moves less than 5 mm in 1 s."""
+    """Loaded in Newton, the object at its first and last resting frame (0 and 47: the box is
+    pushed over frames 8-36) moves less than 5 mm in 1 s."""
     stage = open_stage(oracle_out / "rose.usda")
     gate = stage.GetPrimAtPath(paths.GATE)
-    assert list(gate.GetAttribute("rose:gate:physics:objects").Get()) == ["Box"]
+    assert list(gate.GetAttribute("rose:gate:physics:objects").Get()) == ["Box", "Box"]
+    assert list(gate.GetAttribute("rose:gate:physics:frames").Get()) == [0, 47]
+    assert list(gate.GetAttribute("rose:gate:physics:notResting").Get()) == []
     moved = list(gate.GetAttribute("rose:gate:physics:displacement").Get())
-    assert moved[0] < 0.005, f"moved {moved[0] * 1000:.2f} mm"
+    assert max(moved) < 0.005, f"moved {[round(m * 1000, 2) for m in moved]} mm"
     assert gate.GetAttribute("rose:gate:physics:duration").Get() == pytest.approx(1.0)
     assert gate.GetAttribute("rose:gate:physics:passed").Get()
     assert gate.GetAttribute("rose:gate:geometry:passed").Get()
@@ -112,3 +115,33 @@ def test_a_box_rendered_5_cm_off_its_masks_fails_the_track_iou(oracle_out):
     summary = _track_summary({"Box": np.array([0.95, np.nan, off]), "Lost": np.full(3, np.nan)}, 0.5)
     assert summary["frames"] == {"Box": 2, "Lost": 0} and summary["iou"]["Lost"] is None
     assert summary["passed"] == ((0.95 + off) / 2 >= 0.5)
+
+
+def test_a_box_set_down_in_the_air_fails_the_rest_check_from_its_last_resting_frame(out_copy):
+    """The trajectory's poses from frame 40 on lifted 4 cm (a set-down the silhouettes placed too
+    high): the check from frame 0 still passes, the one from frame 47 sees the box fall 4 cm; with
+    a hand touching the box in every frame nothing rests, and nothing is checked."""
+    from rose_usd.gate.config import GateConfig
+    from rose_usd.gate.run import _rest
+    from rose_usd.layers.masks import INTERACTOR
+    from rose_usd.layers.objects import object_paths
+    from rose_usd.usd.stage import layer_file
+
+    stage = open_stage(out_copy / "rose.usda")
+    layer = next(x for x in stage.GetLayerStack() if x.identifier == str(layer_file(out_copy, "trajectory").resolve()))
+    stage.SetEditTarget(layer)
+    translate = stage.GetPrimAtPath(paths.object_path("Box")).GetAttribute("xformOp:translate")
+    for t in range(40, 48):
+        p = translate.Get(Usd.TimeCode(t))
+        translate.Set(type(p)(p[0], p[1], p[2] + 0.04), Usd.TimeCode(t))
+    rest, never = _rest(stage, object_paths(stage), GateConfig(), 48, 30.0)
+    moved = {t: r.max_displacement_m for t, r in rest}
+    assert sorted(moved) == [0, 47] and never == []
+    assert moved[0] < 0.005 and 0.035 < moved[47] < 0.06, moved
+
+    import shutil
+
+    for f in sorted((out_copy / "masks" / "Box").glob("*.png")):  # the hand's mask covers the box's
+        shutil.copyfile(f, out_copy / "masks" / INTERACTOR / f.name)
+    stage = open_stage(out_copy / "rose.usda")
+    assert _rest(stage, object_paths(stage), GateConfig(), 48, 30.0) == ([], ["Box"])

@@ -13,10 +13,12 @@ from pxr import Usd, UsdGeom, UsdPhysics
 
 from rose_usd.core.watertight import collider_problems
 from rose_usd.gate.report import write_report
+from rose_usd.gate.resting import rest_checks, still_frames, untouched_frames
 from rose_usd.gate.ssim import masked_ssim
 from rose_usd.io.images import write_rgb
 from rose_usd.layers.masks import INTERACTOR, Masks, read_masks
 from rose_usd.layers.objects import object_paths
+from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras
 from rose_usd.progress import progress, say
 from rose_usd.stage_api import StageContext
@@ -60,15 +62,22 @@ def run(ctx: StageContext) -> None:
     # the renders (Mitsuba's own threads); both only read the stage, and neither's result depends
     # on the other's timing
     with ThreadPoolExecutor(max_workers=1) as pool:
-        resting = pool.submit(_rest, stage, objects, cfg) if cfg.physics and objects else None
+        resting = pool.submit(_rest, stage, objects, cfg, n, ctx.time_info.fps) if cfg.physics and objects else None
         ssim, keep, track_iou = _render_and_compare(ctx, renderer, frames, report_dir, list(objects))
-        rest = resting.result() if resting else []
+        rest, not_resting = resting.result() if resting else ([], [])
     worst = int(np.nanargmin(ssim))
     ssim_mean = float(np.nanmean(ssim))
     track = _track_summary(track_iou, cfg.track_iou_threshold)
-    physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for r in rest)
+    physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for _, r in rest)
     geometry_problems = _geometry_check(stage)
-    passed = _author_gate(ctx, frames, ssim, renderer.scene.variant, rest, physics_ok, track, geometry_problems)
+    passed = _author_gate(
+        ctx, frames, ssim, renderer.scene.variant, (rest, not_resting), physics_ok, track, geometry_problems
+    )
+    if not_resting:
+        ctx.warn(
+            f"rest check: {', '.join(repr(n) for n in not_resting)} rest(s) in no frame of the video (moved or"
+            " touched in every one): not checked"
+        )
 
     summary = {
         "passed": passed,
@@ -78,7 +87,8 @@ def run(ctx: StageContext) -> None:
         "ssim_threshold": cfg.ssim_threshold,
         "render_variant": renderer.scene.variant,
         "frames_rendered": len(frames),
-        "physics": [r.__dict__ for r in rest],
+        "physics": [{"frame": t, **r.__dict__} for t, r in rest],
+        "physics_not_resting": not_resting,
         "physics_passed": physics_ok if cfg.physics else None,
         "track": track,
         "geometry_problems": geometry_problems,
@@ -94,17 +104,34 @@ def run(ctx: StageContext) -> None:
     ctx.record(
         ssim_mean=round(ssim_mean, 5),
         passed=passed,
-        physics={r.name: round(r.max_displacement_m, 6) for r in rest},
+        physics={f"{r.name}@{t}": round(r.max_displacement_m, 6) for t, r in rest},
         track_iou={k: None if v is None else round(v, 4) for k, v in track["iou"].items()},
     )
 
 
-def _rest(stage, objects: dict[str, str], cfg) -> list:
-    from rose_usd.sim.rest import simulate_rest
+def _rest(stage, objects: dict[str, str], cfg, n: int, fps: float) -> tuple[list, list[str]]:
+    """The rest check from each object's first and last resting frame (``gate.resting``): a list
+    of (frame, ``RestResult``), and the objects resting in no frame."""
+    from rose_usd.sim.rest import body_corners, simulate_rest
 
-    return simulate_rest(
-        stage, objects, duration_s=cfg.physics_duration_s, dt_s=cfg.physics_dt_s, iterations=cfg.physics_iterations
-    )
+    masks = read_masks(stage, n)
+    poses = {name: object_poses(stage, name, n) for name in objects}
+    corners = body_corners(stage, objects)
+    resting = {name: still_frames(poses[name], corners[name]) & untouched_frames(masks, name, n) for name in objects}
+    checks = rest_checks(resting, fps)
+    out = []
+    for check in checks:
+        results = simulate_rest(
+            stage,
+            {name: objects[name] for name in check.resting},
+            duration_s=cfg.physics_duration_s,
+            dt_s=cfg.physics_dt_s,
+            iterations=cfg.physics_iterations,
+            poses={name: poses[name][check.frame] for name in check.resting},
+            aside={name: path for name, path in objects.items() if name not in check.resting},
+        )
+        out += [(check.frame, r) for r in results if r.name in check.names]
+    return out, [name for name in objects if not any(name in c.names for c in checks)]
 
 
 def _render_and_compare(
@@ -178,7 +205,8 @@ def _track_summary(track: dict[str, np.ndarray], threshold: float) -> dict:
 def _author_gate(
     ctx: StageContext, frames, ssim, variant: str, rest, physics_ok: bool, track: dict, geometry_problems
 ) -> bool:
-    """Write /World/Gate (RoseGateAPI); returns whether the gate passed."""
+    """Write /World/Gate (RoseGateAPI); returns whether the gate passed. ``rest``: the rest
+    checks, [(frame, ``RestResult``)], and the objects resting in no frame."""
     cfg = ctx.config
     gate = UsdGeom.Scope.Define(ctx.stage, paths.GATE).GetPrim()
     gate.ApplyAPI(schema.GATE_API)
@@ -192,9 +220,12 @@ def _author_gate(
     gate.GetAttribute(tokens.GATE_SSIM_PASSED).Set(bool(passed_ssim))
     gate.GetAttribute(tokens.GATE_RENDER_VARIANT).Set(variant)
     gate.GetAttribute(tokens.GATE_SAMPLES_PER_PIXEL).Set(int(cfg.spp))
-    gate.GetAttribute(tokens.GATE_PHYSICS_OBJECTS).Set([r.name for r in rest])
-    gate.GetAttribute(tokens.GATE_PHYSICS_DISPLACEMENT).Set([float(r.max_displacement_m) for r in rest])
-    gate.GetAttribute(tokens.GATE_PHYSICS_ROTATION).Set([float(r.max_rotation_deg) for r in rest])
+    rest, not_resting = rest
+    gate.GetAttribute(tokens.GATE_PHYSICS_OBJECTS).Set([r.name for _, r in rest])
+    gate.GetAttribute(tokens.GATE_PHYSICS_FRAMES).Set([int(t) for t, _ in rest])
+    gate.GetAttribute(tokens.GATE_PHYSICS_DISPLACEMENT).Set([float(r.max_displacement_m) for _, r in rest])
+    gate.GetAttribute(tokens.GATE_PHYSICS_ROTATION).Set([float(r.max_rotation_deg) for _, r in rest])
+    gate.GetAttribute(tokens.GATE_PHYSICS_NOT_RESTING).Set(list(not_resting))
     gate.GetAttribute(tokens.GATE_PHYSICS_THRESHOLD).Set(float(cfg.physics_threshold_m))
     gate.GetAttribute(tokens.GATE_PHYSICS_DURATION).Set(float(cfg.physics_duration_s if cfg.physics else 0.0))
     gate.GetAttribute(tokens.GATE_PHYSICS_PASSED).Set(bool(physics_ok and cfg.physics))

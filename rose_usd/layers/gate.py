@@ -19,7 +19,12 @@ class GateResult:
     ssim_min: float
     ssim_threshold: float
     rest_displacement_m: dict[str, float]
-    """Per object: how far it moved in the rest check (empty when the check did not run)."""
+    """Per object: how far it moved in the rest check, the larger of its checks from its first and
+    last resting frame (empty when the check did not run; without the objects resting in no frame)."""
+    rest_frames: dict[str, list[int]]
+    """Per object: the frames its rest checks started from."""
+    not_resting: list[str]
+    """Objects resting in no frame of the video (moved or touched in every one): not checked."""
     rest_threshold_m: float
     physics_passed: bool
     geometry_passed: bool
@@ -30,7 +35,11 @@ class GateResult:
     track_threshold: float
 
     def summary(self) -> str:
-        rest = ", ".join(f"{name} {1e3 * d:.2f} mm" for name, d in self.rest_displacement_m.items())
+        rest = ", ".join(
+            f"{name} {1e3 * d:.2f} mm (frames {', '.join(map(str, self.rest_frames.get(name, [])))})"
+            for name, d in self.rest_displacement_m.items()
+        )
+        rest += "".join(f", {name} rests in no frame" for name in self.not_resting)
         track = ", ".join(f"{name} {iou:.2f}" for name, iou in self.track_iou.items())
         return (
             f"gate {'PASS' if self.passed else 'FAIL'}: SSIM {self.ssim_mean:.4f} (min {self.ssim_min:.4f}, "
@@ -56,12 +65,12 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
         ssim_mean=float(get(tokens.GATE_SSIM_MEAN)),
         ssim_min=float(min(samples)) if samples else float("nan"),
         ssim_threshold=float(get(tokens.GATE_SSIM_THRESHOLD)),
-        rest_displacement_m=dict(
-            zip(
-                list(get(tokens.GATE_PHYSICS_OBJECTS) or []),
-                [float(v) for v in get(tokens.GATE_PHYSICS_DISPLACEMENT) or []],
-            )
+        **_rest_checks(
+            list(get(tokens.GATE_PHYSICS_OBJECTS) or []),
+            [int(v) for v in get(tokens.GATE_PHYSICS_FRAMES) or []],
+            [float(v) for v in get(tokens.GATE_PHYSICS_DISPLACEMENT) or []],
         ),
+        not_resting=list(get(tokens.GATE_PHYSICS_NOT_RESTING) or []),
         rest_threshold_m=float(get(tokens.GATE_PHYSICS_THRESHOLD)),
         physics_passed=bool(get(tokens.GATE_PHYSICS_PASSED)),
         geometry_passed=bool(get(tokens.GATE_GEOMETRY_PASSED)),
@@ -71,3 +80,15 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
         ),
         track_threshold=float(get(tokens.GATE_TRACK_THRESHOLD) or 0.0),
     )
+
+
+def _rest_checks(names: list[str], frames: list[int], displacement: list[float]) -> dict:
+    """``rest_displacement_m`` (per object, its largest) and ``rest_frames`` from the gate's arrays
+    (one entry per check; a gate layer without frames checked each object once, at frame 0)."""
+    frames = frames if len(frames) == len(names) else [0] * len(names)
+    worst: dict[str, float] = {}
+    starts: dict[str, list[int]] = {}
+    for name, t, d in zip(names, frames, displacement):
+        worst[name] = max(worst.get(name, 0.0), d)
+        starts.setdefault(name, []).append(t)
+    return {"rest_displacement_m": worst, "rest_frames": starts}

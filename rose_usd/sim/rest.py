@@ -32,21 +32,36 @@ touches the triangles left out, so the verdict and any displacement under this a
 scene's; one that moves farther fails either way, its displacement then not the full scene's."""
 
 
-def _load(newton, stage: Usd.Stage, object_paths: dict[str, str]):
-    """The stage as a Newton model, and the body index of each object's rigid-body prim."""
+ASIDE_M = 1000.0
+"""How far below the world objects set aside start (``simulate_rest``'s ``aside``) [m]."""
+
+
+def _load(newton, stage: Usd.Stage, object_paths: dict[str, str], poses: dict[str, np.ndarray], aside: dict[str, str]):
+    """The stage as a Newton model, and the body index of each object's rigid-body prim (the
+    objects of ``object_paths`` and ``aside``). Bodies start at their default poses, or at
+    ``poses`` (name -> world pose) where given; those of ``aside`` start ``ASIDE_M`` below."""
     import warp as wp
 
     builder = newton.ModelBuilder()
     result = builder.add_usd(stage)
     body_of = dict(result.get("path_body_map", {}))
-    missing = [name for name, path in object_paths.items() if path not in body_of]
+    missing = [name for name, path in {**object_paths, **aside}.items() if path not in body_of]
     if missing:
         raise ValidationError(
             f"Newton built no body for object(s) {missing}",
             path=stage.GetRootLayer().identifier,
             hint="check RigidBodyAPI on the object prims",
         )
-    _keep_near(newton, builder, _objects_bounds(stage, object_paths), NEAR_M)
+    start = dict(poses)
+    for name, path in aside.items():
+        start[name] = default_pose_of(stage, path)
+        start[name][2, 3] -= ASIDE_M
+    for name, pose in start.items():
+        path = {**object_paths, **aside}[name]
+        builder.body_q[body_of[path]] = wp.transform(
+            wp.vec3(*pose[:3, 3]), wp.quat(*se3.quat_xyzw_from_matrix(pose[:3, :3]))
+        )
+    _keep_near(newton, builder, _objects_bounds(stage, object_paths, poses), NEAR_M)
     return builder.finalize(device=wp.get_preferred_device()), body_of
 
 
@@ -57,14 +72,24 @@ def _bbox_cache() -> UsdGeom.BBoxCache:
     )
 
 
-def _objects_bounds(stage: Usd.Stage, object_paths: dict[str, str]) -> tuple[np.ndarray, np.ndarray]:
-    """The world bounds (lo, hi) of all the objects together."""
-    cache = _bbox_cache()
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for path in object_paths.values():
-        box = cache.ComputeWorldBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
-        lo, hi = np.minimum(lo, np.asarray(box.GetMin())), np.maximum(hi, np.asarray(box.GetMax()))
-    return lo, hi
+def default_pose_of(stage: Usd.Stage, path: str) -> np.ndarray:
+    """The world pose (4, 4) of the prim at ``path`` at the default time."""
+    xform = UsdGeom.Xformable(stage.GetPrimAtPath(path))
+    return np.asarray(xform.ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=float).T
+
+
+def _objects_bounds(
+    stage: Usd.Stage, object_paths: dict[str, str], poses: dict[str, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The world bounds (lo, hi) of all the objects together, each at its pose of ``poses`` or
+    else its default pose."""
+    corners = body_corners(stage, object_paths)
+    world = [
+        se3.transform_points(poses[name] if name in poses else default_pose_of(stage, path), corners[name])
+        for name, path in object_paths.items()
+    ]
+    every = np.vstack(world)
+    return every.min(axis=0), every.max(axis=0)
 
 
 def _keep_near(newton, builder, bounds: tuple[np.ndarray, np.ndarray], near_m: float) -> None:
@@ -102,7 +127,7 @@ def _keep_near(newton, builder, bounds: tuple[np.ndarray, np.ndarray], near_m: f
         )
 
 
-def _body_corners(stage: Usd.Stage, object_paths: dict[str, str]) -> dict[str, np.ndarray]:
+def body_corners(stage: Usd.Stage, object_paths: dict[str, str]) -> dict[str, np.ndarray]:
     """Each object's bounding-box corners in its body frame (the prim frame: Newton bodies are the
     rigid-body prims)."""
     corners, bbox = {}, _bbox_cache()
@@ -130,16 +155,22 @@ def simulate_rest(
     duration_s: float = 1.0,
     dt_s: float = 1.0 / 600.0,
     iterations: int = 10,
+    poses: dict[str, np.ndarray] | None = None,
+    aside: dict[str, str] | None = None,
 ) -> list[RestResult]:
-    """Simulate ``duration_s`` with Newton's XPBD solver from the stage's default (frame-0) state.
+    """Simulate ``duration_s`` with Newton's XPBD solver from the stage's default (frame-0) state,
+    or with objects at other ``poses``; each object's displacement from where it started.
 
     Args:
-        object_paths: object name -> prim path of its rigid body.
+        object_paths: object name -> prim path of its rigid body: the objects measured.
+        poses: object name -> its world pose at the start (default: its default pose).
+        aside: object name -> prim path of objects not to take part (held at the frame checked):
+            they start ``ASIDE_M`` below the world, away from everything.
     """
     from rose_usd.sim.engine import newton as load_newton
 
     newton = load_newton()
-    model, body_of = _load(newton, stage, object_paths)
+    model, body_of = _load(newton, stage, object_paths, poses or {}, aside or {})
     solver = newton.solvers.SolverXPBD(model, iterations=iterations)
     state_0, state_1 = model.state(), model.state()
     control = model.control()
@@ -147,7 +178,7 @@ def simulate_rest(
     # (they can make nearly twice that) and drops the rest, with a warning per step
     pipeline = newton.CollisionPipeline(model, rigid_contact_max=RIGID_CONTACT_MAX)
     contacts = pipeline.contacts()
-    corners = _body_corners(stage, object_paths)
+    corners = body_corners(stage, object_paths)
     start = _body_poses(state_0, body_of, object_paths)
     start_pts = {n: se3.transform_points(start[n], corners[n]) for n in object_paths}
     max_disp = {n: 0.0 for n in object_paths}

@@ -358,7 +358,10 @@ def _gate_lines(g: dict[str, Any]) -> list[str]:
     )
     objs = g.get(tokens.GATE_PHYSICS_OBJECTS, [])
     disp = g.get(tokens.GATE_PHYSICS_DISPLACEMENT, [])
-    moves = ", ".join(f"{o} {d * 1000:.2f} mm" for o, d in zip(objs, disp))
+    frames = g.get(tokens.GATE_PHYSICS_FRAMES, [])
+    at = [f" from frame {t}" for t in frames] if len(frames) == len(objs) else [""] * len(objs)
+    moves = ", ".join(f"{o}{f} {d * 1000:.2f} mm" for o, f, d in zip(objs, at, disp))
+    moves += "".join(f", {o} rests in no frame" for o in g.get(tokens.GATE_PHYSICS_NOT_RESTING, []))
     lines.append(
         f"  physics: rest check over {g.get(tokens.GATE_PHYSICS_DURATION, 0):g} s: {moves or 'not run'}: "
         f"{'pass' if g.get(tokens.GATE_PHYSICS_PASSED) else 'FAIL'}"

@@ -1,0 +1,97 @@
+"""Where the video shows each object at rest, for the gate's rest check: the frames in which it is
+seen, no hand touches it and it does not move. The check starts from the first such frame (where the
+object starts) and from the last (where it was left): an object set down in the air, or into the
+table, moves there in the simulator though it rests in the video. An object that rests in no frame
+(held from the first frame to the last) has nothing to check."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from rose_usd.layers.masks import INTERACTOR, Masks
+
+STILL_M = 0.003
+"""An object is still at frame t when no corner of its bounding box moves more than this from
+frame t-1 to t or from t to t+1 [m]."""
+TOUCH_FRACTION = 0.01
+"""The interactor touches an object when its mask, grown by this fraction of the image width (at
+least 3 px), meets the object's mask."""
+MIN_RUN_S = 0.15
+"""Resting frames count only in runs at least this long [s] (at least 3 frames)."""
+
+
+@dataclass(frozen=True)
+class RestCheck:
+    frame: int
+    """The frame whose poses the check starts from."""
+    names: tuple[str, ...]
+    """The objects checked there (each object is checked at its first and last resting frame)."""
+    resting: tuple[str, ...]
+    """Every object resting at that frame (they take part; the others are set aside)."""
+
+
+def still_frames(poses: np.ndarray, corners: np.ndarray, still_m: float = STILL_M) -> np.ndarray:
+    """Per frame, whether the object's bounding box ``corners`` (object frame, (8, 3)) at
+    ``poses`` (N, 4, 4) moves less than ``still_m`` into and out of that frame."""
+    world = np.einsum("nij,kj->nki", poses[:, :3, :3], corners) + poses[:, None, :3, 3]
+    step = np.zeros(len(poses))
+    step[1:] = np.linalg.norm(world[1:] - world[:-1], axis=2).max(axis=1)
+    after = np.append(step[1:], 0.0)
+    return (step < still_m) & (after < still_m)
+
+
+def untouched_frames(masks: Masks, name: str, n_frames: int) -> np.ndarray:
+    """Per frame, whether object ``name`` has a mask there and the interactor's mask, grown by
+    ``TOUCH_FRACTION`` of the width, does not meet it (a frame without the object's mask shows
+    nothing at rest)."""
+    out = np.zeros(n_frames, bool)
+    kernel = None
+    for t in range(n_frames):
+        mask = masks.mask(name, t)
+        if mask is None or not mask.any():
+            continue
+        hand = masks.mask(INTERACTOR, t) if masks.has(INTERACTOR) else None
+        if hand is None or not hand.any():
+            out[t] = True
+            continue
+        if kernel is None:
+            r = max(3, int(round(TOUCH_FRACTION * mask.shape[1])))
+            kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        out[t] = not np.any(cv2.dilate(hand.astype(np.uint8), kernel).astype(bool) & mask)
+    return out
+
+
+def resting_runs(resting: np.ndarray, min_frames: int) -> list[tuple[int, int]]:
+    """(first, last) frame of each run of ``resting`` frames at least ``min_frames`` long."""
+    runs, t, n = [], 0, len(resting)
+    while t < n:
+        if not resting[t]:
+            t += 1
+            continue
+        start = t
+        while t < n and resting[t]:
+            t += 1
+        if t - start >= min_frames:
+            runs.append((start, t - 1))
+    return runs
+
+
+def rest_checks(resting: dict[str, np.ndarray], fps: float) -> list[RestCheck]:
+    """The frames to start the rest check from: each object's first and last resting frame (runs
+    shorter than ``MIN_RUN_S`` not counted), in frame order, objects sharing a frame checked
+    together; an object that rests in no frame is in none."""
+    min_frames = max(3, math.ceil(MIN_RUN_S * fps - 1e-9))
+    kept = {name: np.zeros_like(r) for name, r in resting.items()}
+    wanted: dict[int, list[str]] = {}
+    for name, r in resting.items():
+        runs = resting_runs(r, min_frames)
+        for first, last in runs:
+            kept[name][first : last + 1] = True
+        if runs:
+            for t in sorted({runs[0][0], runs[-1][1]}):
+                wanted.setdefault(t, []).append(name)
+    return [RestCheck(t, tuple(names), tuple(n for n in resting if kept[n][t])) for t, names in sorted(wanted.items())]

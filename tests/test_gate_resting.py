@@ -1,0 +1,95 @@
+"""Where the gate's rest check starts from (``gate.resting``): the frames an object is seen,
+untouched and still; each object's first and last of them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rose_usd.gate.resting import rest_checks, resting_runs, still_frames, untouched_frames
+from rose_usd.layers.masks import INTERACTOR
+
+CUBE = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (0.0, 0.1)])
+
+
+def _poses(xs: np.ndarray, yaw_deg: np.ndarray | None = None) -> np.ndarray:
+    poses = np.tile(np.eye(4), (len(xs), 1, 1))
+    poses[:, 0, 3] = xs
+    if yaw_deg is not None:
+        a = np.radians(yaw_deg)
+        poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = np.cos(a), -np.sin(a), np.sin(a), np.cos(a)
+    return poses
+
+
+def test_still_frames_are_those_no_corner_leaves_by_3_mm_into_or_out_of():
+    xs = np.zeros(20)
+    xs[8:12] = np.cumsum(np.full(4, 0.01))  # carried 1 cm a frame over frames 8-11, then set down
+    xs[12:] = xs[11]
+    still = still_frames(_poses(xs), CUBE)
+    assert still.tolist() == [True] * 7 + [False] * 5 + [True] * 8
+    # a turn moves the corners: 3 deg about the centre moves a corner 0.0707 m * 0.052 = 3.7 mm
+    yaw = np.zeros(10)
+    yaw[5:] = 3.0
+    turned = still_frames(_poses(np.zeros(10), yaw), CUBE)
+    assert turned.tolist() == [True] * 4 + [False] * 2 + [True] * 4
+
+
+def test_runs_shorter_than_the_minimum_do_not_count():
+    resting = np.array([1, 1, 0, 1, 1, 1, 0, 0, 1, 1, 1, 1], bool)
+    assert resting_runs(resting, 3) == [(3, 5), (8, 11)]
+    assert resting_runs(resting, 2) == [(0, 1), (3, 5), (8, 11)]
+    assert resting_runs(np.zeros(5, bool), 1) == []
+
+
+def test_each_object_is_checked_at_its_first_and_last_resting_frame():
+    """At 30 fps a run counts from 5 frames (0.15 s). The Base rests throughout, the Top is lifted
+    off it over frames 10-29 and set down from 30; the Held one never rests; the others are set
+    aside at a frame where they do not rest."""
+    n = 40
+    base = np.ones(n, bool)
+    top = np.ones(n, bool)
+    top[10:30] = False
+    top[2] = False  # one frame touched: the first run is 3-9, not 0-1
+    checks = rest_checks({"Base": base, "Top": top, "Held": np.zeros(n, bool)}, fps=30.0)
+    assert [(c.frame, c.names, c.resting) for c in checks] == [
+        (0, ("Base",), ("Base",)),
+        (3, ("Top",), ("Base", "Top")),
+        (39, ("Base", "Top"), ("Base", "Top")),
+    ]
+    # a run under the minimum is not resting for the others either
+    short = np.zeros(n, bool)
+    short[0:3] = True
+    checks = rest_checks({"Base": base, "Blip": short}, fps=30.0)
+    assert [(c.frame, c.resting) for c in checks] == [(0, ("Base",)), (39, ("Base",))]
+
+
+class _Masks:
+    """The two methods of ``layers.masks.Masks`` that ``untouched_frames`` reads, over arrays."""
+
+    def __init__(self, tracks: dict[str, list[np.ndarray | None]]):
+        self.tracks = tracks
+
+    def has(self, name: str) -> bool:
+        return name in self.tracks
+
+    def mask(self, name: str, t: int) -> np.ndarray | None:
+        return self.tracks[name][t]
+
+
+def test_a_hand_within_1_percent_of_the_width_touches_and_an_unseen_object_does_not_rest():
+    h, w = 100, 300  # the hand's mask is grown by 3 px
+    obj = np.zeros((h, w), bool)
+    obj[40:60, 100:140] = True
+
+    def hand_at(x0: int) -> np.ndarray:
+        m = np.zeros((h, w), bool)
+        m[40:60, x0 : x0 + 20] = True
+        return m
+
+    tracks = {
+        "Cup": [obj, obj, obj, np.zeros((h, w), bool), None],
+        INTERACTOR: [hand_at(143), hand_at(142), None, None, None],
+    }
+    out = untouched_frames(_Masks(tracks), "Cup", 5)
+    assert out.tolist() == [True, False, True, False, False]
+    # without an interactor track, every frame with the object's mask is untouched
+    assert untouched_frames(_Masks({"Cup": tracks["Cup"]}), "Cup", 5).tolist() == [True, True, True, False, False]
