@@ -174,10 +174,18 @@ def cmd_batch(args) -> int:
     return 1 if result.failed else 0
 
 
+def _stage_file(arg: str) -> Path:
+    """A stage argument: a stage file, or an output folder that holds one (its rose.usda)."""
+    from rose_usd.usd import paths
+
+    path = Path(arg)
+    return path / paths.ROOT_FILE if path.is_dir() and (path / paths.ROOT_FILE).is_file() else path
+
+
 def cmd_inspect(args) -> int:
     from rose_usd.usd import inspect as usd_inspect
 
-    data = usd_inspect.dump(args.stage)
+    data = usd_inspect.dump(_stage_file(args.stage))
     if args.json:
         print(json.dumps(usd_inspect.normalize(data) if args.normalized else data, indent=2, sort_keys=True))
     else:
@@ -189,7 +197,11 @@ def cmd_diff(args) -> int:
     from rose_usd.usd.diff import compare, load_dump
 
     lines = compare(
-        load_dump(args.a), load_dump(args.b), rtol=args.rtol, atol=args.atol, ignore=tuple(args.ignore or ())
+        load_dump(_stage_file(args.a)),
+        load_dump(_stage_file(args.b)),
+        rtol=args.rtol,
+        atol=args.atol,
+        ignore=tuple(args.ignore or ()),
     )
     for line in lines:
         print(line)
@@ -203,16 +215,16 @@ def cmd_validate(args) -> int:
     from rose_usd.usd.stage import existing_layers
     from rose_usd.usd.validate import validate as validate_stage
 
-    report = validate_stage(args.stage, with_newton=not args.no_newton)
+    stage = _stage_file(args.stage)
+    report = validate_stage(stage, with_newton=not args.no_newton)
     for line in report.errors:
         print(f"error: {line}")
     for line in report.warnings:
         print(f"warning: {line}")
     newton = f"; Newton: {report.newton['bodies']} bodies, {report.newton['shapes']} shapes" if report.newton else ""
     print(f"{report.validators} validators: {len(report.errors)} error(s), {len(report.warnings)} warning(s){newton}")
-    path = Path(args.stage)
-    if path.name == paths.ROOT_FILE:  # an output folder: say which stages' layers it lacks
-        present = set(existing_layers(path.parent))
+    if stage.name == paths.ROOT_FILE:  # an output folder: say which stages' layers it lacks
+        present = set(existing_layers(stage.parent))
         missing = [s.name for s in registry.STAGES if s.layer not in present]
         if missing:
             print(f"incomplete: no layer of {', '.join(missing)} (rose-usd reconstruct on its case finishes it)")
@@ -477,7 +489,7 @@ def _add_stage_commands(sub) -> None:
         "inspect",
         help="dump a stage: layers, prims, schemas, physics, meshes, cameras, gate; where its layers disagree",
     )
-    p.add_argument("stage", help="a .usda/.usd file (usually OUT/rose.usda)")
+    p.add_argument("stage", help="a .usda/.usd file, or an output folder (its rose.usda)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--normalized", action="store_true", help="with --json: the stable form used by stages/ and diff")
     p.set_defaults(func=cmd_inspect)
@@ -495,7 +507,7 @@ def _add_stage_commands(sub) -> None:
         help="run every pxr.UsdValidation validator and Newton's add_usd on a stage; in an output folder, also"
         " check that its layers were made from one another and one case, and name the stages whose layers it lacks",
     )
-    p.add_argument("stage")
+    p.add_argument("stage", help="a .usda/.usd file, or an output folder (its rose.usda)")
     p.add_argument("--no-newton", action="store_true", help="skip the Newton load")
     p.set_defaults(func=cmd_validate)
 

@@ -178,7 +178,9 @@ def test_a_video_inside_rgb_is_the_cases_frames(capsys, tmp_path):
     assert "demo_video.avi" in err.value.one_line() and "second.avi" in err.value.one_line()
 
 
-def test_validate_says_which_layers_an_output_folder_lacks(capsys, sample_case, oracle_out, tmp_path):
+def test_validate_names_the_layers_an_output_folder_lacks_and_takes_the_folder(
+    capsys, sample_case, oracle_out, tmp_path
+):
     """An output folder stopped after capture (Ctrl-C, or `run capture`) is valid USD; validate says
     which stages' layers it lacks, and says nothing of the kind for a complete one."""
     from conftest import oracle_options
@@ -192,6 +194,14 @@ def test_validate_says_which_layers_an_output_folder_lacks(capsys, sample_case, 
     assert "incomplete: no layer of segment, scene, object, trajectory" in text, text
     assert main(["validate", str(oracle_out / "rose.usda"), "--no-newton"]) == 0
     assert "incomplete" not in capsys.readouterr().out
+    # the output folder itself stands for its rose.usda (validate, inspect and diff)
+    assert main(["validate", str(out), "--no-newton"]) == 0
+    assert "incomplete: no layer of segment" in capsys.readouterr().out
+    assert main(["inspect", str(oracle_out)]) == 0
+    by_folder = capsys.readouterr().out
+    assert main(["inspect", str(oracle_out / "rose.usda")]) == 0
+    assert capsys.readouterr().out == by_folder and "gate:" in by_folder
+    assert main(["diff", str(oracle_out), str(oracle_out / "rose.usda")]) == 0
 
 
 def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):
