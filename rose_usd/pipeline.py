@@ -106,12 +106,13 @@ class Pipeline:
         for stage_def in registry.STAGES:
             self._unresolved[stage_def.name] = self._build_config(stage_def)
         planning.check_categories(self.case)
-        prompts_given = "prompts" in flatten(self.options.settings.get("segment", {}))
-        planning.check_prompts(
-            self.case,
-            self._unresolved["segment"].prompts,
-            self.options.prompt_source if prompts_given else str(self.case.config.path or "rose.toml"),
-        )
+        planning.check_prompts(self.case, self._unresolved["segment"].prompts, self._prompts_where())
+
+    def _prompts_where(self) -> str:
+        """Where the segment stage's prompts come from: the caller's (``--prompt``) or rose.toml."""
+        if "prompts" in flatten(self.options.settings.get("segment", {})):
+            return self.options.prompt_source
+        return str(self.case.config.path or self.case.folder / "rose.toml")
 
     def _check_option_stages(self) -> None:
         sources = (("--backend", self.options.backends), (self.options.settings_source, self.options.settings))
@@ -172,7 +173,7 @@ class Pipeline:
                     f"stage {stage_def.name!r} has no backend {given}",
                     path=where,
                     hint=f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}"
-                    f" (or a {stage_def.config.__name__})",
+                    + ("" if str(where).startswith("--") else f" (or a {stage_def.config.__name__})"),
                 )
         names = setting_names(stage_def.config)
         from_toml = flatten(self.case.config.stage_overrides.get(stage_def.name, {}), names)
@@ -195,6 +196,8 @@ class Pipeline:
             stages = registry.closure(target, lambda s: self.config(s).backend.value)
         backends = {s.name: self.config(s).backend.value for s in stages}
         planning.preflight(self.case, backends, {s.name: s.requires_of(backends[s.name]) for s in stages})
+        if backends.get("segment") == "flow":
+            planning.check_prompted(self.case, self.config(registry.get("segment")).prompts, self._prompts_where())
         return stages
 
     def plan_line(self, stages: list[StageDef]) -> str:

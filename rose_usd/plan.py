@@ -261,6 +261,27 @@ def check_prompts(case: Case, prompts, where: str) -> None:
         check_inside([spec], case.width, case.height, case.n_frames, source)
 
 
+def check_prompted(case: Case, prompts, where: str) -> None:
+    """Every object has a prompt (rose.toml's, or one of ``prompts``, from ``where``): the flow
+    segment backend, for videos without depth, has no other way to find it."""
+    from rose_usd.segment.prompts import parse_prompts
+
+    missing = [s.name for s in parse_prompts(prompts, list(case.config.objects)) if s.prompt is None]
+    if missing:
+        raise InputError(
+            f"object(s) {', '.join(repr(n) for n in missing)} have no prompt, and the flow segment backend"
+            " (a video without depth) needs one for every object",
+            path=where,
+            hint=(
+                "add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml"
+                if case.config.path
+                else f'write {case.folder / "rose.toml"} with [[objects]] name = "..." and'
+                " prompt = { frame = 0, box = [x0, y0, x1, y1] }"
+            )
+            + ", or pass --prompt NAME=FRAME:x0,y0,x1,y1",
+        )
+
+
 def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[str, ...]]) -> None:
     """Check every requirement of the planned backends (stage -> backend), in run order, and
     every imported file they read.

@@ -233,6 +233,14 @@ def coerce(where: str, value: Any, kind: Any, field: dataclasses.Field, source: 
         ) from None
 
 
+def _number(value: Any, what: str) -> float:
+    """``value`` (a number, or text holding one) as a float; ValueError(``what``) otherwise."""
+    try:
+        return float(value.strip()) if isinstance(value, str) else float(value)
+    except (TypeError, ValueError):
+        raise ValueError(what) from None
+
+
 def _convert(value: Any, kind: Any) -> Any:
     if isinstance(kind, type) and issubclass(kind, enum.Enum):
         return kind(value.value if isinstance(value, enum.Enum) else value)
@@ -245,14 +253,14 @@ def _convert(value: Any, kind: Any) -> Any:
     if kind is int:
         if isinstance(value, bool):
             raise TypeError("not an integer")
-        number = float(value.strip()) if isinstance(value, str) else float(value)
+        number = _number(value, "not an integer")
         if not number.is_integer():
             raise ValueError("not an integer")
         return int(number)
     if kind is float:
         if isinstance(value, bool):
             raise TypeError("not a number")
-        number = float(value.strip()) if isinstance(value, str) else float(value)
+        number = _number(value, "not a number")
         if not math.isfinite(number):
             raise ValueError("not finite")
         return number

@@ -122,6 +122,7 @@ def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
         capsys, "reconstruct", str(sample_case), "-o", str(tmp_path / "o"), "--backend", "capture=colmap"
     )
     assert_one_line_error(code, err, "no backend 'colmap'", "auto, rgbd, megasam, sfm, oracle")
+    assert "Config" not in err  # a Python class means nothing on the command line
 
 
 def test_object_never_visible_leaves_no_mix(capsys, case_copy, out_copy):

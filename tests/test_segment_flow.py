@@ -55,8 +55,11 @@ def test_masks_alone_are_scored(tmp_path, sample_case):
 def test_flow_backend_without_a_prompt_fails_clearly(tmp_path, case_copy):
     toml = case_copy / "rose.toml"
     toml.write_text("\n".join(line for line in toml.read_text().splitlines() if not line.startswith("prompt")) + "\n")
-    with pytest.raises(InputError, match="needs a prompt"):
+    with pytest.raises(InputError, match="have no prompt, and the flow segment backend") as err:
         Pipeline(case_copy, tmp_path / "out", _flow()).run("segment")
+    assert "rose.toml" in err.value.one_line()
+    # refused before any stage ran: not even the capture's layer is written
+    assert not layer_file(tmp_path / "out", "world").exists()
     assert not layer_file(tmp_path / "out", "masks").exists()
 
 
