@@ -1,4 +1,4 @@
-"""Objects are put in contact with what supports them (object.settle), up or down, stacks from
+"""Objects are put in contact with what supports them (sim.settle), up or down, stacks from
 the lowest up; what is far from any contact is left alone."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from rose_usd.core import se3
-from rose_usd.object.settle import CLEARANCE_M, settle
+from rose_usd.sim.settle import CLEARANCE_M, settle
 from rose_usd.usd.geom import MeshData
 
 

@@ -50,7 +50,10 @@ def test_true_poses_give_the_true_trajectory_and_gaps_are_flagged(tmp_path, case
     out = tmp_path / "out"
     Pipeline(case_copy, out, Options(backends=BACKENDS)).run("trajectory")
     prov = read_provenance(layer_file(out, "trajectory"))
-    assert prov["results"]["objects"]["Box"] == {"frames_read": n - 3, "frames_filled": 3}
+    facts = prov["results"]["objects"]["Box"]
+    assert {k: facts[k] for k in ("frames_read", "frames_filled")} == {"frames_read": n - 3, "frames_filled": 3}
+    # at rest before the push (frames 0-6) and after it (37-47): each run held at one pose
+    assert [r["frames"] for r in facts["rests"]] == [[0, 6], [37, 47]] and all(r["held"] for r in facts["rests"])
     assert any("5-7" in w for w in prov["warnings"])
     score = evaluate(case_copy, out).objects[0]
     # the object stage lifted the true box ~6 mm out of the wrapped table: a constant offset

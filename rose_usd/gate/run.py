@@ -13,7 +13,6 @@ from pxr import Usd, UsdGeom, UsdPhysics
 
 from rose_usd.core.watertight import collider_problems
 from rose_usd.gate.report import write_report
-from rose_usd.gate.resting import rest_checks, still_frames, untouched_frames
 from rose_usd.gate.ssim import masked_ssim
 from rose_usd.io.images import write_rgb
 from rose_usd.layers.masks import INTERACTOR, Masks, read_masks
@@ -21,6 +20,7 @@ from rose_usd.layers.objects import object_paths
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras
 from rose_usd.progress import progress, say
+from rose_usd.sim.resting import rest_checks, still_frames, still_from_start, untouched_frames
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import read_mesh
@@ -110,14 +110,19 @@ def run(ctx: StageContext) -> None:
 
 
 def _rest(stage, objects: dict[str, str], cfg, n: int, fps: float) -> tuple[list, list[str]]:
-    """The rest check from each object's first and last resting frame (``gate.resting``): a list
-    of (frame, ``RestResult``), and the objects resting in no frame."""
+    """The rest check from each object's first and last resting frame (``sim.resting``; the
+    frames it is still from the first count as resting, touched or not): a list of (frame,
+    ``RestResult``), and the objects resting in no frame."""
     from rose_usd.sim.rest import body_corners, simulate_rest
 
     masks = read_masks(stage, n)
     poses = {name: object_poses(stage, name, n) for name in objects}
     corners = body_corners(stage, objects)
-    resting = {name: still_frames(poses[name], corners[name]) & untouched_frames(masks, name, n) for name in objects}
+    still = {name: still_frames(poses[name], corners[name]) for name in objects}
+    resting = {
+        name: still[name] & (untouched_frames(masks, name, n) | still_from_start(poses[name], corners[name]))
+        for name in objects
+    }
     checks = rest_checks(resting, fps)
     out = []
     for check in checks:

@@ -12,6 +12,7 @@ from pxr import Gf, UsdGeom
 from rose_usd.core.inertia import MassProperties, mass_properties, shell_mass_properties
 from rose_usd.geometry.mesh import check_collider
 from rose_usd.object.priors import PhysicsPrior, lookup
+from rose_usd.sim.collider import coacd_parts
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import (
@@ -63,12 +64,6 @@ def collision_approximation(mesh: MeshData, convex_tolerance: float) -> tuple[Ap
     return (Approximation.CONVEX_HULL if ratio >= 1.0 - convex_tolerance else Approximation.CONVEX_DECOMPOSITION), ratio
 
 
-NEWTON_COACD = {"threshold": 0.05, "mcts_nodes": 20, "mcts_iterations": 5, "mcts_max_depth": 1, "merge": False}
-"""The CoACD settings Newton 1.8 uses for ``convexDecomposition`` colliders
-(``ModelBuilder.approximate_meshes``): running CoACD with them (per connected part, as Newton
-does) gives the parts Newton will simulate."""
-
-
 @dataclass(frozen=True)
 class Collider:
     """An object's collider as Newton will simulate it: the approximation, the mesh's volume over
@@ -89,20 +84,6 @@ def collider_of(mesh: MeshData, convex_tolerance: float) -> Collider:
         return Collider(approximation, convexity, np.asarray(mesh.vertices, float), cover)
     parts = coacd_parts(mesh)
     return Collider(approximation, convexity, np.concatenate(parts), decomposition_coverage(mesh, parts))
-
-
-def coacd_parts(mesh: MeshData) -> list[np.ndarray]:
-    """The vertices of each convex part CoACD makes of the mesh with Newton's settings."""
-    import coacd
-
-    coacd.set_log_level("error")
-    vertices = np.asarray(mesh.vertices, np.float32).astype(np.float64)  # as authored (USD points are float)
-    tm = trimesh.Trimesh(vertices, mesh.faces, process=False)
-    return [
-        np.asarray(pv, np.float64)
-        for part in tm.split(only_watertight=False)
-        for pv, _ in coacd.run_coacd(coacd.Mesh(np.asarray(part.vertices), np.asarray(part.faces)), **NEWTON_COACD)
-    ]
 
 
 def decomposition_coverage(mesh: MeshData, parts: list[np.ndarray] | None = None) -> dict:
@@ -195,10 +176,10 @@ def author_object(ctx: StageContext, model: ObjectModel, collider: Collider) -> 
 
 
 def author_objects(ctx: StageContext, models: list[ObjectModel], convex_tolerance: float) -> dict:
-    """Rest the objects' colliders on the scene (object.settle), then write them all. Returns facts
+    """Rest the objects' colliders on the scene (sim.settle), then write them all. Returns facts
     per object."""
     from rose_usd.layers.scene import scene_collider
-    from rose_usd.object.settle import settle
+    from rose_usd.sim.settle import settle
 
     colliders = {m.name: collider_of(m.mesh, convex_tolerance) for m in models}
     pushes: dict = {}

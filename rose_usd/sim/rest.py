@@ -11,6 +11,7 @@ from pxr import Usd, UsdGeom
 from rose_usd.core import se3
 from rose_usd.errors import ValidationError
 from rose_usd.progress import progress
+from rose_usd.sim.resting import box_corners
 
 
 @dataclass(frozen=True)
@@ -133,8 +134,7 @@ def body_corners(stage: Usd.Stage, object_paths: dict[str, str]) -> dict[str, np
     corners, bbox = {}, _bbox_cache()
     for name, path in object_paths.items():
         box = bbox.ComputeUntransformedBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
-        lo, hi = np.asarray(box.GetMin()), np.asarray(box.GetMax())
-        corners[name] = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        corners[name] = box_corners(np.asarray(box.GetMin()), np.asarray(box.GetMax()))
     return corners
 
 

@@ -23,6 +23,7 @@ from rose_usd.io import foundationpose
 from rose_usd.layers.world import read_cameras
 from rose_usd.stage_api import StageContext
 from rose_usd.trajectory.author import author_trajectory, fill_gaps, from_default_pose
+from rose_usd.trajectory.rests import rest_poses
 
 
 def _gaps(missing: np.ndarray) -> str:
@@ -66,8 +67,10 @@ def run(ctx: StageContext) -> None:
                 f"({_gaps(~present)}): interpolated between neighbors (confidence 0.5) or held at the ends (0)"
             )
         tracks[spec.name] = (poses, confidence, int(present.sum()))
+    final = {name: from_default_pose(ctx, name, poses) for name, (poses, _, _) in tracks.items()}
+    rests = rest_poses(ctx, final)
     facts = {}
-    for name, (poses, confidence, read) in tracks.items():
-        author_trajectory(ctx, name, from_default_pose(ctx, name, poses), confidence, "foundationpose")
-        facts[name] = {"frames_read": read, "frames_filled": n - read}
+    for name, (_, confidence, read) in tracks.items():
+        author_trajectory(ctx, name, final[name], confidence, "foundationpose")
+        facts[name] = {"frames_read": read, "frames_filled": n - read, "rests": rests[name]}
     ctx.record(objects=facts)

@@ -64,26 +64,7 @@ from rose_usd.layers.world import read_cameras
 from rose_usd.progress import progress
 from rose_usd.stage_api import StageContext
 from rose_usd.trajectory.author import author_trajectory, fill_gaps
-
-
-def stable_down(vertices: np.ndarray, world_from_object: np.ndarray) -> np.ndarray:
-    """The rotation (3, 3, world) that turns the posed object onto the face of its convex hull that
-    faces most nearly down (of the faces near enough its center of mass to stand on)."""
-    world = se3.transform_points(world_from_object, vertices)
-    hull = ConvexHull(world)
-    normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
-    com = world.mean(axis=0)
-    dist = -(normals @ com + offsets)
-    stand = dist <= np.percentile(dist, 50)
-    i = int(np.argmin(np.where(stand, normals[:, 2], np.inf)))
-    n = normals[i]
-    axis = np.cross(n, [0.0, 0.0, -1.0])
-    s, c = np.linalg.norm(axis), float(-n[2])
-    if s < 1e-9:
-        return np.eye(3)
-    k = axis / s
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * kx + (1 - c) * kx @ kx
+from rose_usd.trajectory.rests import rest_poses, stable_down
 
 
 def run(ctx: StageContext) -> None:
@@ -92,7 +73,7 @@ def run(ctx: StageContext) -> None:
     layer = read_masks(ctx.stage, n, (case.height, case.width))
     pads = support_heights(ctx.stage)
     meshes = {spec.name: visual_mesh(ctx.stage, spec.name) for spec in case.config.objects}  # at their defaults
-    facts = {}
+    facts, tracks = {}, {}
     for spec in case.config.objects:
         layer.require(spec.name)
         default = default_pose(ctx.stage, spec.name)
@@ -118,8 +99,12 @@ def run(ctx: StageContext) -> None:
         air = not _resting(mesh.vertices, others, support_z, cfg.settle_m)
         poses, conf, record = _track(ctx, spec.name, v, f, default, layer, cameras, support_z, own, convex, in_air=air)
         record.update(convex=convex, edge_weight=own.edge_weight)
-        author_trajectory(ctx, spec.name, poses, conf, "silhouette")
+        tracks[spec.name] = (poses, conf)
         facts[spec.name] = record
+    for name, rests in rest_poses(ctx, {name: poses for name, (poses, _) in tracks.items()}).items():
+        facts[name]["rests"] = rests
+    for name, (poses, conf) in tracks.items():
+        author_trajectory(ctx, name, poses, conf, "silhouette")
     ctx.record(objects=facts)
 
 

@@ -90,6 +90,7 @@ from rose_usd.progress import progress
 from rose_usd.stage_api import StageContext
 from rose_usd.trajectory import flow
 from rose_usd.trajectory.author import author_trajectory, fill_gaps, from_default_pose
+from rose_usd.trajectory.rests import rest_poses
 
 SCHEDULE = ((0.03, 6), (0.015, 6), (0.008, 8))
 """(correspondence radius [m], Gauss-Newton iterations) of each ICP level."""
@@ -634,6 +635,9 @@ def run(ctx: StageContext) -> None:
         world0 = default_pose(ctx.stage, spec.name)
         results[spec.name] = (np.einsum("nij,jk->nik", motions, world0), confidence)
         facts[spec.name] = fact
-    for name, (poses, confidence) in results.items():
-        author_trajectory(ctx, name, from_default_pose(ctx, name, poses), confidence, "tracker")
+    final = {name: from_default_pose(ctx, name, poses) for name, (poses, _) in results.items()}
+    for name, rests in rest_poses(ctx, final).items():
+        facts[name]["rests"] = rests
+    for name, (_, confidence) in results.items():
+        author_trajectory(ctx, name, final[name], confidence, "tracker")
     ctx.record(objects=facts)

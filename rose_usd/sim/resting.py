@@ -1,8 +1,10 @@
-"""Where the video shows each object at rest, for the gate's rest check: the frames in which it is
-seen, no hand touches it and it does not move. The check starts from the first such frame (where the
-object starts) and from the last (where it was left): an object set down in the air, or into the
-table, moves there in the simulator though it rests in the video. An object that rests in no frame
-(held from the first frame to the last) has nothing to check."""
+"""Where the video shows each object at rest: the frames in which it is seen, no hand touches it
+and it does not move. The trajectory stage holds each such run at one pose rested on what
+supports it (``trajectory.rests``); the gate's rest check starts from the first resting frame
+(where the object starts) and, when it rests again later, the last (where it was left): an object
+set down in the air, or into the table, moves there in the simulator though it rests in the
+video. An object that rests in no frame (held from the first frame to the last) has nothing to
+check."""
 
 from __future__ import annotations
 
@@ -34,6 +36,11 @@ class RestCheck:
     """Every object resting at that frame (they take part; the others are set aside)."""
 
 
+def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The 8 corners (8, 3) of the axis-aligned box from ``lo`` to ``hi``."""
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
 def still_frames(poses: np.ndarray, corners: np.ndarray, still_m: float = STILL_M) -> np.ndarray:
     """Per frame, whether the object's bounding box ``corners`` (object frame, (8, 3)) at
     ``poses`` (N, 4, 4) moves less than ``still_m`` into and out of that frame."""
@@ -42,6 +49,18 @@ def still_frames(poses: np.ndarray, corners: np.ndarray, still_m: float = STILL_
     step[1:] = np.linalg.norm(world[1:] - world[:-1], axis=2).max(axis=1)
     after = np.append(step[1:], 0.0)
     return (step < still_m) & (after < still_m)
+
+
+def still_from_start(poses: np.ndarray, corners: np.ndarray, still_m: float = STILL_M) -> np.ndarray:
+    """The frames from the first up to the first in which a corner of the object's box (``corners``,
+    object frame) at ``poses`` (N, 4, 4) lies ``still_m`` or more from where frame 0 puts it: where
+    the object stage rested the object, before anything moved it (a hand beside it at the start,
+    adjacent in the image, is not yet holding it; a slow turn leaves that place too)."""
+    world = np.einsum("nij,kj->nki", poses[:, :3, :3], corners) + poses[:, None, :3, 3]
+    moved = np.flatnonzero(np.linalg.norm(world - world[0], axis=2).max(axis=1) >= still_m)
+    out = np.zeros(len(poses), bool)
+    out[: moved[0] if len(moved) else len(poses)] = True
+    return out
 
 
 def untouched_frames(masks: Masks, name: str, n_frames: int) -> np.ndarray:
@@ -80,18 +99,23 @@ def resting_runs(resting: np.ndarray, min_frames: int) -> list[tuple[int, int]]:
     return runs
 
 
+def min_run_frames(fps: float) -> int:
+    """The fewest frames a resting run counts from: ``MIN_RUN_S``, at least 3 frames."""
+    return max(3, math.ceil(MIN_RUN_S * fps - 1e-9))
+
+
 def rest_checks(resting: dict[str, np.ndarray], fps: float) -> list[RestCheck]:
-    """The frames to start the rest check from: each object's first and last resting frame (runs
-    shorter than ``MIN_RUN_S`` not counted), in frame order, objects sharing a frame checked
-    together; an object that rests in no frame is in none."""
-    min_frames = max(3, math.ceil(MIN_RUN_S * fps - 1e-9))
+    """The frames to start the rest check from: each object's first resting frame and, when it
+    rests again later, its last (runs shorter than ``MIN_RUN_S`` not counted), in frame order,
+    objects sharing a frame checked together; an object that rests in no frame is in none."""
+    min_frames = min_run_frames(fps)
     kept = {name: np.zeros_like(r) for name, r in resting.items()}
     wanted: dict[int, list[str]] = {}
     for name, r in resting.items():
         runs = resting_runs(r, min_frames)
         for first, last in runs:
             kept[name][first : last + 1] = True
-        if runs:
-            for t in sorted({runs[0][0], runs[-1][1]}):
-                wanted.setdefault(t, []).append(name)
+        starts = [runs[0][0], runs[-1][1]] if len(runs) > 1 else [r[0] for r in runs]
+        for t in starts:
+            wanted.setdefault(t, []).append(name)
     return [RestCheck(t, tuple(names), tuple(n for n in resting if kept[n][t])) for t, names in sorted(wanted.items())]

@@ -31,6 +31,7 @@ def settle(
     max_push_m: float = 0.015,
     pushes: dict[str, np.ndarray] | None = None,
     collider_points: dict[str, np.ndarray] | None = None,
+    under: list[tuple[np.ndarray, np.ndarray]] = (),
 ) -> dict[str, float]:
     """Move each model's ``world_from_object_0`` along gravity into contact; returns the move per
     object [m] (positive up).
@@ -46,10 +47,14 @@ def settle(
     back against its slope and rolled away in Newton. ``pushes`` receives each sideways move.
 
     ``collider_points`` (object frame, per object) are its collider's vertices (``object.author.
-    collider_of``): they are tested for contact with the mesh's."""
+    collider_of``): they are tested for contact with the mesh's. ``under`` (world vertices, faces)
+    are closed meshes that support the models as the scene does and do not move (objects that
+    are not settled here)."""
     pushes = {} if pushes is None else pushes
     lifts: dict[str, float] = {}
-    supports = [] if scene is None else [metrics.SignedDistance(*scene)]
+    supports = ([] if scene is None else [metrics.SignedDistance(*scene)]) + [
+        metrics.SignedDistance(v, f) for v, f in under
+    ]
     order = sorted(
         models, key=lambda m: float(se3.transform_points(m.world_from_object_0, m.mesh.vertices)[:, 2].min())
     )

@@ -1,12 +1,12 @@
-"""Where the gate's rest check starts from (``gate.resting``): the frames an object is seen,
+"""Where the gate's rest check starts from (``sim.resting``): the frames an object is seen,
 untouched and still; each object's first and last of them."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from rose_usd.gate.resting import rest_checks, resting_runs, still_frames, untouched_frames
 from rose_usd.layers.masks import INTERACTOR
+from rose_usd.sim.resting import rest_checks, resting_runs, still_frames, still_from_start, untouched_frames
 
 CUBE = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (0.0, 0.1)])
 
@@ -41,9 +41,10 @@ def test_runs_shorter_than_the_minimum_do_not_count():
 
 
 def test_each_object_is_checked_at_its_first_and_last_resting_frame():
-    """At 30 fps a run counts from 5 frames (0.15 s). The Base rests throughout, the Top is lifted
-    off it over frames 10-29 and set down from 30; the Held one never rests; the others are set
-    aside at a frame where they do not rest."""
+    """At 30 fps a run counts from 5 frames (0.15 s). The Base rests throughout (one run: checked
+    at its start), the Top is lifted off it over frames 10-29 and set down from 30 (checked where
+    it first rests and where it was left); the Held one never rests; the others are set aside at a
+    frame where they do not rest."""
     n = 40
     base = np.ones(n, bool)
     top = np.ones(n, bool)
@@ -53,13 +54,13 @@ def test_each_object_is_checked_at_its_first_and_last_resting_frame():
     assert [(c.frame, c.names, c.resting) for c in checks] == [
         (0, ("Base",), ("Base",)),
         (3, ("Top",), ("Base", "Top")),
-        (39, ("Base", "Top"), ("Base", "Top")),
+        (39, ("Top",), ("Base", "Top")),
     ]
     # a run under the minimum is not resting for the others either
     short = np.zeros(n, bool)
     short[0:3] = True
     checks = rest_checks({"Base": base, "Blip": short}, fps=30.0)
-    assert [(c.frame, c.resting) for c in checks] == [(0, ("Base",)), (39, ("Base",))]
+    assert [(c.frame, c.resting) for c in checks] == [(0, ("Base",))]
 
 
 class _Masks:
@@ -93,3 +94,11 @@ def test_a_hand_within_1_percent_of_the_width_touches_and_an_unseen_object_does_
     assert out.tolist() == [True, False, True, False, False]
     # without an interactor track, every frame with the object's mask is untouched
     assert untouched_frames(_Masks({"Cup": tracks["Cup"]}), "Cup", 5).tolist() == [True, True, True, False, False]
+
+
+def test_still_from_start_ends_where_the_object_has_left_its_first_place():
+    """A slow push (1 mm a frame: still frame to frame) leaves frame 0's place by 3 mm at frame 3."""
+    xs = np.array([0.0, 0.0005, 0.0015, 0.0025, 0.0035, 0.0045, 0.0055, 0.0065])
+    assert still_frames(_poses(xs), CUBE).all()
+    assert still_from_start(_poses(xs), CUBE).tolist() == [True] * 4 + [False] * 4
+    assert still_from_start(_poses(np.zeros(3)), CUBE).tolist() == [True] * 3
