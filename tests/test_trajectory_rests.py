@@ -16,8 +16,8 @@ from rose_usd.trajectory.rests import _rest_run, level, mean_pose
 from rose_usd.usd.geom import MeshData
 
 SIZE = 0.06
-EASE = 3
-"""Frames over which a held run's change fades out before and after it."""
+EASE = 5
+"""Frames over which a held run's change fades out before and after it (0.15 s at 30 fps)."""
 
 
 def _table():
@@ -53,7 +53,7 @@ def _run(poses, first, last):
     corners = box_corners(mesh.vertices.min(axis=0), mesh.vertices.max(axis=0))
     fixed = np.zeros(len(poses), bool)
     fixed[first : last + 1] = True
-    args = (corners, _table(), lambda name: mesh.vertices, poses[0].copy(), EASE, fixed)
+    args = (corners, _table(), lambda name: mesh.vertices, poses[0].copy(), 30.0, fixed)
     return _rest_run("Cube", first, last, {"Cube": poses}, meshes, *args)
 
 
@@ -73,13 +73,14 @@ def test_a_set_down_is_held_level_and_on_the_table():
     yaw = np.degrees(np.arctan2(held[0][1, 0], held[0][0, 0]))
     assert yaw == pytest.approx(30.0, abs=0.5)
     assert np.array_equal(poses[: 20 - EASE], before[: 20 - EASE])  # nothing before the easing
-    # the 3 frames before the set-down take 3/4, 2/4, 1/4 of its change: no jump into the held pose
+    # the 5 frames before the set-down take 5/6 ... 1/6 of its change: no jump into the held pose
     centre = _cube().vertices.mean(axis=0)
 
     def moved(t):
         return se3.transform_points(poses[t], centre[None])[0] - se3.transform_points(before[t], centre[None])[0]
 
-    for t, share in ((19, 0.75), (18, 0.5), (17, 0.25)):
+    for j in range(1, EASE + 1):
+        t, share = 20 - j, 1.0 - j / (EASE + 1)
         assert np.allclose(moved(t), share * moved(20), atol=1e-9)
 
 

@@ -13,6 +13,7 @@ held where it is (the gate's rest check shows it)."""
 from __future__ import annotations
 
 import functools
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -35,6 +36,11 @@ SPREAD_M = 0.01
 """A resting run whose poses put a corner of the object's box farther than this from where the
 run's mean pose puts it is left as tracked [m]."""
 
+
+EASE_DEG_S = 45.0
+"""A held run's change fades in and out no faster than this turn [deg/s] ..."""
+EASE_M_S = 0.1
+"""... and this shift [m/s] (over at least ``sim.resting.MIN_RUN_S``)."""
 
 MAX_DROP_M = 0.05
 """A resting run's pose is lowered onto what is under it from up to this high [m]: the object rests
@@ -65,7 +71,7 @@ def rest_poses(ctx: StageContext, poses: dict[str, np.ndarray]) -> dict[str, lis
     }
     # still at frame 0, the object stands as the object stage rested it: the face to set it down on
     upright = {name: poses[name][0].copy() if still[name][0] else None for name in poses}
-    ease = min_run_frames(ctx.time_info.fps)
+    fps = ctx.time_info.fps
     fixed = {name: _in_runs(runs[name], n) for name in poses}
     scene = scene_collider(stage)
     colliders = functools.cache(lambda name: _collider_points(stage, name, meshes[name]))
@@ -74,7 +80,17 @@ def rest_poses(ctx: StageContext, poses: dict[str, np.ndarray]) -> dict[str, lis
             {
                 "frames": [first, last],
                 **_rest_run(
-                    name, first, last, poses, meshes, corners[name], scene, colliders, upright[name], ease, fixed[name]
+                    name,
+                    first,
+                    last,
+                    poses,
+                    meshes,
+                    corners[name],
+                    scene,
+                    colliders,
+                    upright[name],
+                    fps,
+                    fixed[name],
                 ),
             }
             for first, last in runs[name]
@@ -83,10 +99,10 @@ def rest_poses(ctx: StageContext, poses: dict[str, np.ndarray]) -> dict[str, lis
     }
 
 
-def _rest_run(name, first, last, poses, meshes, corners, scene, colliders, upright, ease: int, fixed) -> dict:
+def _rest_run(name, first, last, poses, meshes, corners, scene, colliders, upright, fps: float, fixed) -> dict:
     """Hold object ``name`` over frames first..last at one settled pose (in ``poses``), standing
-    as at its resting pose ``upright`` (``_upright``), the change eased in and out over ``ease``
-    frames (``_ease``; ``fixed``: the frames of its runs); what was done."""
+    as at its resting pose ``upright`` (``_upright``), the change eased in and out (``_ease``, at
+    ``fps``; ``fixed``: the frames of its runs); what was done."""
     run = poses[name][first : last + 1]
     if first == 0:
         pose, lift = run[0].copy(), 0.0
@@ -109,20 +125,27 @@ def _rest_run(name, first, last, poses, meshes, corners, scene, colliders, uprig
         pose = model.world_from_object_0
     ends = run[0].copy(), run[-1].copy()
     poses[name][first : last + 1] = pose
-    _ease(poses[name], first, last, ends, pose, meshes[name].vertices.mean(axis=0), ease, fixed)
+    _ease(poses[name], first, last, ends, pose, meshes[name].vertices.mean(axis=0), fps, fixed)
     return {"held": True, "settle_lift_m": round(float(lift), 5)}
 
 
-def _ease(track, first, last, ends, pose, centre, frames: int, fixed: np.ndarray) -> None:
+def _ease(track, first, last, ends, pose, centre, fps: float, fixed: np.ndarray) -> None:
     """Spread the change a held run made at its ends (``ends``: the tracked poses at ``first`` and
-    ``last``, now ``pose``) over up to ``frames`` frames before and after it, fading out (the
-    set-down's last lowering, the pick-up's first lift), leaving ``fixed`` frames (other runs) as
-    they are: a held pose a few degrees off the tracked one is no jump between two frames. The
-    change is a turn about the object's ``centre`` (object frame) and a shift of it."""
+    ``last``, now ``pose``) over the frames before and after it, fading out (the set-down's last
+    lowering, the pick-up's first lift): over ``sim.resting.MIN_RUN_S``, longer where the change would turn
+    faster than ``EASE_DEG_S`` or move faster than ``EASE_M_S``; ``fixed`` frames (other runs) are
+    left as they are. A held pose a few degrees off the tracked one is then no jump between two
+    frames (a robot following the path would have to make it). The change is a turn about the
+    object's ``centre`` (object frame) and a shift of it."""
     for end, step in ((first, -1), (last, 1)):
         was = ends[0] if step < 0 else ends[1]
         turn = Rotation.from_matrix(pose[:3, :3] @ was[:3, :3].T).as_rotvec()
         shift = se3.transform_points(pose, centre[None])[0] - se3.transform_points(was, centre[None])[0]
+        frames = max(
+            min_run_frames(fps),
+            math.ceil(np.degrees(np.linalg.norm(turn)) / EASE_DEG_S * fps),
+            math.ceil(float(np.linalg.norm(shift)) / EASE_M_S * fps),
+        )
         for j in range(1, frames + 1):
             t = end + step * j
             if not 0 <= t < len(track) or fixed[t]:
