@@ -102,3 +102,10 @@ def test_still_from_start_ends_where_the_object_has_left_its_first_place():
     assert still_frames(_poses(xs), CUBE).all()
     assert still_from_start(_poses(xs), CUBE).tolist() == [True] * 4 + [False] * 4
     assert still_from_start(_poses(np.zeros(3)), CUBE).tolist() == [True] * 3
+
+
+def test_true_runs_are_the_spans_of_consecutive_frames():
+    from rose_usd.core.runs import true_runs
+
+    assert true_runs(np.array([1, 1, 0, 1, 0, 0, 1], bool)) == [(0, 1), (3, 3), (6, 6)]
+    assert true_runs(np.zeros(3, bool)) == [] and true_runs(np.ones(2, bool)) == [(0, 1)]

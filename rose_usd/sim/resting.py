@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rose_usd.core.runs import true_runs
 from rose_usd.layers.masks import INTERACTOR, Masks
 
 STILL_M = 0.003
@@ -86,17 +87,7 @@ def untouched_frames(masks: Masks, name: str, n_frames: int) -> np.ndarray:
 
 def resting_runs(resting: np.ndarray, min_frames: int) -> list[tuple[int, int]]:
     """(first, last) frame of each run of ``resting`` frames at least ``min_frames`` long."""
-    runs, t, n = [], 0, len(resting)
-    while t < n:
-        if not resting[t]:
-            t += 1
-            continue
-        start = t
-        while t < n and resting[t]:
-            t += 1
-        if t - start >= min_frames:
-            runs.append((start, t - 1))
-    return runs
+    return [(a, b) for a, b in true_runs(resting) if b - a + 1 >= min_frames]
 
 
 def min_run_frames(fps: float) -> int:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rose_usd.core.runs import true_runs
 from rose_usd.errors import InputError
 from rose_usd.io import foundationpose
 from rose_usd.layers.world import read_cameras
@@ -28,14 +29,7 @@ from rose_usd.trajectory.rests import rest_poses
 
 def _gaps(missing: np.ndarray) -> str:
     """Runs of missing frames as "3-7, 12"."""
-    idx = np.flatnonzero(missing)
-    runs, start = [], None
-    for i, t in enumerate(idx):
-        if start is None:
-            start = t
-        if i + 1 == len(idx) or idx[i + 1] != t + 1:
-            runs.append(f"{start}" if start == t else f"{start}-{t}")
-            start = None
+    runs = [f"{a}" if a == b else f"{a}-{b}" for a, b in true_runs(missing)]
     return ", ".join(runs[:6]) + (" ..." if len(runs) > 6 else "")
 
 

@@ -78,6 +78,7 @@ from scipy.spatial.transform import Rotation
 
 from rose_usd.core import se3
 from rose_usd.core.pinhole import backproject, nearest_depth, pixels_of, projected_box, silhouette
+from rose_usd.core.runs import true_runs
 from rose_usd.core.watertight import is_closed
 from rose_usd.errors import InputError
 from rose_usd.geometry.contact import touches
@@ -552,17 +553,9 @@ def confirmed(tracked: np.ndarray, *, run: int = 3) -> np.ndarray:
     the fingers: such frames jumped 3-10 cm and back), and the frames around it are interpolated
     instead. The first run of the video is kept whatever its length."""
     out = tracked.copy()
-    n, t = len(tracked), 0
-    while t < n:
-        if not tracked[t]:
-            t += 1
-            continue
-        end = t
-        while end < n and tracked[end]:
-            end += 1
-        if t > 0 and end - t < run and out[:t].any():
-            out[t:end] = False
-        t = end
+    for first, last in true_runs(tracked):
+        if first > 0 and last - first + 1 < run and out[:first].any():
+            out[first : last + 1] = False
     return out
 
 
