@@ -101,7 +101,7 @@ def run(ctx: StageContext) -> None:
         record.update(convex=convex, edge_weight=own.edge_weight)
         tracks[spec.name] = (poses, conf)
         facts[spec.name] = record
-    for name, rests in rest_poses(ctx, {name: poses for name, (poses, _) in tracks.items()}).items():
+    for name, rests in rest_poses(ctx, {name: poses for name, (poses, _) in tracks.items()}, measured=False).items():
         facts[name]["rests"] = rests
     for name, (poses, conf) in tracks.items():
         author_trajectory(ctx, name, poses, conf, "silhouette")
