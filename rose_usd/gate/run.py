@@ -71,7 +71,7 @@ def run(ctx: StageContext) -> None:
     physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for _, r in rest)
     geometry_problems = _geometry_check(stage)
     passed = _author_gate(
-        ctx, frames, ssim, renderer.scene.variant, (rest, not_resting), physics_ok, track, geometry_problems
+        ctx, frames, ssim, renderer.scene.variant, rest, physics_ok, track, geometry_problems, not_resting=not_resting
     )
     if not_resting:
         ctx.warn(
@@ -208,10 +208,19 @@ def _track_summary(track: dict[str, np.ndarray], threshold: float) -> dict:
 
 
 def _author_gate(
-    ctx: StageContext, frames, ssim, variant: str, rest, physics_ok: bool, track: dict, geometry_problems
+    ctx: StageContext,
+    frames,
+    ssim,
+    variant: str,
+    rest,
+    physics_ok: bool,
+    track: dict,
+    geometry_problems,
+    *,
+    not_resting: list[str],
 ) -> bool:
     """Write /World/Gate (RoseGateAPI); returns whether the gate passed. ``rest``: the rest
-    checks, [(frame, ``RestResult``)], and the objects resting in no frame."""
+    checks, [(frame, ``RestResult``)]; ``not_resting``: the objects resting in no frame."""
     cfg = ctx.config
     gate = UsdGeom.Scope.Define(ctx.stage, paths.GATE).GetPrim()
     gate.ApplyAPI(schema.GATE_API)
@@ -225,7 +234,6 @@ def _author_gate(
     gate.GetAttribute(tokens.GATE_SSIM_PASSED).Set(bool(passed_ssim))
     gate.GetAttribute(tokens.GATE_RENDER_VARIANT).Set(variant)
     gate.GetAttribute(tokens.GATE_SAMPLES_PER_PIXEL).Set(int(cfg.spp))
-    rest, not_resting = rest
     gate.GetAttribute(tokens.GATE_PHYSICS_OBJECTS).Set([r.name for _, r in rest])
     gate.GetAttribute(tokens.GATE_PHYSICS_FRAMES).Set([int(t) for t, _ in rest])
     gate.GetAttribute(tokens.GATE_PHYSICS_DISPLACEMENT).Set([float(r.max_displacement_m) for _, r in rest])

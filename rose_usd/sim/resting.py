@@ -42,10 +42,15 @@ def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
 
 
+def posed_corners(poses: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """The box ``corners`` (object frame, (8, 3)) in the world at each of ``poses`` (N, 4, 4): (N, 8, 3)."""
+    return np.einsum("nij,kj->nki", poses[:, :3, :3], corners) + poses[:, None, :3, 3]
+
+
 def still_frames(poses: np.ndarray, corners: np.ndarray, still_m: float = STILL_M) -> np.ndarray:
     """Per frame, whether the object's bounding box ``corners`` (object frame, (8, 3)) at
     ``poses`` (N, 4, 4) moves less than ``still_m`` into and out of that frame."""
-    world = np.einsum("nij,kj->nki", poses[:, :3, :3], corners) + poses[:, None, :3, 3]
+    world = posed_corners(poses, corners)
     step = np.zeros(len(poses))
     step[1:] = np.linalg.norm(world[1:] - world[:-1], axis=2).max(axis=1)
     after = np.append(step[1:], 0.0)
@@ -57,7 +62,7 @@ def still_from_start(poses: np.ndarray, corners: np.ndarray, still_m: float = ST
     object frame) at ``poses`` (N, 4, 4) lies ``still_m`` or more from where frame 0 puts it: where
     the object stage rested the object, before anything moved it (a hand beside it at the start,
     adjacent in the image, is not yet holding it; a slow turn leaves that place too)."""
-    world = np.einsum("nij,kj->nki", poses[:, :3, :3], corners) + poses[:, None, :3, 3]
+    world = posed_corners(poses, corners)
     moved = np.flatnonzero(np.linalg.norm(world - world[0], axis=2).max(axis=1) >= still_m)
     out = np.zeros(len(poses), bool)
     out[: moved[0] if len(moved) else len(poses)] = True

@@ -26,7 +26,14 @@ from rose_usd.layers.masks import read_masks
 from rose_usd.layers.objects import collision_approximation
 from rose_usd.layers.scene import scene_collider
 from rose_usd.sim.collider import coacd_parts
-from rose_usd.sim.resting import box_corners, min_run_frames, resting_runs, still_frames, untouched_frames
+from rose_usd.sim.resting import (
+    box_corners,
+    min_run_frames,
+    posed_corners,
+    resting_runs,
+    still_frames,
+    untouched_frames,
+)
 from rose_usd.sim.settle import settle
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths
@@ -115,11 +122,11 @@ def _rest_run(
         pose, lift = run[0].copy(), 0.0
     else:
         pose = mean_pose(run)
-        tracked = np.einsum("nij,kj->nki", run[:, :3, :3], corners) + run[:, None, :3, 3]
+        tracked = posed_corners(run, corners)
         spread = float(np.linalg.norm(tracked - se3.transform_points(pose, corners), axis=2).max())
         if spread > SPREAD_M:
             return {"held": False, "why": f"poses spread {1e3 * spread:.0f} mm"}
-        pose = _upright(pose, upright, meshes[name].vertices) if measured else _level_only(pose, upright, meshes[name])
+        pose = _upright(pose, upright, meshes[name].vertices, may_turn=measured)
         model = SimpleNamespace(name=name, mesh=meshes[name], world_from_object_0=pose)
         others = [
             (se3.transform_points(poses[o][last], meshes[o].vertices), meshes[o].faces) for o in poses if o != name
@@ -169,21 +176,17 @@ def _in_runs(runs: list[tuple[int, int]], n: int) -> np.ndarray:
     return out
 
 
-def _level_only(pose: np.ndarray, upright: np.ndarray | None, mesh) -> np.ndarray:
-    return pose if upright is None else level(pose, upright, mesh.vertices)
-
-
-def _upright(pose: np.ndarray, resting: np.ndarray | None, vertices: np.ndarray) -> np.ndarray:
+def _upright(pose: np.ndarray, resting: np.ndarray | None, vertices: np.ndarray, *, may_turn: bool) -> np.ndarray:
     """``pose`` levelled onto the face it rested on at frame 0 (``level``, with ``resting``);
-    set down farther from it, first turned onto the face of its hull nearest down
+    set down farther from it and ``may_turn``, first turned onto the face of its hull nearest down
     (``stable_down``): at rest on a support, an object stands on a face it can stand on."""
     if resting is not None:
         levelled = level(pose, resting, vertices)
-        if levelled is not pose:
+        if levelled is not pose or not may_turn:
             return levelled
-    turn = stable_down(vertices, pose)
-    centre = se3.transform_points(pose, vertices).mean(axis=0)
-    turned = se3.make_pose(turn, centre - turn @ centre) @ pose
+    elif not may_turn:
+        return pose
+    turned = _turned(pose, stable_down(vertices, pose), vertices)
     return turned if resting is None else level(turned, resting, vertices)
 
 
@@ -197,7 +200,11 @@ def level(pose: np.ndarray, resting: np.ndarray, vertices: np.ndarray) -> np.nda
     now = pose[:3, :3] @ up
     if np.degrees(np.arccos(np.clip(now[2], -1.0, 1.0))) > LEVEL_DEG:
         return pose
-    turn = se3.rotation_between(now, np.array([0.0, 0.0, 1.0]))
+    return _turned(pose, se3.rotation_between(now, np.array([0.0, 0.0, 1.0])), vertices)
+
+
+def _turned(pose: np.ndarray, turn: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """``pose`` turned by ``turn`` (3, 3, world) about the centre of its ``vertices`` (object frame)."""
     centre = se3.transform_points(pose, vertices).mean(axis=0)
     return se3.make_pose(turn, centre - turn @ centre) @ pose
 
