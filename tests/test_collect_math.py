@@ -185,3 +185,84 @@ def test_flat_convex_parts_become_slabs_mujoco_accepts():
     assert v[:, 2].max() == pytest.approx(0.0, abs=1e-7) and v[:, 2].min() == pytest.approx(-0.002, abs=1e-6)
     assert np.ptp(np.asarray(b.shape_source[solid].vertices)[:, 2]) == pytest.approx(0.02, abs=1e-7)
     SolverMuJoCo(b.finalize(device="cpu"), use_mujoco_cpu=True)
+
+
+def test_a_follow_the_arm_keeps_up_with_is_one_tick_a_frame():
+    q = np.zeros((20, 9))
+    q[:, 0] = 0.01 * np.arange(20)  # 0.3 rad/s at 30 fps
+    np.testing.assert_array_equal(motion.retimed(q, 30.0), np.arange(20.0))
+
+
+def test_a_fast_step_is_followed_slower_under_the_speed_limit():
+    from rose_usd.sim import panda
+
+    q = np.zeros((20, 9))
+    q[:, 0] = 0.01 * np.arange(20)
+    q[10:, 5] += 0.3  # joint 6 turns 0.3 rad in one frame: 9 rad/s at 30 fps
+    frames = motion.retimed(q, 30.0)
+    assert frames[0] == 0 and frames[-1] == 19 and np.all(np.diff(frames) > 0)
+    ticks_q = np.stack([np.interp(frames, np.arange(20), q[:, j]) for j in range(7)], axis=1)
+    speed = np.abs(np.diff(ticks_q, axis=0)) * 30.0
+    limit = motion.FOLLOW_SPEED * np.asarray(panda.ARM_MAX_VELOCITY_RAD_S)
+    assert np.all(speed <= limit * (1 + 1e-9))
+    # one tick a frame away from the step, and the slowdown eased in over the ramp's frames
+    assert np.allclose(np.diff(frames[:5]), 1.0) and np.allclose(np.diff(frames[-5:]), 1.0)
+    pace = np.diff(frames)
+    slowest = int(pace.argmin())
+    assert np.all(np.diff(pace[: slowest + 1]) <= 1e-12) and np.all(np.diff(pace[slowest:]) >= -1e-12)
+
+
+def test_a_retimed_plan_records_the_video_frame_of_each_tick():
+    plan = motion.Plan(rate_hz=30.0)
+    plan.hold(np.zeros(9), 0.1, "home", 0.04, np.full((4, 4), np.nan))
+    q = np.zeros((6, 9))
+    q[3:, 0] = 0.5
+    frames = motion.retimed(q, 30.0)
+    for qq, f in zip(np.stack([np.interp(frames, np.arange(6), q[:, j]) for j in range(9)], axis=1), frames):
+        plan._append(qq, np.eye(4), "follow", f)
+    plan.hold(q[-1], 0.1, "release", 0.04, np.eye(4))
+    video = plan.video_frames()
+    assert np.all(video[:3] == 0) and np.all(video[-3:] == 5) and len(video) == len(plan) > 12
+    assert np.all(np.diff(video) >= 0)
+
+
+def test_poses_at_fractional_frames_interpolate_position_and_turn():
+    a = np.eye(4)
+    b = se3.make_pose(se3.rotation_about([0, 0, 1], np.radians(90)), [0.2, 0, 0])
+    mid = motion.poses_at(np.stack([a, b]), np.array([0.0, 0.5, 1.0]))
+    np.testing.assert_allclose(mid[1, :3, 3], [0.1, 0, 0], atol=1e-12)
+    assert abs(se3.rotation_angle_deg(mid[1, :3, :3]) - 45.0) < 1e-6
+    np.testing.assert_allclose(mid[2], b, atol=1e-12)
+
+
+def test_grasps_whose_arm_meets_the_scene_on_the_path_rank_last():
+    from rose_usd.collect import grasping
+
+    down = np.diag([1.0, -1.0, -1.0])
+    turned = se3.rotation_about([0, 0, 1], np.radians(90)) @ down
+    grasps_ = grasping.Candidates(
+        object_from_tcp=np.stack([se3.make_pose(down, [0, 0, 0.02]), se3.make_pose(turned, [0, 0, 0.02])]),
+        width_m=np.array([0.05, 0.05]),
+        com_distance_m=np.array([0.0, 0.01]),  # the first is the better by the prior
+        approach_up=np.array([-1.0, -1.0]),
+        alignment=np.array([1.0, 1.0]),
+        sampled_pairs=2,
+    )
+    path = np.repeat(se3.make_pose(np.eye(3), [0.5, 0.0, 0.1])[None], 12, axis=0)
+    path[:, 0, 3] += np.linspace(0.0, 0.05, 12)
+    plain = grasping.rank(np.eye(4), path, grasps_, 1, 0.01)
+    np.testing.assert_array_equal(plain.object_from_tcp[0], grasps_.object_from_tcp[0])
+    # the two grasps' wrists (joint 7) differ by a quarter turn: call the first one's arm blocked
+    q_first, q_second = (_wrist(path[0] @ grasps_.object_from_tcp[k]) for k in range(2))
+    cut, sign = 0.5 * (q_first + q_second), np.sign(q_second - q_first)
+    blocked = grasping.rank(np.eye(4), path, grasps_, 1, 0.01, clearance=lambda q: sign * (q[..., 6] - cut))
+    np.testing.assert_array_equal(blocked.object_from_tcp[0], grasps_.object_from_tcp[1])
+
+
+def _wrist(tcp: np.ndarray) -> float:
+    """Joint 7 of the IK solution for a tool pose, the base at the origin."""
+    from rose_usd.collect import ik
+    from rose_usd.sim import panda
+
+    q, _, _ = ik.solve(tcp[None], panda.HOME_Q, n_seeds=8, iterations=80)
+    return float(q[0, 6])

@@ -22,7 +22,10 @@ def test_clearance_over_a_floor_is_the_arms_lowest_point():
     checker = planning.ArmChecker(base, [floor])
     qs = np.stack([panda.HOME_Q, panda.HOME_Q + np.r_[0.4, 0.3, -0.2, 0.3, 0.5, -0.4, 0.2, 0.0, 0.0]])
     lowest = checker.world_points(qs)[..., 2].min(axis=-1)
-    np.testing.assert_allclose(checker.clearance(qs), lowest + 0.2, atol=1e-4)
+    np.testing.assert_allclose(checker.clearance(qs, exact_m=1.0), lowest + 0.2, atol=1e-4)
+    # farther than exact_m (5 cm by default) from everything, a lower bound no smaller than that
+    bound = checker.clearance(qs)
+    assert np.all((bound >= 0.05) & (bound <= lowest + 0.2 + 1e-4))
     tcp_z = (base @ panda.chain().tcp(panda.HOME_Q))[2, 3]
     raised = planning.ArmChecker(base, [_box([0.0, 0.0, tcp_z + 0.02 - 0.5], [4.0, 4.0, 1.0])])
     assert raised.clearance(panda.HOME_Q) < -0.01

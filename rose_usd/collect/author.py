@@ -78,8 +78,7 @@ def author_robot(ctx: StageContext, outcome: Outcome) -> None:
     if outcome.base_pose is not None:
         chain = panda.chain()
         if best is not None and best.follow_start >= 0:
-            ticks = best.follow_start + np.arange(n)
-            ticks = np.minimum(ticks, best.frames - 1)
+            ticks = best.ticks_of_frames(n)
             poses = best.links[ticks]  # (n, L, 4, 4) world
             joints = best.q[ticks]
         else:  # no rollout reached the path: the robot stands at home

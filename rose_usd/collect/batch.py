@@ -198,6 +198,7 @@ def _rollout(plan, grasp, pert, path, cfg, k, log_q, log_qd, log_tcp, log_obj, d
     r.action_q = np.asarray(plan.q[:t], dtype=float)
     r.action_tcp = np.asarray(plan.tcp[:t], dtype=float)
     r.phase = list(plan.phase[:t])
+    r.frame = plan.video_frames()[:t]
     r.penetration_m, r.ik_error_m, r.ik_error_deg = float(deepest), plan.ik_error_m, plan.ik_error_deg
     r.approach = plan.approach
     r.wall_s, r.sim_s = wall, sim_s

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -262,11 +263,21 @@ def place_bases(path: np.ndarray, cands: Candidates, support_z: float, scene_poi
     return bases[order]
 
 
-def chained_reach(base_pose: np.ndarray, path: np.ndarray, object_from_tcp: np.ndarray, lift_m: float, chunk: int = 8):
+def chained_reach(
+    base_pose: np.ndarray,
+    path: np.ndarray,
+    object_from_tcp: np.ndarray,
+    lift_m: float,
+    chunk: int = 8,
+    clearance: Callable[[np.ndarray], np.ndarray] | None = None,
+):
     """IK along the whole path as the arm would follow it, each chunk of poses seeded with the
     previous chunk's solution (one batch per chunk for all grasps): a wrist that runs into its
     limit half way through a turn fails here though every pose alone is reachable. Returns (G,)
-    worst position error [m] and (G,) worst rotation error [deg]."""
+    worst position error [m], (G,) worst rotation error [deg] and (G,) the arm's smallest
+    ``clearance`` [m] (of joint coordinates (..., 9): ``planning.ArmChecker.clearance``) at every
+    other pose of the path (inf without one): an arm whose forearm goes through the table as it
+    sets the object down there reaches every pose, and the table stops it in the simulation."""
     g = len(object_from_tcp)
     base_inv = se3.invert(base_pose)
     pre = np.einsum("ij,gjk->gik", path[0], object_from_tcp)
@@ -274,7 +285,7 @@ def chained_reach(base_pose: np.ndarray, path: np.ndarray, object_from_tcp: np.n
     q, pos_err, rot_err = ik.solve(np.einsum("ij,gjk->gik", base_inv, pre), panda.HOME_Q, n_seeds=8, iterations=80)
     poses = np.einsum("nij,gjk->gnik", motion.lifted(path, lift_m), object_from_tcp)  # (G, N, 4, 4)
     poses = np.concatenate([np.einsum("ij,gjk->gik", path[0], object_from_tcp)[:, None], poses], axis=1)
-    worst_pos, worst_rot = pos_err.copy(), rot_err.copy()
+    worst_pos, worst_rot, least = pos_err.copy(), rot_err.copy(), np.full(g, np.inf)
     for start in range(0, poses.shape[1], chunk):
         part = poses[:, start : start + chunk]
         n = part.shape[1]
@@ -282,16 +293,27 @@ def chained_reach(base_pose: np.ndarray, path: np.ndarray, object_from_tcp: np.n
         q_all, p, r = ik.solve(targets, np.repeat(q, n, axis=0), iterations=40)
         worst_pos = np.maximum(worst_pos, p.reshape(g, n).max(axis=1))
         worst_rot = np.maximum(worst_rot, r.reshape(g, n).max(axis=1))
-        q = q_all.reshape(g, n, -1)[:, -1]
-    return worst_pos, worst_rot
+        q_all = q_all.reshape(g, n, -1)
+        if clearance is not None and start > 0:  # the grasp itself (pose 0) touches what it holds
+            least = np.minimum(least, clearance(q_all[:, ::2]).min(axis=1))
+        q = q_all[:, -1]
+    return worst_pos, worst_rot, least
 
 
 def rank(
-    base_pose: np.ndarray, path: np.ndarray, cands: Candidates, count: int, lift_m: float, pool: int = 48
+    base_pose: np.ndarray,
+    path: np.ndarray,
+    cands: Candidates,
+    count: int,
+    lift_m: float,
+    pool: int = 48,
+    clearance: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Candidates:
-    """The ``count`` best grasps: those that reach every sampled pose of the path (independent IK
-    with several seeds), then of those the ones that reach the whole path as the arm follows it
-    (chained IK), each group in :meth:`Candidates.prior_order`."""
+    """The ``count`` best grasps of those that reach every sampled pose of the path (independent IK
+    with several seeds): first those that reach the whole path as the arm follows it (chained IK)
+    with the arm clear of the scene (``clearance``, as for :func:`chained_reach`), then those that
+    reach it, then the rest, each group in :meth:`Candidates.prior_order`. The chained IK runs on
+    3 x ``count`` grasps at a time, in that order, until ``count`` are followed and clear."""
     top = cands.take(cands.prior_order()[:pool])
     reached, worst = reach_cost(base_pose, path, top.object_from_tcp, samples=10, seeds=4)
     reached, worst = reached[0], worst[0]
@@ -301,7 +323,15 @@ def rank(
             f"the path is out of the robot's reach: the best grasp reaches {100 * reached[order[0]]:.0f} % "
             f"of it (worst IK error {100 * worst[order[0]]:.1f} cm)"
         )
-    full = top.take(order[reached[order] >= 1.0][: 3 * count])
-    pos_err, rot_err = chained_reach(base_pose, path, full.object_from_tcp, lift_m)
-    followed = (pos_err < REACH_POS_M) & (rot_err < REACH_ROT_DEG)
-    return full.take(np.lexsort((np.arange(len(full)), ~followed))[:count])
+    full = top.take(order[reached[order] >= 1.0])
+    # chained IK in batches of 3 x count, in order, until count grasps are followed and clear
+    followed, clear = np.zeros(len(full), bool), np.zeros(len(full), bool)
+    for start in range(0, len(full), 3 * count):
+        part = full.take(np.arange(start, min(start + 3 * count, len(full))))
+        pos_err, rot_err, least = chained_reach(base_pose, path, part.object_from_tcp, lift_m, clearance=clearance)
+        ok = (pos_err < REACH_POS_M) & (rot_err < REACH_ROT_DEG)
+        followed[start : start + len(part)], clear[start : start + len(part)] = ok, ok & (least >= 0.0)
+        if clear.sum() >= count:
+            break
+    checked = np.arange(start + len(part))
+    return full.take(checked[np.lexsort((checked, ~followed[checked], ~clear[checked]))][:count])

@@ -9,6 +9,7 @@ message say so, and a warning; they are not errors of the pipeline.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -121,10 +122,16 @@ def _target(ctx: StageContext, name: str, path: np.ndarray, rng: np.random.Gener
 
 
 def _grasps_and_base(
-    cfg: CollectConfig, target: _Target, path: np.ndarray, outcome: Outcome, rng: np.random.Generator
+    cfg: CollectConfig,
+    target: _Target,
+    path: np.ndarray,
+    outcome: Outcome,
+    rng: np.random.Generator,
+    clearance_at: Callable[[np.ndarray], Callable[[np.ndarray], np.ndarray]],
 ) -> tuple[grasping.Candidates, grasping.Candidates, np.ndarray]:
     """The grasp candidates, the ranked few to roll out and the other base poses to try, best
     first (none when rose.toml places the base); the base pose goes into ``outcome``.
+    ``clearance_at(base)``: the arm's clearance from the scene with its base there, for ``grasping.rank``.
 
     Raises:
         grasping.NoGrasp: no grasp fits, is free of the scene or reaches the path.
@@ -154,7 +161,7 @@ def _grasps_and_base(
         bases = grasping.place_bases(path, cands, target.support_z, target.scene_points)
         base, others = bases[0], bases[1:]
     outcome.base_pose = base
-    ranked = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
+    ranked = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m, clearance=clearance_at(base))
     return cands, ranked, others
 
 
@@ -180,9 +187,11 @@ def _world(
     return build_world(ctx.stage, object_path, base_pose, (lo, hi), cfg.newton, worlds=worlds, device=device)
 
 
-def _arm_checker(ctx: StageContext, base_pose: np.ndarray, cfg: CollectConfig) -> planning.ArmChecker:
-    """The arm's clearance from the scene collider and every object where it stands at frame 0."""
-    obstacles = [object_layer.visual_mesh(ctx.stage, o) for o in object_layer.object_paths(ctx.stage)]
+def _arm_checker(
+    ctx: StageContext, base_pose: np.ndarray, cfg: CollectConfig, *, held: str | None = None
+) -> planning.ArmChecker:
+    """The arm's clearance from the scene collider and every object (but ``held``) where it stands at frame 0."""
+    obstacles = [object_layer.visual_mesh(ctx.stage, o) for o in object_layer.object_paths(ctx.stage) if o != held]
     meshes = [(m.vertices, m.faces) for m in obstacles]
     collider = scene_collider(ctx.stage)
     if collider is not None:
@@ -281,9 +290,13 @@ def run(ctx: StageContext) -> None:
         return
     target = _target(ctx, name, path, rng)
 
+    def clearance_at(base: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+        """The arm's clearance from the scene and the other objects with its base at ``base``."""
+        return _arm_checker(ctx, base, cfg, held=name).clearance
+
     outcome = Outcome("ok", object_name=name)
     try:
-        cands, ranked, other_bases = _grasps_and_base(cfg, target, path, outcome, rng)
+        cands, ranked, other_bases = _grasps_and_base(cfg, target, path, outcome, rng, clearance_at)
     except grasping.NoGrasp as why:
         status = "unreachable" if "reach" in str(why) else "no-grasp"
         outcome.status, outcome.message = status, str(why)
@@ -300,7 +313,7 @@ def run(ctx: StageContext) -> None:
         if any(r.success for r in rollouts) or bases_tried >= cfg.base_tries:
             break
         try:  # every rollout failed: the next base, where the grasps reach the path from there too
-            ranked_here = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m)
+            ranked_here = grasping.rank(base, path, cands, cfg.grasps, cfg.lift_m, clearance=clearance_at(base))
         except grasping.NoGrasp:
             continue
         bases_tried += 1

@@ -4,7 +4,9 @@ The arm is points on each link's collision mesh (:func:`rose_usd.collect.author.
 about ``spacing_m`` apart, their vertices included), placed by the Panda's forward kinematics. A
 configuration is clear when every point lies at least ``clearance_m`` outside the obstacles: the
 scene collider and the objects where they stand at frame 0 (signed distances to their closed
-meshes, Open3D's raycasting scene, five rays voting on the sign). The base link, bolted to the support, is not checked.
+meshes, Open3D's raycasting scene, five rays voting on the sign). The base link, bolted to the
+support, is not checked, and a link whose points' bounding sphere keeps 5 cm from everything is
+not checked point by point (``ArmChecker.clearance``).
 
 The straight line in joint space is kept when it is clear at every ``step_rad`` (largest joint
 change). Otherwise OMPL's RRTConnect searches around it in the arm's 7-D joint space within its
@@ -80,6 +82,11 @@ class ArmChecker:
             points.append(pts)
         self.link_of_point = np.concatenate(link_index)
         self.points = np.concatenate(points)
+        # each link's points in a sphere: links far from every obstacle need no point checked
+        self._links = [chain.index(link) for link in link_meshes() if link not in skip_links]
+        self._link_points = points
+        self._centres = np.array([p.mean(axis=0) for p in points])
+        self._radii = np.array([np.linalg.norm(p - c, axis=1).max() for p, c in zip(points, self._centres)])
         self.base_pose = np.asarray(base_pose, dtype=float)
         self.clearance_m = clearance_m
         vertices, faces, offset = [], [], 0
@@ -97,8 +104,10 @@ class ArmChecker:
         frames = links[..., self.link_of_point, :, :]
         return np.einsum("...pij,pj->...pi", frames[..., :3, :3], self.points) + frames[..., :3, 3]
 
-    def clearance(self, q: np.ndarray) -> np.ndarray:
-        """The smallest signed distance [m] of the arm from the obstacles, per configuration (...,)."""
+    def clearance(self, q: np.ndarray, *, exact_m: float = 0.05) -> np.ndarray:
+        """The smallest signed distance [m] of the arm from the obstacles, per configuration (...,):
+        exact where it is under ``exact_m``, else a lower bound at least that large (a link's
+        points are checked only where the sphere around them comes within ``exact_m``)."""
         q = np.asarray(q, dtype=float)
         if q.shape[-1] == ARM:
             q = np.concatenate([q, np.broadcast_to(panda.HOME_Q[ARM:], q.shape[:-1] + (2,))], axis=-1)
@@ -106,8 +115,16 @@ class ArmChecker:
         self.checks += int(np.prod(batch))
         if self.distance is None:
             return np.full(batch, np.inf)
-        pts = self.world_points(q)
-        return self.distance(pts.reshape(-1, 3)).reshape(batch + (-1,)).min(axis=-1)
+        frames = (self.base_pose @ panda.chain().forward(q.reshape(-1, q.shape[-1])))[:, self._links]  # (B, K, 4, 4)
+        centres = np.einsum("bkij,kj->bki", frames[..., :3, :3], self._centres) + frames[..., :3, 3]
+        bound = self.distance(centres.reshape(-1, 3)).reshape(centres.shape[:2]) - self._radii  # (B, K)
+        for k, local in enumerate(self._link_points):
+            near = np.flatnonzero(bound[:, k] < exact_m)
+            if len(near):
+                f = frames[near, k]
+                pts = np.einsum("bij,pj->bpi", f[:, :3, :3], local) + f[:, None, :3, 3]
+                bound[near, k] = self.distance(pts.reshape(-1, 3)).reshape(len(near), -1).min(axis=1)
+        return bound.min(axis=1).reshape(batch)
 
     def line_clearance(self, q_from: np.ndarray, q_to: np.ndarray, step_rad: float) -> float:
         """The smallest clearance [m] along the straight joint-space line, every ``step_rad``."""

@@ -53,6 +53,8 @@ class Rollout:
     links: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 4, 4)))
     """(T, L, 4, 4) world poses of the Panda's links (:func:`rose_usd.sim.panda.chain` order)."""
     phase: list[str] = field(default_factory=list)
+    frame: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(T,) the video frame (fractional) each tick stands for (``motion.Plan.video_frames``)."""
     follow_start: int = -1
     """Tick of video frame 0."""
     success: bool = False
@@ -77,6 +79,13 @@ class Rollout:
     @property
     def frames(self) -> int:
         return len(self.q)
+
+    def ticks_of_frames(self, n: int) -> np.ndarray:
+        """(n,) the first follow tick standing for each video frame 0..n-1 (the last tick where the
+        log ends before it)."""
+        follow = np.flatnonzero(np.asarray(self.phase) == "follow")
+        at = np.searchsorted(self.frame[follow], np.arange(n) - 1e-6)
+        return follow[np.minimum(at, len(follow) - 1)]
 
 
 IMPRATIO = 100.0
@@ -245,6 +254,7 @@ class _Ticks:
         result.action_q = np.array(self.log_act)
         result.action_tcp = np.array(plan.tcp[:t])
         result.phase = list(plan.phase[:t])
+        result.frame = plan.video_frames()[:t]
         result.penetration_m = self.deepest
         result.ik_error_m, result.ik_error_deg = plan.ik_error_m, plan.ik_error_deg
         result.approach = plan.approach
@@ -265,7 +275,8 @@ def run_rollout(
 
     newton = load_newton()
     t_wall = time.perf_counter()
-    plan = dataclasses.replace(plan, q=list(plan.q), tcp=list(plan.tcp), phase=list(plan.phase))  # carried on below
+    # carried on below
+    plan = dataclasses.replace(plan, q=list(plan.q), tcp=list(plan.tcp), phase=list(plan.phase), frame=list(plan.frame))
     w, model = sim.world, sim.world.model
     sim.set_object(perturbation.mass_kg, perturbation.friction)
     state, nxt, control = model.state(), model.state(), model.control()
@@ -303,7 +314,7 @@ def judge(r: Rollout, path: np.ndarray, carry_from: int, cfg: CollectConfig) -> 
     follow = np.flatnonzero(np.asarray(r.phase) == "follow")
     r.follow_start = int(follow[0])
     obj, tcp = r.object_pose[follow], r.tcp[follow]
-    err = np.linalg.norm(obj[:, :3, 3] - path[:, :3, 3], axis=1)
+    err = np.linalg.norm(obj[:, :3, 3] - motion.poses_at(path, r.frame[follow])[:, :3, 3], axis=1)
     r.mean_error_m = float(err.mean())
     r.final_error_m = float(err[-1])
     r.final_error_deg = float(se3.rotation_angle_deg(obj[-1, :3, :3].T @ path[-1, :3, :3]))

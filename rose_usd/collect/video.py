@@ -1,10 +1,11 @@
 """Camera video of a rollout (``collect.render``): the stage's scene and objects and the robot's
 links at each tick's simulated poses, rendered with Mitsuba from the reconstructed camera.
 
-A tick of the follow stands for a video frame and sees through that frame's camera; the ticks
-before it (home to grasp) see through frame 0's, those after it (release, retreat) through the
-last frame's. The moved object is drawn where the simulation put it; other objects where their
-trajectory has them at that frame."""
+A tick of the follow stands for a video frame (the nearest, where the arm follows slower than the
+video: ``Rollout.frame``) and sees through that frame's camera; the ticks before it (home to
+grasp) see through frame 0's, those after it (release, retreat) through the last frame's. The
+moved object is drawn where the simulation put it; other objects where their trajectory has them
+at that frame."""
 
 from __future__ import annotations
 
@@ -54,9 +55,8 @@ class RolloutCamera:
         """The rollout's frames, one per tick, (H, W, 3) uint8 sRGB; ``links``: (T, L, 4, 4) world
         poses of the links (``rollout.links``, or forward kinematics of a batched rollout)."""
         scene = self.renderer.scene
-        start = max(rollout.follow_start, 0)
         for tick in range(rollout.frames):
-            t = int(np.clip(tick - start, 0, self.n_frames - 1))
+            t = int(np.clip(np.rint(rollout.frame[tick]), 0, self.n_frames - 1))
             poses = self.renderer.poses_at(t)
             poses.update({name: rollout.object_pose[tick] @ offset for name, offset in self.parts.items()})
             poses.update({name: links[tick, li] for li, name in self.links})
