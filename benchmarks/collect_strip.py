@@ -28,8 +28,14 @@ def main() -> None:
     ap.add_argument("--back-m", type=float, default=0.8, help="how far the second row's camera is moved back [m]")
     ap.add_argument("--spp", type=int, default=8)
     args = ap.parse_args()
+    picture, frames = strip(args.stage, frames=args.frames, back_m=args.back_m, spp=args.spp)
+    Image.fromarray(picture).save(args.output)
+    print(f"wrote {args.output}: frames {frames}")
 
-    stage = open_stage(args.stage)
+
+def strip(stage_path, *, frames: int = 6, back_m: float = 0.8, spp: int = 8) -> tuple[np.ndarray, list[int]]:
+    """The strip (H, W, 3) uint8 of ``frames`` frames spread over the stage's time codes, and which."""
+    stage = open_stage(stage_path)
     n = int(stage.GetEndTimeCode()) + 1
     items, animated = [], {}
     purposes = {UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.proxy}
@@ -46,18 +52,17 @@ def main() -> None:
     scene = RenderScene(items, read_lighting(stage))
     camera = read_cameras(stage, n)
     rows = [[], []]
-    for t in np.linspace(0, n - 1, args.frames).round().astype(int):
+    picked = np.linspace(0, n - 1, frames).round().astype(int)
+    for t in picked:
         for name, prim in animated.items():
             pose = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode(int(t)))
             scene.set_pose(name, np.asarray(pose, dtype=float).T)
         near = camera.world_from_cv[t]
         far = near.copy()
-        far[:3, 3] -= args.back_m * near[:3, 2]  # back along the optical axis (OpenCV +z looks forward)
+        far[:3, 3] -= back_m * near[:3, 2]  # back along the optical axis (OpenCV +z looks forward)
         for row, pose in zip(rows, (near, far), strict=True):
-            row.append(scene.render_srgb8(pose, camera.K[t], camera.width, camera.height, spp=args.spp, seed=int(t)))
-    strip = np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)
-    Image.fromarray(strip).save(args.output)
-    print(f"wrote {args.output}: frames {np.linspace(0, n - 1, args.frames).round().astype(int).tolist()}")
+            row.append(scene.render_srgb8(pose, camera.K[t], camera.width, camera.height, spp=spp, seed=int(t)))
+    return np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0), picked.tolist()
 
 
 if __name__ == "__main__":

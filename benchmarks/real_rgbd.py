@@ -8,9 +8,10 @@ pictures: the masks over the video, the fitted object over the video and the gat
 Without ``--box`` the object is unprompted (found where the hand goes); ``--name`` given more
 than once names several unprompted objects. Writes into OUT:
 ``masks.png``, ``masks-count.jpg`` (the object's mask outline, enlarged, every 6th frame: what
-its masks are judged on), ``object.png``, ``gate.png`` (the gate's compare picture) and ``result.json``
-(plan, per-stage times, gate, validation, the object's size, volume, mass and watertightness,
-the largest jump of its trajectory between frames, the frames its mask is empty). The
+its masks are judged on), ``object.png``, ``gate.png`` (the gate's compare picture),
+``collect.jpg`` (the best robot rollout, ``collect_strip.py``, half size) and ``result.json`` (plan,
+per-stage times, gate, validation, the object's size, volume, mass and watertightness, the
+largest jump of its trajectory between frames, the frames its mask is empty, collect's outcome). The
 reconstruction itself goes to ``--runs``/<OUT's name> (not committed: it holds the clip's masks).
 """
 
@@ -22,6 +23,8 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+from collect_strip import strip
+from PIL import Image
 
 from rose_usd import reconstruct, registry
 from rose_usd.bench.sheets import mask_sheet, object_sheet, outline_sheet
@@ -131,7 +134,7 @@ def main() -> None:
             "rest_displacement_mm": {k: round(1e3 * v, 2) for k, v in g.rest_displacement_m.items()},
         }
         shutil.copyfile(run_dir / "report" / "compare.png", out / "gate.png")
-    for stale in ("masks.png", "masks-count.jpg", "object.png", "gate.png"):
+    for stale in ("masks.png", "masks-count.jpg", "object.png", "gate.png", "collect.jpg"):
         if stale == "gate.png" and "gate" in ran:
             continue
         (out / stale).unlink(missing_ok=True)
@@ -144,6 +147,20 @@ def main() -> None:
             result["objects"] = {name: describe(run_dir, case, name) for name in names}
     if "trajectory" in ran:
         object_sheet(case, run_dir, out / "object.png", every=args.every, crop=crop, tile_w=320, cols=6)
+    if "collect" in ran and rec.collect is not None:
+        c = rec.collect
+        result["collect"] = {
+            "object": c.object_name,
+            "status": c.status,
+            "rollouts": c.rollouts,
+            "successes": c.successes,
+            "failures": sorted({r for r, ok in zip(c.rollout_reason, c.rollout_success, strict=True) if not ok}),
+        }
+        if c.best_rollout >= 0:  # the robot along the path, through the camera and from 0.8 m behind it
+            picture, _ = strip(run_dir / "rose.usda")
+            Image.fromarray(picture).resize((picture.shape[1] // 2, picture.shape[0] // 2)).save(
+                out / "collect.jpg", quality=85
+            )
     (out / "result.json").write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result, indent=1))
 
