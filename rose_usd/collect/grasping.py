@@ -294,7 +294,7 @@ def chained_reach(
         worst_pos = np.maximum(worst_pos, p.reshape(g, n).max(axis=1))
         worst_rot = np.maximum(worst_rot, r.reshape(g, n).max(axis=1))
         q_all = q_all.reshape(g, n, -1)
-        if clearance is not None and start > 0:  # the grasp itself (pose 0) touches what it holds
+        if clearance is not None and start > 0:  # the first chunk holds the grasp: fingertips on the support
             least = np.minimum(least, clearance(q_all[:, ::2]).min(axis=1))
         q = q_all[:, -1]
     return worst_pos, worst_rot, least
