@@ -344,6 +344,9 @@ def run(ctx: StageContext) -> None:
         rollout_final_error_m=[_rounded(r.final_error_m) for r in rollouts],
         rollout_drift_m=[_rounded(r.drift_m) for r in rollouts],
         rollout_approach=[r.approach for r in rollouts],
+        # ticks of each follow, against the video's frames: more where the arm followed slower
+        rollout_follow_ticks=[int(np.count_nonzero(np.asarray(r.phase) == "follow")) for r in rollouts],
+        video_frames=int(ctx.time_info.n_frames),
         approach_checks=checker.checks,
         bases_tried=bases_tried,
         device=device,
