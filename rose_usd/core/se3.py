@@ -86,6 +86,20 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return rotation_about(axis, np.arctan2(s, c))
 
 
+def turn_down(normal: np.ndarray, *, tiny: float) -> np.ndarray:
+    """The rotation (3, 3) turning the unit vector ``normal`` onto -z, Rodrigues' formula written
+    out; the identity where the sine of the angle between them is under ``tiny`` (``normal`` along
+    -z, or along +z). Not ``rotation_between``: the same rotation to 1e-16, but the pose searches
+    that start from a set-down are that sensitive (a difference in the last bits changes their fit)."""
+    axis = np.cross(normal, [0.0, 0.0, -1.0])
+    s, c = np.linalg.norm(axis), float(-normal[2])
+    if s < tiny:
+        return np.eye(3)
+    k = axis / s
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * kx + (1 - c) * kx @ kx
+
+
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
     """``world_from_camera`` (4, 4) of an OpenCV camera (x right, y down, z forward) at ``eye``
     looking at ``target`` with the world direction ``up`` appearing up in the image."""

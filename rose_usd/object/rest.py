@@ -12,6 +12,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull
 
+from rose_usd.core import se3
 from rose_usd.core.pinhole import masked_world_points, pixels_of, view_counts
 from rose_usd.errors import InputError
 from rose_usd.geometry.contact import first_contact, ring_height
@@ -319,12 +320,4 @@ def level_rotation(vertices: np.ndarray, faces: np.ndarray, *, max_tilt_deg: flo
     inside = (trimesh.triangles.points_to_barycentric(tris, np.broadcast_to(foot, (len(same), 3))) >= -1e-9).all(axis=1)
     if not inside.any():
         return np.eye(3)
-    # Rodrigues written out rather than se3.rotation_between: the same rotation to 1e-16, but the
-    # pose search downstream is that sensitive (a difference in the last bits changes its fit)
-    axis = np.cross(n, [0.0, 0.0, -1.0])
-    s, c = np.linalg.norm(axis), float(-n[2])
-    if s < 1e-12:
-        return np.eye(3)
-    k = axis / s
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * kx + (1 - c) * kx @ kx
+    return se3.turn_down(n, tiny=1e-12)

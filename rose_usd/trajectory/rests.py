@@ -219,14 +219,7 @@ def stable_down(vertices: np.ndarray, world_from_object: np.ndarray) -> np.ndarr
     dist = -(normals @ com + offsets)
     stand = dist <= np.percentile(dist, 50)
     i = int(np.argmin(np.where(stand, normals[:, 2], np.inf)))
-    n = normals[i]
-    axis = np.cross(n, [0.0, 0.0, -1.0])
-    s, c = np.linalg.norm(axis), float(-n[2])
-    if s < 1e-9:
-        return np.eye(3)
-    k = axis / s
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * kx + (1 - c) * kx @ kx
+    return se3.turn_down(normals[i], tiny=1e-9)
 
 
 def _collider_points(stage: Usd.Stage, name: str, mesh) -> np.ndarray:
