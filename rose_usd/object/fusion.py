@@ -33,7 +33,8 @@ with no imported mesh. No learned model.
    straight down from the seen rim to the table, around the convex hull of the often seen points.
    Heights (a column's, the top of a solid of revolution) are upper medians of the points
    (``cell_upper_median``, ``top_height``): the highest point is raised by the depth noise, by
-   several millimeters.
+   several millimeters. A height field is then carved where the resting views saw past it
+   (``carve_solid``): its walls are a guess, the other completions are fitted to what was seen.
 4. **Close**: the completed solid is a voxel grid (``voxel_m``) whose occupancy ramps from 1 to 0
    over two voxels across a completed surface, so marching cubes puts the surface where it is,
    not on a voxel face; seen points outside it count only in parts of a dozen voxels or more
@@ -64,9 +65,14 @@ from rose_usd.geometry.mesh import decimate, self_intersects
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
-from rose_usd.object.rest import level_rotation, resting_clouds, support_height
+from rose_usd.object.rest import free_space_carve, level_rotation, resting_clouds, support_height
 from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
+
+CARVE_TOLERANCE_M = 0.003
+"""A completed voxel is carved where a resting view's depth, at the voxel's pixel, lies this far
+beyond it. Voxels behind the seen surface are never carved (the depth there is nearer), so the
+sensor's noise at the surface only decides about the voxels right at it."""
 
 
 def _circle_fit(xy: np.ndarray, *, geometric: bool = False, scale_m: float = 0.002) -> tuple[np.ndarray, float]:
@@ -426,6 +432,25 @@ def _large_parts(idx: np.ndarray, shape: tuple, *, min_voxels: int) -> np.ndarra
     return (sizes >= min_voxels)[labels] & grid
 
 
+def carve_solid(solid: np.ndarray, lo_world: np.ndarray, step_m: float, views) -> np.ndarray:
+    """``solid`` emptied where the resting views saw past it (``rest.free_space_carve`` on its
+    voxels' centers, each view's own pixel; ``lo_world``: voxel 0's corner in the world). A
+    completion guesses what was never seen: a height field's walls stand straight down from the
+    edge a camera sees, and under a lying can's near side that camera sees the table where they
+    stand. Voxels the views never see past (behind the seen surface) keep what the completion
+    made of them."""
+    filled = np.argwhere(solid > 0)
+    if not len(views) or not len(filled):
+        return solid
+    centers = lo_world + (filled + 0.5) * step_m
+    free = ~free_space_carve(centers, views, tolerance_m=CARVE_TOLERANCE_M, window=1)
+    carved = solid.copy()
+    carved[tuple(filled[free].T)] = 0.0
+    # a bottom voxel lies within the tolerance of the table behind it: it goes with the one above
+    carved[..., 0] = np.where(carved[..., 1] < solid[..., 1], carved[..., 1], carved[..., 0])
+    return carved
+
+
 def mesh_from_solid(
     solid: np.ndarray, lo: np.ndarray, step_m: float, max_triangles: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -509,7 +534,7 @@ def _closed_surface(ctx: StageContext, name: str, pts: np.ndarray, cloud, suppor
     first: list[str] = []
     for factor in (1.0, 1.5, 2.0):
         step = replace(cfg, voxel_m=cfg.voxel_m * factor)
-        vertices, faces, how, above = complete(pts, cloud.toward, cloud.often, support, step)
+        vertices, faces, how, above = complete(pts, cloud.toward, cloud.often, support, step, views=cloud.views)
         problems = _mesh_problems(vertices, faces)
         if not problems:
             if factor > 1.0:
@@ -538,11 +563,12 @@ def _mesh_problems(vertices: np.ndarray, faces: np.ndarray) -> list[str]:
 
 
 def complete(
-    points: np.ndarray, toward: np.ndarray, often: np.ndarray, support: float, cfg
+    points: np.ndarray, toward: np.ndarray, often: np.ndarray, support: float, cfg, *, views=()
 ) -> tuple[np.ndarray, np.ndarray, str, np.ndarray]:
     """Steps 3 and 4 for one object's cleaned world points standing on ``support``: its closed
     surface (vertices in the world, faces), how it was completed, and which points were used
-    (those above the support by ``cfg.support_gap_m``)."""
+    (those above the support by ``cfg.support_gap_m``). ``views`` (depth, K, world_from_cv) of
+    resting frames carve a height field (``carve_solid``)."""
     above = points[:, 2] > support + cfg.support_gap_m
     lift = np.array([0.0, 0.0, support])
     solid, lo, step, how = solid_from_points(
@@ -553,5 +579,7 @@ def complete(
         outline=often[above],
         toward=toward[above],
     )
+    if how == "height-field":  # a revolved solid and a vessel are fitted to what was seen
+        solid = carve_solid(solid, lo + lift, step, views)
     vertices, faces = mesh_from_solid(solid, lo, step, cfg.max_triangles)
     return vertices + lift, faces, how, above

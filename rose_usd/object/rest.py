@@ -93,6 +93,9 @@ class RestingCloud:
     """Per point: the mean unit direction from it to the cameras that saw it (which way a wall faces)."""
     ground: float = 0.0
     """The height of the surface around the object [m] (0 = the world's support plane)."""
+    views: tuple = ()
+    """(depth, K, world_from_cv) of up to 16 resting frames, spread over the rest: what the
+    camera saw past (``free_space_carve``)."""
 
 
 def spread_frames(frames: list[int], count: int) -> list[int]:
@@ -166,12 +169,18 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
                 path=folder,
                 hint="check its masks and the depth",
             )
-        clouds[spec.name] = RestingCloud(pts, cols, frames, masks, often, toward, ground)
+        clouds[spec.name] = RestingCloud(pts, cols, frames, masks, often, toward, ground, tuple(views))
     return clouds
 
 
 def free_space_carve(
-    points: np.ndarray, views: list, *, tolerance_m: float = 0.004, fraction: float = 0.3, min_views: int = 2
+    points: np.ndarray,
+    views: list,
+    *,
+    tolerance_m: float = 0.004,
+    fraction: float = 0.3,
+    min_views: int = 2,
+    window: int = 3,
 ) -> np.ndarray:
     """Which points no view sees through (a mask): free-space carving.
 
@@ -179,12 +188,12 @@ def free_space_carve(
     fused over a rest they make a dense wall that outlier removal keeps (a strip 5-30 mm above a
     box's top edge lifts an object stacked on it that high). A point is dropped when, in
     at least ``min_views`` views and ``fraction`` of the views it falls in, even the nearest depth
-    of the 3x3 pixels around it lies beyond it by ``tolerance_m``: that view saw past it. Things
+    of the ``window`` x ``window`` pixels around it lies beyond it by ``tolerance_m``: that view saw past it. Things
     in front (a hand) only make depth nearer. ``views``: (depth, K, world_from_cv) of frames in
     which the object rests."""
     if not len(points) or not views:
         return np.ones(len(points), bool)
-    through, _, observed = view_counts(points, views, tol_m=tolerance_m, window=3)
+    through, _, observed = view_counts(points, views, tol_m=tolerance_m, window=window)
     return ~((through >= min_views) & (through >= fraction * observed))
 
 
