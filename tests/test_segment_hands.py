@@ -139,3 +139,33 @@ def test_sensor_holes_in_a_sleeve_are_bridged_and_nothing_else():
     hand[49:52, 76:80] = False
     depth[49:52, 76:80] = 0.0
     assert np.array_equal(bridge_holes(hand, depth), hand)
+
+
+def test_an_object_back_from_hiding_is_taken_off_the_hand_beside_its_stale_points():
+    """A tracked face (10 cm, 0.5 m away) hidden for 3 frames (under a cup) comes back in the hand
+    1 cm beside where its last points are: its pixels lie on the arm, outside the silhouette
+    those stale points show, within core_m of them. A track seen in the frame before is held to
+    its silhouette (fingers around it are not it); a hidden one is not (the ball of cups-rgbd,
+    taken out from under the cup, was never found again)."""
+    from types import SimpleNamespace
+
+    from rose_usd.segment.segmenter import Segmenter
+
+    K = np.array([[200.0, 0, W / 2], [0, 200.0, H / 2], [0, 0, 1]])  # 2.5 mm a pixel at 0.5 m
+    g = np.linspace(-0.05, 0.05, 60)
+    face = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    points = np.column_stack([face, np.full(len(face), 0.5)])
+    depth = np.full((H, W), 0.5, np.float32)
+    xs = np.full(10, W // 2 + 24)  # x = 6 cm: 1 cm beside the face's edge, 2 px beyond its silhouette
+    ys = np.arange(H // 2 - 5, H // 2 + 5)
+    d = np.full(len(xs), 0.01)
+    arm = np.ones((H, W), bool)
+    seg = SimpleNamespace(
+        cam=SimpleNamespace(world_from_cv=[np.eye(4)], K=[K]),
+        frame=lambda t: SimpleNamespace(depth=depth),
+        config=SimpleNamespace(occluder_m=0.01),
+    )
+    for hidden, taken in ((0, False), (3, True)):
+        track = SimpleNamespace(hidden=hidden, motion_m=lambda: 0.0)
+        ok = Segmenter._arm_allows(seg, 0, track, points, (ys, xs, d), 0.015, arm, True)
+        assert ok.all() if taken else not ok.any(), (hidden, ok.mean())

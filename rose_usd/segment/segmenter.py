@@ -26,7 +26,8 @@ under it (``geometry.support``: the table as the video sees it, which may bend a
    and it is depth-connected to a core of pixels within ``core_m`` of the moved points. Pixels
    connected to a found hand (its fingers, its arm, what it holds) are the object's only within
    ``core_m`` of the moved points, inside the silhouette they show and not in front of their
-   surface by more than ``occluder_m`` (fingers wrapped around it). With no hand found, the
+   surface by more than ``occluder_m`` (fingers wrapped around it); an object hidden in the
+   frame before, only within ``core_m`` of its stale points. With no hand found, the
    interactor's region of the frame before, followed into this one (``interactor.following_arm``), is
    taken as the arm, by the same rule save the silhouette (a part the points never covered may
    join: a lying can's end cap beside the thumb). A pixel belongs to one
@@ -494,7 +495,8 @@ class Segmenter:
         not in front of the surface those show and, with ``arm_found``, inside their silhouette.
         Without ``arm_found`` (an arm followed from the interactor's last mask, no hand found) a
         part the points never covered stays (a lying can's end cap beside the thumb), and a track
-        hidden in the frame before is not held to its stale points at all.
+        hidden in the frame before is not held to its stale points at all; with it, such a track
+        is held to ``core_m`` of them alone.
         Pixels of ``exclude`` (a hand found by its landmarks) belong to no object without a skin
         model; with one (``skin``), they are taken as the arm's are, and the fingers on the object
         are peeled off its mask by their color (``peel_skin``)."""
@@ -555,10 +557,12 @@ class Segmenter:
         is searched as widely as it was hidden); else those off the arm, and those on it near the
         track's points and on the surface they show: within its predicted silhouette (with
         ``arm_found``), not in front of it (fingers wrapped around it are within core_m of its
-        points)."""
+        points); for a track hidden in the frame before, near its stale points alone."""
         ys, xs, d = found
         if arm is None or (track.hidden and not arm_found):
             return np.ones(len(d), bool)
+        if track.hidden:  # it comes back where the hand brings it, beside its stale points' silhouette
+            return ~arm[ys, xs] | (d < core_m)
         off = off_surface(
             pred,
             self.cam.world_from_cv[t],
