@@ -115,3 +115,36 @@ def test_level_turns_small_tilts_only_and_mean_pose_averages():
     assert np.array_equal(level(on_side, flat, _cube().vertices), on_side)
     poses = np.array([_pose(0.0, 0.0, yaw_deg=a) for a in (-2.0, 0.0, 2.0)])
     assert np.allclose(mean_pose(poses), _pose(0.0, 0.0), atol=1e-9)
+
+
+def _cut_ball(radius=0.025, cut=0.8):
+    """A ball of 1280 faces with a flat cut through its bottom, ``cut`` x radius below its center
+    (a fused ball's flat pad): (vertices, faces)."""
+    import trimesh
+
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
+    cut_mesh = ball.slice_plane([0, 0, -cut * radius], [0, 0, 1], cap=True)
+    return np.asarray(cut_mesh.vertices), np.asarray(cut_mesh.faces)
+
+
+def test_a_round_object_set_down_turned_is_stood_on_its_flat_face_not_a_facet():
+    """A ball with a flat pad, set down turned every which way: stable_down turns it onto the pad
+    (its center of mass stands 37 deg inside the pad's rim), never onto one of the small facets
+    of its round side that happens to face down (1-2 deg inside theirs: Newton rolls it off; cups-
+    rgbd's ball rolled 2.7 m in the gate's rest check). A box stays on the face nearest down."""
+    from scipy.spatial.transform import Rotation
+
+    from rose_usd.core import se3
+    from rose_usd.trajectory.rests import stable_down
+
+    vertices, faces = _cut_ball()
+    for seed in range(8):
+        rot = Rotation.random(random_state=seed).as_matrix()
+        pose = se3.make_pose(rot, np.array([0.1, 0.2, 0.3]))
+        turn = stable_down(vertices, pose, faces)
+        pad_normal = turn @ rot @ np.array([0.0, 0.0, -1.0])
+        assert pad_normal[2] < -0.9999, (seed, pad_normal)
+    box = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.03, 0.03) for z in (-0.02, 0.02)])
+    tilt = Rotation.from_euler("x", 30, degrees=True).as_matrix()
+    turn = stable_down(box, se3.make_pose(tilt, np.zeros(3)))
+    assert np.allclose(turn @ tilt @ np.array([0.0, 0.0, -1.0]), [0, 0, -1], atol=1e-9)

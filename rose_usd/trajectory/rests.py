@@ -17,8 +17,8 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
+import trimesh
 from pxr import Usd
-from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from rose_usd.core import se3
@@ -55,6 +55,10 @@ MAX_DROP_M = 0.05
 
 LEVEL_DEG = 10.0
 """A set-down pose whose up is within this of the object's up at its frame-0 rest is levelled [deg]."""
+
+MIN_TIP_DEG = 5.0
+"""A face holds the object when its center of mass stands this far inside the face's edges, as
+the tilt that would tip it over [deg]."""
 
 
 def mean_pose(poses: np.ndarray) -> np.ndarray:
@@ -209,17 +213,48 @@ def _turned(pose: np.ndarray, turn: np.ndarray, vertices: np.ndarray) -> np.ndar
     return se3.make_pose(turn, centre - turn @ centre) @ pose
 
 
-def stable_down(vertices: np.ndarray, world_from_object: np.ndarray) -> np.ndarray:
-    """The rotation (3, 3, world) that turns the posed object onto the face of its convex hull that
-    faces most nearly down (of the faces near enough its center of mass to stand on)."""
+def stable_down(vertices: np.ndarray, world_from_object: np.ndarray, faces: np.ndarray | None = None) -> np.ndarray:
+    """The rotation (3, 3, world) that turns the posed object onto the face it can stand on that
+    faces most nearly down: a face of its convex hull (coplanar triangles one face) on which its
+    center of mass (of the mesh with ``faces``, else of the hull) stands at least ``MIN_TIP_DEG``
+    inside the face's edges (``standing_faces``), or the steadiest face where none does. A round
+    object's small facets hold it by a degree or two: Newton rolls it off them."""
     world = se3.transform_points(world_from_object, vertices)
-    hull = ConvexHull(world)
-    normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
-    com = world.mean(axis=0)
-    dist = -(normals @ com + offsets)
-    stand = dist <= np.percentile(dist, 50)
-    i = int(np.argmin(np.where(stand, normals[:, 2], np.inf)))
+    com = trimesh.Trimesh(world, faces, process=False).center_mass if faces is not None else None
+    normals, tip_deg = standing_faces(world, com)
+    ok = tip_deg >= min(MIN_TIP_DEG, float(tip_deg.max()))
+    i = int(np.argmin(np.where(ok, normals[:, 2], np.inf)))
     return se3.turn_down(normals[i], tiny=1e-9)
+
+
+def standing_faces(points: np.ndarray, com: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The faces of the convex hull of ``points`` (coplanar triangles merged): their outward unit
+    normals (F, 3) and how far the center of mass ``com`` (default the hull's) stands inside each,
+    as the tilt [deg] that would tip it over the nearest edge (negative: it falls off that face)."""
+    hull = trimesh.convex.convex_hull(points)
+    com = hull.center_mass if com is None else np.asarray(com, float)
+    groups = [np.asarray(g) for g in hull.facets]
+    merged = np.zeros(len(hull.faces), bool)
+    for g in groups:
+        merged[g] = True
+    groups += [np.array([i]) for i in np.flatnonzero(~merged)]
+    normals = np.array([hull.face_normals[g[0]] for g in groups])
+    tips = np.empty(len(groups))
+    for k, g in enumerate(groups):
+        tri = hull.triangles[g]
+        height = float(np.dot(com - tri[0, 0], -normals[k]))
+        foot = com + height * normals[k]
+        inside = np.any(
+            np.all(trimesh.triangles.points_to_barycentric(tri, np.repeat(foot[None], len(g), 0)) >= -1e-9, axis=1)
+        )
+        edges = np.sort(hull.faces[g][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        unique, count = np.unique(edges, axis=0, return_counts=True)
+        a, b = hull.vertices[unique[count == 1, 0]], hull.vertices[unique[count == 1, 1]]
+        ab = b - a
+        along = np.clip(np.einsum("ij,ij->i", foot - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18), 0, 1)
+        margin = float(np.linalg.norm(a + along[:, None] * ab - foot, axis=1).min())
+        tips[k] = np.degrees(np.arctan2(margin if inside else -margin, max(height, 1e-9)))
+    return normals, tips
 
 
 def _collider_points(stage: Usd.Stage, name: str, mesh) -> np.ndarray:
