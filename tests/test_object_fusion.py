@@ -409,29 +409,6 @@ def test_a_mesh_pinched_at_a_vertex_is_a_problem_not_a_crash():
     assert problems
 
 
-def _lying_cylinder_view(radius=0.04, length=0.10, eye=(0.45, 0.0, 0.30), size=(320, 240), f=400.0):
-    """A cylinder lying on the table (axis along y, resting on z = 0) and the table, seen from
-    ``eye``: the depth image (exact, ray-cast), the cylinder's mask, K and world_from_cv."""
-    from rose_usd.core import se3
-    from rose_usd.core.pinhole import backproject
-
-    w, h = size
-    K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]])
-    pose = se3.look_at(np.array(eye), np.array([0.0, 0.0, radius]))
-    u, v = np.meshgrid(np.arange(float(w)), np.arange(float(h)))
-    rays = backproject(u, v, np.ones_like(u), K) @ pose[:3, :3].T  # world step per unit of depth
-    e = pose[:3, 3]
-    plane = -e[2] / rays[..., 2]
-    a = rays[..., 0] ** 2 + rays[..., 2] ** 2
-    b = 2 * (e[0] * rays[..., 0] + (e[2] - radius) * rays[..., 2])
-    c = e[0] ** 2 + (e[2] - radius) ** 2 - radius**2
-    disc = b**2 - 4 * a * c
-    t = np.where(disc > 0, (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a), np.inf)
-    hit = np.isfinite(t) & (np.abs(e[1] + t * rays[..., 1]) <= length / 2) & (t < plane)
-    depth = np.where(hit, t, np.where(plane > 0, plane, 0.0)).astype(np.float32)
-    return depth, hit, K, pose
-
-
 def test_a_lying_cylinder_seen_from_one_side_is_carved_where_the_camera_sees_past_it():
     """A can lying on its side, seen obliquely from one camera: the height field stands walls
     straight down to the table from the near side it sees, under the can's overhang, where the
