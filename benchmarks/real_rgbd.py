@@ -27,6 +27,7 @@ from collect_strip import strip
 from PIL import Image
 
 from rose_usd import reconstruct, registry
+from rose_usd.bench.coverage import silhouette_ious
 from rose_usd.bench.sheets import mask_sheet, object_sheet, outline_sheet
 from rose_usd.case.layout import load_case
 from rose_usd.layers.masks import read_masks
@@ -77,6 +78,7 @@ def describe(run_dir: Path, case, name: str) -> dict:
             trajectory_max_step_m=round(float(steps.max()), 4),
             trajectory_max_step_frame=int(np.argmax(steps)) + 1,
             trajectory_travel_m=round(float(steps.sum()), 3),
+            silhouette_iou=silhouette_ious(stage, case, name),
         )
     masks = read_masks(stage, n, (case.height, case.width))
     if name in masks.names:
