@@ -275,7 +275,9 @@ def write_readme(result: dict, out: Path, argv: list[str], note: str | None) -> 
     lines += [f"- complete stage: {complete}; `rose-usd validate`: {valid}"]
     g = result.get("gate")
     if g:
-        rest = ", ".join(f"{p['name']} {1e3 * p['max_displacement_m']:.2f} mm" for p in g.get("physics") or [])
+        checks = g.get("physics") or []
+        rest = ", ".join(f"{p['name']} {1e3 * p['max_displacement_m']:.2f} mm from frame {p['frame']}" for p in checks)
+        rest = rest or "none checked (no object is seen at rest)"
         lines.append(
             f"- gate SSIM mean {g['ssim_mean']:.3f} (min {g['ssim_min']:.3f}, {g['frames_rendered']} frames;"
             f" issue 27's bar 0.60, the gate's own threshold {g['ssim_threshold']}); rest drift {rest};"
