@@ -412,10 +412,9 @@ def test_a_mesh_pinched_at_a_vertex_is_a_problem_not_a_crash():
 def test_a_lying_cylinder_seen_from_one_side_is_carved_where_the_camera_sees_past_it():
     """A can lying on its side, seen obliquely from one camera: the height field stands walls
     straight down to the table from the near side it sees, under the can's overhang, where the
-    camera sees the table (its silhouette spills 11-19 % of the can's area over it). The views
-    that see the table there carve most of it away, down to the bottom voxel (5-6 % stays: the
-    band within a pixel of the can's outline, which the 3 x 3 window keeps); what the camera sees
-    of the can stays covered."""
+    camera sees the table (its silhouette spills 12-19 % of the can's area over it). The views
+    that see the table there carve it away, down to the bottom voxel; what the camera sees of
+    the can stays covered."""
     from rose_usd.core import se3
     from rose_usd.core.pinhole import backproject, silhouette
     from rose_usd.object.config import ObjectConfig
@@ -436,7 +435,7 @@ def test_a_lying_cylinder_seen_from_one_side_is_carved_where_the_camera_sees_pas
             spill[label] = np.count_nonzero(sil & ~hit) / np.count_nonzero(hit)
             covered[label] = np.count_nonzero(sil & hit) / np.count_nonzero(hit)
         assert spill["uncarved"] > 0.10, spill  # what carving is for
-        assert spill["carved"] < 0.5 * spill["uncarved"], spill
+        assert spill["carved"] < 0.035, spill
         assert covered["carved"] > 0.97 and covered["carved"] > covered["uncarved"] - 0.01, covered
 
 

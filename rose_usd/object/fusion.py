@@ -434,8 +434,7 @@ def _large_parts(idx: np.ndarray, shape: tuple, *, min_voxels: int) -> np.ndarra
 
 def carve_solid(solid: np.ndarray, lo_world: np.ndarray, step_m: float, views) -> np.ndarray:
     """``solid`` emptied where the resting views saw past it (``rest.free_space_carve`` on its
-    voxels' centers: the nearest depth of the 3 x 3 pixels around each, so that a voxel at the
-    object's outline, a pixel off, is not carved; ``lo_world``: voxel 0's corner in the world). A
+    voxels' centers, each view's own pixel; ``lo_world``: voxel 0's corner in the world). A
     completion guesses what was never seen: a height field's walls stand straight down from the
     edge a camera sees, and under a lying can's near side that camera sees the table where they
     stand. Voxels the views never see past (behind the seen surface) keep what the completion
@@ -444,7 +443,7 @@ def carve_solid(solid: np.ndarray, lo_world: np.ndarray, step_m: float, views) -
     if not len(views) or not len(filled):
         return solid
     centers = lo_world + (filled + 0.5) * step_m
-    free = ~free_space_carve(centers, views, tolerance_m=CARVE_TOLERANCE_M, window=3)
+    free = ~free_space_carve(centers, views, tolerance_m=CARVE_TOLERANCE_M, window=1)
     carved = solid.copy()
     carved[tuple(filled[free].T)] = 0.0
     # a bottom voxel lies within the tolerance of the table behind it: it goes with the one above
