@@ -90,7 +90,7 @@ def settle(
 def _sideways(world: np.ndarray, supports: list, max_push_m: float) -> np.ndarray:
     """The horizontal move (3,) that takes the points out of what they sink into from the side:
     among the points deeper than ``TOUCHING_M`` inside a support, those whose way out (to the
-    nearest surface point) is within 60 deg of horizontal; moved along their mean horizontal way
+    nearest surface point) is within 30 deg of horizontal; moved along their mean horizontal way
     out, by the deepest of them along it plus the clearance. Zero when there are none, or when
     the move would exceed ``max_push_m`` (not a contact error: a wrong pose)."""
     best = np.zeros(3)
