@@ -145,7 +145,7 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
             )
         frames = [t for t, _ in rests]
         typical = float(np.median([r for _, r in rests]))
-        carve_at = {rests[i][0] for i in np.unique(np.linspace(0, len(rests) - 1, min(16, len(rests))).astype(int))}
+        carve_at = set(spread_frames(frames, 16))
         views = []  # the resting views that carve the fused points (their depth read once)
         for t, ratio in rests:  # every frame's depth brought to the rest's typical scale
             depth = depth_of(t) * np.float32(typical / ratio)
