@@ -70,10 +70,11 @@ class ArmChecker:
 
         chain = panda.chain()
         rng = np.random.default_rng(seed)
-        link_index, points = [], []
+        link_index, points, self._links = [], [], []
         for link, mesh in link_meshes().items():
             if link in skip_links:
                 continue
+            self._links.append(chain.index(link))
             tri = mesh.vertices[mesh.faces]
             area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
             count = int(np.clip(area / spacing_m**2, 20, 2000))
@@ -83,7 +84,6 @@ class ArmChecker:
         self.link_of_point = np.concatenate(link_index)
         self.points = np.concatenate(points)
         # each link's points in a sphere: links far from every obstacle need no point checked
-        self._links = [chain.index(link) for link in link_meshes() if link not in skip_links]
         self._link_points = points
         self._centres = np.array([p.mean(axis=0) for p in points])
         self._radii = np.array([np.linalg.norm(p - c, axis=1).max() for p, c in zip(points, self._centres)])
