@@ -54,3 +54,40 @@ def test_a_static_camera_is_told_from_a_moving_one():
     panned = [np.roll(smooth[0], 2 * t, axis=1) for t in range(len(smooth))]
     assert still_fraction(lambda t: smooth[t], len(smooth)) > 0.6
     assert still_fraction(lambda t: panned[t], len(panned)) < 0.05
+
+
+def _blocks(h=240, w=320, seed=1):
+    """A cluttered view: textured blocks at 0.5-0.9 m in front of a textured wall at 1.5 m, each
+    block's colour its own (its silhouette is a colour edge as well as a depth one)."""
+    rng = np.random.default_rng(seed)
+    rgb = cv2.GaussianBlur(rng.integers(60, 200, (h, w, 3)).astype(np.uint8), (0, 0), 2.0)
+    depth = np.full((h, w), 1.5, np.float32)
+    for _ in range(7):
+        y, x = int(rng.integers(10, h - 70)), int(rng.integers(10, w - 70))
+        bh, bw = int(rng.integers(25, 60)), int(rng.integers(25, 60))
+        rgb[y : y + bh, x : x + bw] = rng.integers(0, 256, 3)
+        depth[y : y + bh, x : x + bw] = rng.uniform(0.5, 0.9)
+    return rgb, depth
+
+
+def test_depth_registered_to_colour_is_told_by_its_edges():
+    """A depth map whose silhouettes lie on the colour's edges is registered; shifted by 6 px
+    (a depth camera's calibration error) it is not, and the offset that puts it back is found."""
+    from rose_usd.geometry.registration import edge_alignment
+
+    views = [_blocks(seed=s) for s in range(4)]
+    rgb_of = lambda t: views[t][0]  # noqa: E731
+    aligned = edge_alignment(rgb_of, lambda t: views[t][1], range(4))
+    assert aligned.registered and (aligned.dx, aligned.dy) == (0, 0)
+    assert aligned.at_zero_px < 0.5 * aligned.typical_px
+    off = edge_alignment(rgb_of, lambda t: shift_depth(views[t][1], 6, -2), range(4))
+    assert not off.registered and (off.dx, off.dy) == (-6, 2)
+
+
+def test_without_depth_silhouettes_nothing_is_claimed_registered():
+    """A flat wall has no depth edges to check colour against: not registered (so nothing relies on it)."""
+    from rose_usd.geometry.registration import edge_alignment
+
+    rgb, _ = _blocks()
+    flat = edge_alignment(lambda t: rgb, lambda t: np.full(rgb.shape[:2], 1.0, np.float32), range(3))
+    assert not flat.registered and flat.frames == 0

@@ -3,12 +3,17 @@
 Cameras: a static camera (most first-frame corners stay put, capture.static) keeps the first
 frame's pose, and its depth is checked for a shift against the colour (geometry.registration,
 applied and recorded in the world layer when found); a moving one is tracked by keyframe RGB-D
-tracking with a pose graph (capture.tracking). Gravity from the
+tracking with a pose graph (capture.tracking), with its photometric term on every keyframe when
+the depth's silhouettes lie on the colour's edges (geometry.registration.edge_alignment: colour
+registered to depth constrains what the depth leaves loose), else only where the geometry is
+degenerate (a colour image off its depth biases it: 7-Scenes' Kinect). Gravity from the
 support plane of the fused points, GeoCalib or an IMU (capture.gravity); the world origin under the
 prompted object (capture.anchor). Sensor depth is metric: alpha = 1, beta = 0.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -18,9 +23,12 @@ from rose_usd.capture.tracking import RgbdTracker, TrackingParams, can_bind_cpu,
 from rose_usd.capture.world import author_tracked_world, fused_points, locate
 from rose_usd.core import se3
 from rose_usd.errors import InputError
-from rose_usd.geometry.registration import DepthShift, find_depth_shift, shift_depth
+from rose_usd.geometry.registration import DepthShift, edge_alignment, find_depth_shift, shift_depth
 from rose_usd.layers.world import cached_frames
 from rose_usd.stage_api import StageContext
+
+ALIGNMENT_FRAMES = 8
+"""Frames, spread over the video, whose depth silhouettes are checked against the colour's edges."""
 
 
 def run(ctx: StageContext) -> None:
@@ -119,9 +127,14 @@ def _fill_dropped(poses_valid: np.ndarray, frames: np.ndarray, n: int) -> np.nda
 
 def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of, valid: np.ndarray):
     """Poses of a moving camera by keyframe RGB-D tracking over the frames with valid depth, the
-    others interpolated: (poses, keyframes, what to record)."""
+    others interpolated, the photometric term on every keyframe when the colour is registered to
+    the depth: (poses, keyframes, what to record)."""
     case = ctx.case
     frames = np.flatnonzero(valid)
+    checked = np.unique(np.linspace(0, len(frames) - 1, min(ALIGNMENT_FRAMES, len(frames))).round().astype(int))
+    alignment = edge_alignment(case.rgb, depth_of, frames[checked].tolist())
+    if alignment.registered:
+        params = replace(params, method="hybrid")
     if ctx.config.rgbd.repeatable and can_bind_cpu():
         result = track_on_one_cpu(case, frames.tolist(), K, params)
     else:
@@ -146,6 +159,14 @@ def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of, v
         "keyframe_edges": len(result.keyframe_edges),
         "fitness_min": round(float(result.fitness.min()), 3),
         "fitness_mean": round(float(result.fitness.mean()), 3),
+        "colour_registration": {
+            "dx": alignment.dx,
+            "dy": alignment.dy,
+            "edge_distance_px": round(alignment.at_zero_px, 3),
+            "typical_px": round(alignment.typical_px, 3),
+            "frames": alignment.frames,
+            "registered": alignment.registered,
+        },
     }
     return poses, keyframes, record
 

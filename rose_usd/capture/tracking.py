@@ -13,6 +13,8 @@ real RGB-D sensors often have color and depth registered only approximately, whi
 photometric term. A keyframe's geometry is degenerate when its surface normals do not span all
 directions: the smallest eigenvalue of their scatter matrix, relative to the largest, is below
 ``min_normal_spread`` (typical values: a tabletop, 0.01-0.05; the 7-Scenes kitchen, 0.39-0.47).
+The rgbd backend asks for the photometric term on every keyframe (``method = "hybrid"``) where
+the colour is registered to the depth (``geometry.registration.edge_alignment``).
 Moving parts (the object, the hand) and invalid depth are outliers for the robust losses and the
 depth-difference gate; pixels can also be masked out explicitly.
 

@@ -1,5 +1,6 @@
-"""Depth-to-colour registration check for a static camera: the pixel shift that puts what moves
-in the depth on what moves in the colour.
+"""Depth-to-colour registration checks: for a static camera, the pixel shift that puts what moves
+in the depth on what moves in the colour (``find_depth_shift``); for any camera, whether the
+depth's silhouettes lie on the colour's edges (``edge_alignment``).
 
 "Aligned" depth from real sensors is often not: a stream aligned with another profile's
 extrinsics, or cropped from another aspect ratio, puts every depth silhouette some pixels off its
@@ -15,7 +16,7 @@ at once by FFT cross-correlation.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import cv2
@@ -110,3 +111,91 @@ def shift_depth(depth: np.ndarray, dx: int, dy: int) -> np.ndarray:
     src_x, dst_x = slice(max(-dx, 0), w - max(dx, 0)), slice(max(dx, 0), w - max(-dx, 0))
     out[dst_y, dst_x] = depth[src_y, src_x]
     return out
+
+
+EDGE_CAP_PX = 5.0
+"""A depth silhouette pixel farther than this from every colour edge counts as this far [px]."""
+EDGE_CONTRAST = 0.8
+"""Registered: the silhouettes' mean edge distance at no offset is at most this fraction of its
+median over all offsets (measured: registered RealSense depth 0.60; 7-Scenes' Kinect depth, which
+the colour camera does not share, 0.95; cups-rgbd's depth, 20 px off, 0.88)."""
+
+
+@dataclass(frozen=True)
+class EdgeAlignment:
+    dx: int
+    """Depth pixel (x, y) lies on the colour's edges at (x + dx, y + dy) (as ``DepthShift``)."""
+    dy: int
+    at_best_px: float
+    """Mean distance from a depth silhouette pixel to the nearest colour edge at (dx, dy) [px]."""
+    at_zero_px: float
+    """The same at no offset."""
+    typical_px: float
+    """Its median over every offset tried: what an unrelated offset gives."""
+    frames: int
+    """Frames with enough depth silhouette to measure."""
+
+    @property
+    def registered(self) -> bool:
+        """The best offset is within a pixel of none, and no offset is clearly as good as an
+        unrelated one (a view with few colour edges at its depth silhouettes proves nothing)."""
+        return (
+            self.frames > 0
+            and max(abs(self.dx), abs(self.dy)) <= 1
+            and self.at_zero_px <= EDGE_CONTRAST * self.typical_px
+        )
+
+
+def edge_alignment(
+    rgb_of: Callable[[int], np.ndarray],
+    depth_of: Callable[[int], np.ndarray],
+    frames: Iterable[int],
+    *,
+    max_px: int = 16,
+    samples: int = 3000,
+) -> EdgeAlignment:
+    """How well depth silhouettes lie on colour edges, at every integer offset within ``max_px``,
+    over ``frames`` (any camera: each frame is compared with itself). A silhouette pixel is the
+    near side of a depth jump of 3 cm or 3 %; colour edges are Canny's on the smoothed gray image."""
+    span = np.arange(-max_px, max_px + 1)
+    total = np.zeros((len(span), len(span)))
+    used = 0
+    rng = np.random.default_rng(0)
+    for t in frames:
+        rgb, depth = rgb_of(t), np.asarray(depth_of(t), np.float32)
+        ys, xs = _silhouette_pixels(depth, max_px)
+        if len(ys) < 50:
+            continue
+        if len(ys) > samples:
+            keep = rng.choice(len(ys), samples, replace=False)
+            ys, xs = ys[keep], xs[keep]
+        gray = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), (5, 5), 0)
+        edges = cv2.Canny(gray, 30, 90) > 0
+        dist = np.minimum(cv2.distanceTransform((~edges).astype(np.uint8), cv2.DIST_L2, 3), EDGE_CAP_PX)
+        # dist at every offset of every pixel: (offsets_y, offsets_x, pixels) gathered at once
+        rows = ys[None, :] + span[:, None]
+        cols = xs[None, :] + span[:, None]
+        total += dist[rows[:, None, :], cols[None, :, :]].mean(axis=-1)
+        used += 1
+    if not used:
+        return EdgeAlignment(0, 0, EDGE_CAP_PX, EDGE_CAP_PX, EDGE_CAP_PX, 0)
+    total /= used
+    i, j = np.unravel_index(int(np.argmin(total)), total.shape)
+    return EdgeAlignment(
+        int(span[j]), int(span[i]), float(total[i, j]), float(total[max_px, max_px]), float(np.median(total)), used
+    )
+
+
+def _silhouette_pixels(depth: np.ndarray, margin: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the pixels on the near side of a depth jump (a 4-neighbour 3 cm or
+    3 % farther), ``margin`` or more pixels from the border."""
+    valid = depth > 0
+    near = np.zeros_like(valid)
+    pad = np.pad(depth, 1)
+    h, w = depth.shape
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        other = pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+        near |= valid & (other > 0) & (other - depth > np.maximum(0.03, 0.03 * depth))
+    inner = np.zeros_like(near)
+    inner[margin : h - margin, margin : w - margin] = True
+    return np.nonzero(near & inner)
