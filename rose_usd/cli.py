@@ -410,8 +410,8 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
         action="append",
         metavar="[NAME=]FRAME:X0,Y0,X1,Y1",
         help="an object's prompt box (or FRAME:X,Y point) in pixels, overriding rose.toml"
-        " (repeatable; NAME may be left out for one object); segment's, and capture sfm's (RGB only:"
-        " the prompted object sets the world's origin and metric scale)",
+        " (repeatable; NAME may be left out for one object); segment's and capture's (the prompted"
+        " object sets the world's origin; with RGB only, its metric scale too)",
     )
     p.add_argument("--force", action="store_true", help="re-run stages even when their layer is up to date")
     p.add_argument(

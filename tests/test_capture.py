@@ -63,6 +63,24 @@ def test_rgbd_world_frame_follows_the_contract(rgbd_out, sample_case):
     assert prim.GetAttribute("rose:world:scaleSource").Get() == "sensor"
 
 
+def test_a_command_line_prompt_places_the_origin_as_rose_toml_s_does(rgbd_out, case_copy, tmp_path):
+    """--prompt is the prompt a user gives without editing rose.toml: the rgbd world's origin goes
+    under that object as under rose.toml's (not where the first view's center meets the table)."""
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text().replace("prompt = { frame = 0, box = [174, 90, 208, 127] }\n", ""))
+    out = tmp_path / "out"
+    argv = ["run", "capture", str(case_copy), "-o", str(out), "--in-process", "--prompt", "Box=0:174,90,208,127"]
+    assert main([*argv, "--backend", "capture=rgbd"]) == 0
+    record = read_provenance(layer_file(out, "world"))
+    assert record["results"]["origin"] == "prompt"
+    assert not any("no usable object prompt" in w for w in record.get("warnings", []))
+    stages = [open_stage(o / "rose.usda") for o in (rgbd_out, out)]
+    from_toml, from_cli = (
+        np.array(st.GetPrimAtPath(paths.WORLD).GetAttribute("rose:world:worldFromInput").Get()) for st in stages
+    )
+    np.testing.assert_allclose(from_cli, from_toml, atol=1e-6)
+
+
 def test_missing_intrinsics_are_guessed_with_a_warning(case_copy, tmp_path):
     """Without cam_K.txt the rgbd backend guesses K from a field of view and says so in the layer."""
     (case_copy / "cam_K.txt").unlink()

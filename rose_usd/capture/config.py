@@ -85,8 +85,9 @@ class CaptureConfig:
     depth_max_m: float = 3.0
     """Depth beyond this is ignored for tracking and gravity [m] (default 3)."""
     prompts: tuple[ObjectPrompt, ...] = field(default=(), metadata={"parse": parse_object_prompts})
-    """sfm: prompts overriding rose.toml's, as segment.prompts (the command line's --prompt sets both):
-    the prompted object's silhouette gives the world's origin and metric scale (default: rose.toml's)."""
+    """Prompts overriding rose.toml's, as segment.prompts (the command line's --prompt sets both): the
+    world's origin is under the prompted object; sfm also takes its metric scale from the object's
+    silhouette (default: rose.toml's)."""
     rgbd: RgbdConfig = field(default_factory=RgbdConfig)
     megasam: MegasamConfig = field(default_factory=MegasamConfig)
     sfm: SfmConfig = field(default_factory=SfmConfig)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from rose_usd.capture.intrinsics import resolve_K
-from rose_usd.capture.world import author_tracked_world, fused_points, locate
+from rose_usd.capture.world import author_tracked_world, fused_points, locate, prompted_objects
 from rose_usd.case.layout import Case
 from rose_usd.core import se3
 from rose_usd.errors import InputError
@@ -110,14 +110,7 @@ def metric_scale(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> t
 def _size_prior(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> tuple[float, float, float]:
     """alpha from a known object size: the prompt box's width at the object's MegaSaM depth is
     the object's size in MegaSaM units. A rough scale (no offset); the residual says how rough."""
-    spec = next(
-        (
-            o
-            for o in ctx.case.config.objects
-            if o.prompt is not None and o.prompt.box is not None and "size_m" in o.overrides
-        ),
-        None,
-    )
+    spec = next((o for o in prompted_objects(ctx) if o.prompt.box is not None and "size_m" in o.overrides), None)
     if spec is None:
         raise InputError(
             "no absolute depth source: no depth/, no perception/unidepth/, no object with size_m and a prompt box",

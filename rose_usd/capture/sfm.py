@@ -28,8 +28,6 @@ object, +X the first camera's image-right made horizontal.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from rose_usd.capture.colmap import run_sfm
@@ -53,7 +51,7 @@ from rose_usd.capture.scale import (
     prompt_silhouette,
 )
 from rose_usd.capture.static import still_fraction
-from rose_usd.capture.world import author_world
+from rose_usd.capture.world import author_world, prompted_objects
 from rose_usd.case.config import Prompt
 from rose_usd.core import se3
 from rose_usd.core.grabcut import SEEDS, split_shared
@@ -73,22 +71,7 @@ _IMAGE_GRAVITY = ("vanishing-points", "upright-prior")
 
 def _prompted(ctx: StageContext):
     """The first object with a prompt (``capture.prompts`` over rose.toml's), or None."""
-    return next(iter(_all_prompted(ctx)), None)
-
-
-def _all_prompted(ctx: StageContext) -> list:
-    """The objects with a prompt on a frame of the video (``capture.prompts`` over rose.toml's)."""
-    specs = {s.name: s for s in ctx.case.config.objects}
-    for item in ctx.config.prompts:
-        name = item.name or (next(iter(specs)) if len(specs) == 1 else "")
-        if name not in specs:
-            raise InputError(
-                f"capture.prompts item {str(item)!r} names no object of rose.toml",
-                path=ctx.case.folder / "rose.toml",
-                hint=f"objects: {', '.join(specs) or 'none'}",
-            )
-        specs[name] = replace(specs[name], prompt=item.prompt)
-    return [s for s in specs.values() if s.prompt is not None and 0 <= s.prompt.frame < ctx.case.n_frames]
+    return next(iter(prompted_objects(ctx)), None)
 
 
 def _box(prompt: Prompt, width: int, height: int) -> tuple[float, float, float, float]:
@@ -470,7 +453,7 @@ def _prompt_mask(ctx: StageContext, spec) -> tuple[np.ndarray | None, np.ndarray
     case = ctx.case
     rgb = case.rgb(spec.prompt.frame)
     masks, boxes = {}, {}
-    for other in [s for s in _all_prompted(ctx) if s.prompt.frame == spec.prompt.frame]:
+    for other in [s for s in prompted_objects(ctx) if s.prompt.frame == spec.prompt.frame]:
         seeds = SEEDS if other.prompt.box is not None else 1  # a point's box says nothing of the extent
         masks[other.name] = prompt_silhouette(rgb, _box(other.prompt, case.width, case.height), seeds=seeds)
         boxes[other.name] = other.prompt.box

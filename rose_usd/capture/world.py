@@ -3,6 +3,8 @@ Every capture backend ends here, so all of them write the same layer."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from pxr import Gf, UsdGeom, Vt
 
@@ -138,12 +140,28 @@ def fused_points(
     return np.asarray(cloud.voxel_down_sample(voxel_m).points)
 
 
+def prompted_objects(ctx: StageContext) -> list:
+    """The objects (``ObjectSpec``) with a prompt on a frame of the video: ``capture.prompts`` (the
+    command line's ``--prompt``) over rose.toml's, in rose.toml's order."""
+    specs = {s.name: s for s in ctx.case.config.objects}
+    for item in ctx.config.prompts:
+        name = item.name or (next(iter(specs)) if len(specs) == 1 else "")
+        if name not in specs:
+            raise InputError(
+                f"capture.prompts item {str(item)!r} names no object of rose.toml",
+                path=ctx.case.folder / "rose.toml",
+                hint=f"objects: {', '.join(specs) or 'none'}",
+            )
+        specs[name] = replace(specs[name], prompt=item.prompt)
+    return [s for s in specs.values() if s.prompt is not None and 0 <= s.prompt.frame < ctx.case.n_frames]
+
+
 def locate(
     ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K: np.ndarray, *, plane_floor_deg: float = 0.1
 ):
     """Gravity, the support plane and the world frame (tracking -> world), and how the origin was found."""
     case = ctx.case
-    prompt = next((o.prompt for o in case.config.objects if o.prompt is not None), None)
+    prompt = next((o.prompt for o in prompted_objects(ctx)), None)
     anchor = None
     if prompt is not None and 0 <= prompt.frame < len(poses):
         anchor = anchor_from_prompt(prompt, depth_of(prompt.frame), K, poses[prompt.frame])
