@@ -149,6 +149,21 @@ def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(
+    "box,message",
+    [
+        ("0:208,127,174,90", "has its corners swapped"),
+        ("0:300,200,330,250", "runs past the 320x240 image's right edge by 10 px, bottom edge by 10 px"),
+    ],
+)
+def test_a_command_line_box_off_the_image_says_which_way(capsys, sample_case, tmp_path, box, message):
+    """A hand-typed --prompt box with its corners swapped, or running past an edge, is told as such."""
+    out = tmp_path / "out"
+    code, err = run_cli(capsys, "run", "segment", str(sample_case), "-o", str(out), "--prompt", box)
+    assert_one_line_error(code, err, "--prompt", message)
+    assert not out.exists()
+
+
 def test_a_command_line_prompt_on_nothing_names_the_prompt(capsys, sample_case, tmp_path):
     """A --prompt box where nothing stands names --prompt, not rose.toml (the stage's own error,
     raised in its child process)."""

@@ -158,12 +158,12 @@ def test_sam2_masks_of_another_size_fail_before_writing(tmp_path, case_copy):
 @pytest.mark.parametrize(
     "prompt, message",
     [
-        ("prompt = { frame = 0, box = [300, 200, 400, 260] }", "not inside"),
+        ("prompt = { frame = 0, box = [300, 200, 400, 260] }", "runs past the 320x240 image's right edge by 80 px"),
         ("prompt = { frame = 0, box = [40, 150, 90, 190] }", "nothing stands on the support"),
     ],
 )
 def test_bad_prompts_are_one_line_errors(tmp_path, case_copy, prompt, message):
-    """A box outside the image, or one around bare table (the object is never there)."""
+    """A box past the image's edge, or one around bare table (the object is never there)."""
     toml = case_copy / "rose.toml"
     toml.write_text(
         "\n".join(prompt if line.startswith("prompt") else line for line in toml.read_text().splitlines()) + "\n"

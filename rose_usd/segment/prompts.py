@@ -50,11 +50,19 @@ def _check_prompt_inside(spec, width: int, height: int, where) -> None:
     p = spec.prompt
     if p.box is not None:
         x0, y0, x1, y1 = p.box
-        if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+        if not (x0 < x1 and y0 < y1):
             raise InputError(
-                f"prompt box of {spec.name!r} {list(p.box)} is not inside the {width}x{height} image",
+                f"prompt box of {spec.name!r} {list(p.box)} has its corners swapped or no area",
                 path=where,
-                hint="give x0 < x1 <= width, y0 < y1 <= height in pixels",
+                hint="give the top left corner first: x0, y0, x1, y1 with x0 < x1 and y0 < y1",
+            )
+        past = [(side, d) for side, d in (("left", -x0), ("top", -y0), ("right", x1 - width), ("bottom", y1 - height))]
+        past = [f"{side} edge by {d:g} px" for side, d in past if d > 0]
+        if past:
+            raise InputError(
+                f"prompt box of {spec.name!r} {list(p.box)} runs past the {width}x{height} image's {', '.join(past)}",
+                path=where,
+                hint=f"keep it inside the image: 0 <= x0 < x1 <= {width}, 0 <= y0 < y1 <= {height}",
             )
     elif p.point is not None:
         x, y = p.point
