@@ -70,10 +70,11 @@ class Reconstruction:
             lines.append(self.collect.summary())
         if self.validation is not None:
             newton = self.validation.newton or {}
+            bodies = newton.get("bodies", "?")
             lines.append(
                 f"validation: {self.validation.validators} UsdValidation validators, {len(self.validation.errors)} "
-                f"error(s), {len(self.validation.warnings)} warning(s); Newton add_usd: {newton.get('bodies', '?')} "
-                f"bodies, {newton.get('shapes', '?')} shapes"
+                f"error(s), {len(self.validation.warnings)} warning(s); Newton add_usd: {bodies} "
+                f"{'body' if bodies == 1 else 'bodies'}, {newton.get('shapes', '?')} shapes"
             )
         return "\n".join(lines)
 
