@@ -187,6 +187,21 @@ def test_empty_fused_volume_is_a_clear_error(tmp_path, classical_out, sample_cas
     assert layer_file(out, "scene").read_bytes() == before
 
 
+def test_a_video_too_short_to_fuse_says_so(tmp_path, case_copy):
+    """Four frames, every second fused: no surface is seen by more than the three views the TSDF
+    asks for. The error says that, and the fix (not that the masks may cover everything)."""
+    for sub in ("rgb", "depth"):
+        for f in sorted((case_copy / sub).iterdir())[4:]:
+            f.unlink()
+    shutil.rmtree(case_copy / "gt")
+    out = tmp_path / "out"
+    Pipeline(case_copy, out, _rgbd()).run("segment")
+    with pytest.raises(InputError, match="2 of the video's 4 frames fused") as info:
+        Pipeline(case_copy, out, _rgbd()).run("scene")
+    assert "scene.tsdf.frame_stride=1" in info.value.one_line()
+    assert not layer_file(out, "scene").exists()
+
+
 def _static_ssim(out, sample_case, frames=(0, 24, 47)) -> float:
     """Mean SSIM of Mitsuba re-renders of the scene layer against the video over static pixels
     (objects and the interactor, grown by 4 px, left out)."""

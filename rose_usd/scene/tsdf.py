@@ -77,6 +77,9 @@ def seen_through(
     return through > near
 
 
+MIN_VIEWS = 3
+"""Open3D's TSDF keeps a surface whose integration weight exceeds this (``extract_point_cloud``'s
+default weight threshold; one frame adds weight 1 to a voxel it sees)."""
 CARVE_ABOVE_M = 0.015
 """Carving never touches the support: only fused points this high above it [m]."""
 
@@ -124,6 +127,13 @@ def fuse_static(
     transient = seen_through(points, depth_of, cameras, range(0, n, max(1, n // 60)))
     carved += int(transient.sum())
     points, colors01, normals = points[~transient], colors01[~transient], normals[~transient]
+    if len(points) < 100 and used <= MIN_VIEWS:
+        raise InputError(
+            f"the fused static volume is empty: {used} of the video's {n} frames fused (frame_stride"
+            f" {frame_stride}), and a surface counts once more than {MIN_VIEWS} views saw it",
+            path=case.folder,
+            hint=f"give a longer video (at least {2 * MIN_VIEWS + 2} frames) or --set scene.tsdf.frame_stride=1",
+        )
     if len(points) < 100:
         raise InputError(
             f"the fused static volume is empty ({len(points)} points from {used} frames)",
