@@ -1,13 +1,19 @@
-"""Progress for long work, on stderr (tqdm). ``ROSE_USD_QUIET=1`` silences it (tests do)."""
+"""Progress for long work, on stderr: a tqdm bar on a terminal; elsewhere (a log file, a pipe) a
+plain line when the work starts, one every ``LOG_EVERY_S`` and one when it ends, so that a log
+holds lines, not carriage returns. ``ROSE_USD_QUIET=1`` silences it (tests do)."""
 
 from __future__ import annotations
 
 import os
 import sys
+import time
 from collections.abc import Iterable, Iterator
 from typing import TypeVar
 
 T = TypeVar("T")
+
+LOG_EVERY_S = 30.0
+"""Off a terminal, a progress line at most this often [s]."""
 
 
 def quiet() -> bool:
@@ -19,11 +25,31 @@ def progress(items: Iterable[T], desc: str, total: int | None = None, unit: str 
     if quiet():
         yield from items
         return
+    if not sys.stderr.isatty():
+        yield from _logged(items, desc, total, unit)
+        return
     from tqdm import tqdm
 
     yield from tqdm(
         items, desc=desc, total=total, unit=unit, file=sys.stderr, mininterval=0.5, dynamic_ncols=True, leave=False
     )
+
+
+def _logged(items: Iterable[T], desc: str, total: int | None, unit: str) -> Iterator[T]:
+    """``progress`` off a terminal: "desc: 0/N unit" at the start, then every LOG_EVERY_S, and the
+    count and seconds at the end."""
+    of = f"/{total}" if total is not None else ""
+    start = last = time.perf_counter()
+    print(f"{desc}: 0{of} {unit}s", file=sys.stderr, flush=True)
+    done = 0
+    for item in items:
+        yield item
+        done += 1
+        now = time.perf_counter()
+        if now - last >= LOG_EVERY_S:
+            print(f"{desc}: {done}{of} {unit}s, {now - start:.0f} s", file=sys.stderr, flush=True)
+            last = now
+    print(f"{desc}: {done}{of} {unit}s in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
 
 
 def say(message: str) -> None:

@@ -1,0 +1,28 @@
+"""Progress on stderr: a bar on a terminal, plain lines in a log."""
+
+import io
+
+from rose_usd import progress as progress_module
+
+
+def test_off_a_terminal_progress_is_whole_lines(monkeypatch):
+    """A log gets a line when the work starts, one per LOG_EVERY_S and one when it ends; no
+    carriage returns (a tqdm bar's redraws would fill the file)."""
+    log = io.StringIO()  # not a terminal
+    monkeypatch.setattr(progress_module.sys, "stderr", log)
+    monkeypatch.setattr(progress_module, "LOG_EVERY_S", 0.0)
+    monkeypatch.delenv("ROSE_USD_QUIET", raising=False)
+    assert list(progress_module.progress(range(3), "segment", total=3)) == [0, 1, 2]
+    lines = log.getvalue().splitlines()
+    assert "\r" not in log.getvalue()
+    assert lines[0] == "segment: 0/3 frames"
+    assert lines[1].startswith("segment: 1/3 frames, ")
+    assert lines[-1].startswith("segment: 3/3 frames in ") and lines[-1].endswith(" s")
+
+
+def test_quiet_prints_nothing(monkeypatch):
+    log = io.StringIO()
+    monkeypatch.setattr(progress_module.sys, "stderr", log)
+    monkeypatch.setenv("ROSE_USD_QUIET", "1")
+    assert list(progress_module.progress(range(2), "scene", total=2)) == [0, 1]
+    assert log.getvalue() == ""
