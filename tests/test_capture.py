@@ -81,6 +81,16 @@ def test_a_command_line_prompt_places_the_origin_as_rose_toml_s_does(rgbd_out, c
     np.testing.assert_allclose(from_cli, from_toml, atol=1e-6)
 
 
+def test_an_assumed_frame_rate_is_warned_of(case_copy, tmp_path):
+    """Image folders carry no frame rate: without rose.toml's fps, 30 fps is assumed, and said."""
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text().replace("fps = 30\n", ""))
+    out = tmp_path / "out"
+    Pipeline(case_copy, out, Options(backends={"capture": "oracle"})).run("capture")
+    warnings = read_provenance(layer_file(out, "world"))["warnings"]
+    assert any("no frame rate given" in w and "30 fps assumed" in w for w in warnings)
+
+
 def test_missing_intrinsics_are_guessed_with_a_warning(case_copy, tmp_path):
     """Without cam_K.txt the rgbd backend guesses K from a field of view and says so in the layer."""
     (case_copy / "cam_K.txt").unlink()

@@ -63,6 +63,11 @@ def author_world(
     Ks = np.asarray(K, dtype=float)
     for k in Ks.reshape(-1, 3, 3):
         check_K(k, ctx.case.width, ctx.case.height)
+    if ctx.case.fps_assumed:
+        ctx.warn(
+            f"no frame rate given (fps in rose.toml, or a video file's): {ctx.case.fps:g} fps assumed;"
+            " the trajectory's speeds and the robot's pace follow it"
+        )
     stage = ctx.stage
     world = UsdGeom.Xform.Define(stage, paths.WORLD)
     prim = world.GetPrim()

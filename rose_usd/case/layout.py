@@ -261,6 +261,11 @@ class Case:
             return self._video_fps
         return DEFAULT_FPS
 
+    @property
+    def fps_assumed(self) -> bool:
+        """Whether ``fps`` is DEFAULT_FPS for want of rose.toml's fps or a video file's rate."""
+        return self.config.fps is None and not (self.video is not None and self._video_fps)
+
     def frame_name(self, t: int) -> str:
         return self.frames[t].stem
 
