@@ -107,11 +107,15 @@ def test_corrupt_video(capsys, tmp_path):
 
 
 def test_rose_toml_typo(capsys, case_copy, tmp_path):
-    """A misspelled key in rose.toml is refused and the allowed keys are listed."""
+    """A misspelled key in rose.toml is refused, the key it is likely a typo of named and the
+    allowed keys listed."""
     text = (case_copy / "rose.toml").read_text().replace("category", "categroy")
     (case_copy / "rose.toml").write_text(text)
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
-    assert_one_line_error(code, err, "rose.toml", "categroy")
+    assert_one_line_error(code, err, "rose.toml", "categroy", "did you mean 'categroy' -> 'category'?")
+    (case_copy / "rose.toml").write_text(text.replace("fps = 30", "fsp = 30"))
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "rose.toml", "did you mean 'fsp' -> 'fps'?")
 
 
 def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):

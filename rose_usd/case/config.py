@@ -16,6 +16,7 @@ revolution_tolerance = 0.04
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -117,6 +118,13 @@ class CaseConfig:
 
 def _fail(path: Path, message: str, hint: str) -> ConfigError:
     return ConfigError(message, path=path, hint=hint)
+
+
+def _did_you_mean(unknown, known) -> str:
+    """The start of a hint naming the known key each unknown one is a near miss of (a typo), or ""."""
+    pairs = [(k, difflib.get_close_matches(k, sorted(known), n=1, cutoff=0.6)) for k in sorted(unknown)]
+    close = [f"{k!r} -> {m[0]!r}" for k, m in pairs if m]
+    return f"did you mean {', '.join(close)}? " if close else ""
 
 
 def _number(value, where: str, path: Path, *, hint: str) -> float:
@@ -238,7 +246,11 @@ def _object(i: int, obj, path: Path) -> ObjectSpec:
         )
     bad = set(obj) - _OBJECT_KEYS
     if bad:
-        raise _fail(path, f"object {name!r} has unknown key(s) {sorted(bad)}", hint=f"allowed: {sorted(_OBJECT_KEYS)}")
+        raise _fail(
+            path,
+            f"object {name!r} has unknown key(s) {sorted(bad)}",
+            hint=f"{_did_you_mean(bad, _OBJECT_KEYS)}allowed: {sorted(_OBJECT_KEYS)}",
+        )
     try:
         check_object_name(name)
     except ConfigError as exc:
@@ -279,7 +291,8 @@ def load_case_config(case_root: Path, stage_names: tuple[str, ...]) -> CaseConfi
         raise _fail(
             path,
             f"unknown key(s) {sorted(unknown)}",
-            hint=f"allowed: {sorted(_TOP_KEYS)} and stage sections {list(stage_names)}",
+            hint=f"{_did_you_mean(unknown, _TOP_KEYS | set(stage_names))}allowed: {sorted(_TOP_KEYS)}"
+            f" and stage sections {list(stage_names)}",
         )
     for stage in stage_names:
         if stage in data and not isinstance(data[stage], dict):
