@@ -79,6 +79,35 @@ def test_an_object_carried_with_another_later_is_not_joined():
     assert np.array_equal(seg.join_moving_with(labels, labels == ball_label, [outer], 0), labels == ball_label)
 
 
+def test_unprompted_a_piece_that_moves_first_joins_what_the_hand_came_to():
+    """No prompt: the hand comes to a standing mug's inner wall (seen over its rim, past a depth
+    edge from the outer wall), which seems to leave its place only once a push has moved the mug
+    far enough (frame 20), while the outer wall leaves at 12 (both back at 28). Led by that
+    region, the outer wall joins it; without ``led`` (the two did not start together) it does
+    not. A ball 8 cm away, away over frames 8-27, is not joined either way."""
+    walls = {"outer": (slice(40, 55), slice(60, 90), 0.53), "inner": (slice(55, 65), slice(62, 88), 0.575)}
+    ball = (slice(40, 55), slice(110, 125), 0.55)
+
+    def depth_of(t):
+        d = np.full((H, W), 0.6, np.float32)
+        for name, (rows, cols, z) in walls.items():
+            if not (12 if name == "outer" else 20) <= t < 28:
+                d[rows, cols] = z
+        if not 8 <= t < 28:
+            d[ball[0], ball[1]] = ball[2]
+        return d
+
+    _, cams, _, _ = _clip()
+    seg = Segmenter(lambda t: np.zeros((H, W, 3), np.uint8), depth_of, cams, SegmentConfig(), background=None)
+    _, labels, _ = components((depth_of(0) < 0.595) & ~seg.frame(0).edges)
+    outer, inner = (int(labels[rows, cols][2, 2]) for rows, cols, _ in walls.values())
+    ball_label = int(labels[ball[0], ball[1]][5, 5])
+    region = labels == inner
+    assert np.array_equal(seg.join_moving_with(labels, region, [outer, ball_label], 0), region)
+    joined = seg.join_moving_with(labels, region, [outer, ball_label], 0, led=True)
+    assert np.array_equal(joined, region | (labels == outer))
+
+
 def test_frames_and_foregrounds_made_ahead_are_the_ones_made_in_place():
     """``foregrounds_ahead`` and ``prefetch`` make on worker threads what ``foreground`` and
     ``frame`` would make themselves: the same arrays, whether a frame was made ahead, is still

@@ -74,6 +74,10 @@ from rose_usd.segment.regions import (
     separate,
 )
 
+LED_JOIN_PX = 8
+"""A mug's outer wall lies this near its inner wall in the image at 640x480 [px] (past the rim
+and the depth edge: 4.8 px on the default suite's push-mug-s203)."""
+
 
 @dataclass
 class ObjectTrack:
@@ -378,7 +382,7 @@ class Segmenter:
         for c in chosen:
             own = np.where(np.isin(labels, chosen) & (labels != c), 0, labels)
             region = grow_across_edges(own, labels == c, pts)
-            grown.append(self.join_moving_with(own, region, self._neighbours(own, region, pts), 0))
+            grown.append(self.join_moving_with(own, region, self._neighbours(own, region, pts), 0, led=True))
         return [self._new_track(name, 0, grown[i]) for i, name in enumerate(names)]
 
     def _neighbours(
@@ -418,6 +422,7 @@ class Segmenter:
         *,
         within: set[int] = frozenset(),
         max_diameter_m: float = 0.3,
+        led: bool = False,
     ) -> np.ndarray:
         """``region`` joined with the components among ``candidates`` (labels of frame ``t0``'s
         components) that leave their place in the same frames as it: one object moves as one.
@@ -431,11 +436,16 @@ class Segmenter:
         person) is not joined, nor one that makes the union wider than ``max_diameter_m``.
         A component ``within`` the prompt box (touching none of its sides) may start to move later,
         if it never moves while the region stays: a standing mug's inner wall, seen over its rim,
-        seems to leave its place only once a push has moved the mug by more than ``leave_m``."""
+        seems to leave its place only once a push has moved the mug by more than ``leave_m``.
+        With ``led`` (no prompt: the region is what the interactor came to, maybe that inner wall),
+        a component across a depth edge from it (within ``LED_JOIN_PX`` at 640x480: not a ball beside a cup)
+        may start to move earlier, if the region never moves without it."""
         mine = self.moved_when(region, t0)
         if mine.sum() < 2:
             return region
         pts = self.frame(t0).pts
+        reach = max(3, round(LED_JOIN_PX * self.scale_px**0.5))  # the rim between the walls, in pixels
+        near = cv2.dilate(region.astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)).astype(bool)
         for label in candidates:
             part = labels == label
             if (part & region).any():
@@ -445,7 +455,8 @@ class Segmenter:
             if both < 2 or both < 0.6 * min(mine.sum(), theirs.sum()) or theirs.sum() > 0.5 * len(theirs):
                 continue
             later = label in within and np.count_nonzero(theirs & ~mine) <= 1
-            if abs(int(np.argmax(mine)) - int(np.argmax(theirs))) > 2 and not later:
+            earlier = led and np.count_nonzero(mine & ~theirs) <= 1 and (near & part).any()
+            if abs(int(np.argmax(mine)) - int(np.argmax(theirs))) > 2 and not (later or earlier):
                 continue  # they did not start to move together: two objects, carried together later
             union = region | part
             if diameter(pts[union & np.isfinite(pts[..., 2])]) <= max_diameter_m:
