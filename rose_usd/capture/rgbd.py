@@ -22,6 +22,7 @@ from rose_usd.capture.static import still_fraction
 from rose_usd.capture.tracking import RgbdTracker, TrackingParams, can_bind_cpu, track_on_one_cpu
 from rose_usd.capture.world import author_tracked_world, fused_points, locate
 from rose_usd.core import se3
+from rose_usd.core.runs import spread_frames
 from rose_usd.errors import InputError
 from rose_usd.geometry.registration import DepthShift, edge_alignment, find_depth_shift, shift_depth
 from rose_usd.layers.world import cached_frames
@@ -131,8 +132,7 @@ def _track(ctx: StageContext, K: np.ndarray, params: TrackingParams, depth_of, v
     the depth: (poses, keyframes, what to record)."""
     case = ctx.case
     frames = np.flatnonzero(valid)
-    checked = np.unique(np.linspace(0, len(frames) - 1, min(ALIGNMENT_FRAMES, len(frames))).round().astype(int))
-    alignment = edge_alignment(case.rgb, depth_of, frames[checked].tolist())
+    alignment = edge_alignment(case.rgb, depth_of, frames[spread_frames(len(frames), ALIGNMENT_FRAMES)].tolist())
     if alignment.registered:
         params = replace(params, method="hybrid")
     if ctx.config.rgbd.repeatable and can_bind_cpu():

@@ -193,11 +193,6 @@ class FrameColors:
         return self.median(xyz, normals)
 
 
-def spread_frames(n: int, count: int) -> list[int]:
-    """``count`` frames (at most n) spread evenly over n, first and last included."""
-    return np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int)).tolist()
-
-
 def fill_support_holes(
     points: np.ndarray, *, cell_m: float = 0.01, max_area_m2: float = 0.25, flat_m: float = 0.01
 ) -> np.ndarray:

@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.pinhole import backproject, resized_K, view_counts
+from rose_usd.core.runs import spread_frames
 from rose_usd.geometry.mesh import submesh
 from rose_usd.geometry.stereo import SweepParams, View, consistent, sweep
 from rose_usd.geometry.support import SupportSurface
@@ -57,7 +58,6 @@ from rose_usd.scene.fused import (
     _read_frame_masks,
     collider_record,
     lay_pads,
-    spread_frames,
     textured_parts,
     wrap_collider,
 )

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 from rose_usd.core import se3
 from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.pinhole import backproject, masked_world_points, view_counts
+from rose_usd.core.runs import spread_frames
 from rose_usd.errors import InputError
 from rose_usd.geometry.background import StaticBackground
 from rose_usd.geometry.contact import first_contact, ring_height
@@ -58,7 +59,6 @@ from rose_usd.scene.fused import (
     collider_record,
     fill_support_holes,
     lay_pads,
-    spread_frames,
     textured_parts,
     wrap_collider,
 )
@@ -134,7 +134,7 @@ def fuse_static(
             path=case.folder,
             hint=f"give a longer video (at least {2 * MIN_VIEWS + 2} frames) or --set scene.tsdf.frame_stride=1",
         )
-    if len(points) < 100:
+    if len(points) < 100:  # enough frames: what was there was masked or carved away
         raise InputError(
             f"the fused static volume is empty ({len(points)} points from {used} frames)",
             path=case.folder,

@@ -56,8 +56,8 @@ def _check_prompt_inside(spec, width: int, height: int, where) -> None:
                 path=where,
                 hint="give the top left corner first: x0, y0, x1, y1 with x0 < x1 and y0 < y1",
             )
-        past = [(side, d) for side, d in (("left", -x0), ("top", -y0), ("right", x1 - width), ("bottom", y1 - height))]
-        past = [f"{side} edge by {d:g} px" for side, d in past if d > 0]
+        sides = (("left", -x0), ("top", -y0), ("right", x1 - width), ("bottom", y1 - height))
+        past = [f"{side} edge by {d:g} px" for side, d in sides if d > 0]
         if past:
             raise InputError(
                 f"prompt box of {spec.name!r} {list(p.box)} runs past the {width}x{height} image's {', '.join(past)}",
