@@ -41,6 +41,30 @@ def test_the_score_reads_the_worlds_own_claims():
     assert _claimed(stage) == {"gravity_uncertainty_deg": 7.5, "scale_uncertainty": 0.125}
 
 
+def test_height_scale_reads_the_world_where_the_path_cannot(sample_case):
+    """The sample's true cameras, the world 10 % too large: the camera's height above the support
+    (the table under the prompted box) reads 1.10. With the path also squeezed to 70 % along the
+    table (an SfM map bent over a short hand-held path), the Sim(3) of the camera centres reads
+    the path's shape, not the world's scale; the height still reads 1.10."""
+    from rose_usd.bench.evaluate import height_scale
+    from rose_usd.case.gt import GroundTruth
+    from rose_usd.core import metrics
+
+    gt = GroundTruth(sample_case / "gt")
+    true = gt.camera_poses()
+    assert height_scale(gt, sample_case, true) == pytest.approx(1.0, abs=1e-6)
+    ours = true.copy()
+    ours[:, :3, 3] *= 1.1
+    assert height_scale(gt, sample_case, ours) == pytest.approx(1.1, abs=1e-6)
+    _, path_scale = metrics.umeyama_sim3(ours[:, :3, 3], true[:, :3, 3])
+    assert path_scale == pytest.approx(1 / 1.1, abs=1e-6)  # true = s * ours
+    middle = ours[:, :2, 3].mean(axis=0)
+    ours[:, :2, 3] = middle + 0.7 * (ours[:, :2, 3] - middle)
+    _, path_scale = metrics.umeyama_sim3(ours[:, :3, 3], true[:, :3, 3])
+    assert abs(path_scale - 1 / 1.1) > 0.2
+    assert height_scale(gt, sample_case, ours) == pytest.approx(1.1, abs=1e-6)
+
+
 def test_oracle_targets_on_every_task(small_results):
     """Scene Chamfer < 2 mm, object Chamfer < 1 mm, object APE < 1 mm, SSIM > 0.98, gate passed."""
     _, summary = small_results

@@ -72,6 +72,7 @@ def _flatten(result: dict) -> list[dict]:
         "camera_rpe_rotation_deg",
         "gravity_error_deg",
         "scale_error",
+        "height_scale_error",
         "scene_chamfer_m",
         "scene_chamfer_visible_m",
         "scene_ghost_cm2",
