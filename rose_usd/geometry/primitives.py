@@ -66,8 +66,10 @@ TYPICAL: dict[str, Typical] = {
     "can": Typical(
         PrimitiveKind.CYLINDER,
         (0.033, 0.122),
-        0.08,
-        "12 fl oz (355 ml) beverage can: 12.2 cm tall, 6.6 cm across (Ball Corporation's 211/202 can spec)",
+        0.15,
+        "12 fl oz (355 ml) beverage can: 12.2 cm tall, 6.6 cm across (Ball Corporation's 211/202 can spec);"
+        " other common cans: 330 ml 11.5 cm, 250 ml slim 13.4 cm, 473-500 ml 15.7-16.8 cm, soup cans about"
+        " 10 cm tall",
         revolution=True,
     ),
     "bottle": Typical(
