@@ -284,7 +284,7 @@ def check_prompted(case: Case, prompts, where: str) -> None:
 
 def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[str, ...]]) -> None:
     """Check every requirement of the planned backends (stage -> backend), in run order, and
-    every imported file they read.
+    every imported file they read, and that every mesh rose.toml names exists.
 
     Args:
         case: the case.
@@ -294,6 +294,8 @@ def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[
     Raises:
         InputError: the first thing missing, naming its file and the fix.
     """
+    for spec in case.config.objects:  # a mesh rose.toml names must exist, whichever stage reads it
+        case.mesh_file(spec)
     for stage, needs in requires.items():
         for need in needs:
             REQUIREMENTS[need](case, plan, stage)

@@ -378,11 +378,13 @@ CORPUS: list[Bad] = [
     _toml_case("restitution-above-one", 3, "restitution = 1.5", "restitution"),
     _toml_case("size-negative", 3, "size_m = -0.06", "size_m"),
     _toml_case("size-text", 3, 'size_m = "6cm"', "size_m"),
+    _toml_case("size-centimetres", 3, "size_m = 14", "size_m", "size_m = 0.14"),
     _toml_case("hollow-text", 3, 'hollow = "no"', "hollow"),
     _toml_case("hollow-int", 3, "hollow = 1", "hollow"),
     _toml_case("density-zero", 3, "density_kg_m3 = 0", "density_kg_m3"),
     _toml_case("mesh-up-bad", 3, 'mesh_up = "up"', "mesh_up"),
     _toml_case("mesh-not-text", 3, "mesh = 3", "mesh"),
+    _toml_case("mesh-missing", 3, 'mesh = "nope/box.obj"', "nope/box.obj", "does not exist"),
     # 4. reserved object names
     _toml_case("name-interactor", 4, '[[objects]]\nname = "Interactor"\n', "Interactor", keep=False),
     _toml_case("name-world", 4, '[[objects]]\nname = "World"\n', "World", keep=False),

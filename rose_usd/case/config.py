@@ -167,6 +167,12 @@ def _check_physics(name: str, key: str, value, path: Path) -> object:
     if rule is not None:
         low, high, low_open, hint = rule
         number = _number(value, where, path, hint=hint)
+        if key == "size_m" and number > high:
+            raise _fail(
+                path,
+                f"{where} = {_show(value)} is more than an object a hand moves ({high:g} m)",
+                f"size_m is in meters: {number:g} cm is size_m = {number / 100:g}",
+            )
         if (number <= low if low_open else number < low) or number > high:
             raise _fail(path, f"{where} = {_show(value)} is out of range", hint)
         return number
@@ -198,7 +204,7 @@ _PHYSICS_RULES = {
     "density_kg_m3": (0.0, 1e5, True, "write a density in kg/m^3, e.g. density_kg_m3 = 700"),
     "friction": (0.0, 10.0, False, "write a friction coefficient of 0 or more, e.g. friction = 0.5"),
     "restitution": (0.0, 1.0, False, "write a restitution between 0 and 1, e.g. restitution = 0.2"),
-    "size_m": (0.0, 100.0, True, "write the object's largest dimension in meters, e.g. size_m = 0.06"),
+    "size_m": (0.0, 2.0, True, "write the object's largest dimension in meters, e.g. size_m = 0.06"),
 }
 
 
