@@ -79,6 +79,9 @@ where the track's color model is broad (``Track2D.broad``). Not for every track:
 shape of a cup pushed by a hand lags it, the cup's own pixels then look like movers (its visible
 fraction fell from 0.82 to 0.68)."""
 
+POINT_BOXES = (0.1, 0.2, 0.4)
+"""The widths of the boxes a point prompt's GrabCut tries in turn, as shares of the image's long side."""
+
 SKIN_RATIO = 1.0
 """Inside a found hand's landmark mask, a pixel stays a track's only where its color model is this
 many times likelier than the hands' skin."""
@@ -154,22 +157,38 @@ class FlowTracker:
 
     # ----------------------------------------------------------------- start
     def cut(self, name: str, t: int, box, point) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-        """GrabCut of a prompt (a box, or a point: a box around it, a tenth of the image wide, not
-        the object's extent): the mask and the box (x0, y0, x1, y1) clipped to the image."""
+        """GrabCut of a prompt: the mask and the box (x0, y0, x1, y1) clipped to the image. A point
+        prompt cuts a box around it a tenth of the image wide, then a fifth, then two fifths, until
+        the cut stays off the box's sides (``POINT_BOXES``): a box inside the object leaves GrabCut
+        no background to tell it from (a white mug filling a sixth of the frame)."""
         rgb = self.frame_of(t)
-        seeds = SEEDS
-        if box is None:
-            seeds = 1
-            r = max(self.w, self.h) // 20
-            box = (point[0] - r, point[1] - r, point[0] + r, point[1] + r)
-        x0, y0, x1, y1 = (int(np.clip(v, 0, lim)) for v, lim in zip(box, (self.w, self.h, self.w, self.h)))
-        mask = box_grabcut(rgb, (x0, y0, x1, y1), seeds=seeds, connectivity=4)
-        if not mask.any():
+        if box is not None:
+            clipped = self._clip(box)
+            mask = box_grabcut(rgb, clipped, seeds=SEEDS, connectivity=4)
+            if not mask.any():
+                raise InputError(
+                    f"GrabCut found nothing inside the prompt of {name!r} on frame {t}",
+                    hint="draw the box tightly around the object",
+                )
+            return mask, clipped
+        found = None
+        for share in POINT_BOXES:
+            r = int(round(share * max(self.w, self.h) / 2))
+            clipped = self._clip((point[0] - r, point[1] - r, point[0] + r, point[1] + r))
+            mask = box_grabcut(rgb, clipped, seeds=1, connectivity=4)
+            if mask.any():
+                found = (mask, clipped)
+                if not _reaches_sides(mask, clipped, (self.w, self.h)):
+                    break
+        if found is None:
             raise InputError(
-                f"GrabCut found nothing inside the prompt of {name!r} on frame {t}",
-                hint="draw the box tightly around the object",
+                f"GrabCut found no object around the point prompt of {name!r} on frame {t}",
+                hint=f"give a box around the object instead: --prompt {name}={t}:x0,y0,x1,y1 in pixels",
             )
-        return mask, (x0, y0, x1, y1)
+        return found
+
+    def _clip(self, box) -> tuple[int, int, int, int]:
+        return tuple(int(np.clip(v, 0, lim)) for v, lim in zip(box, (self.w, self.h, self.w, self.h)))
 
     def start(
         self, name: str, t: int, mask: np.ndarray, box: tuple[int, int, int, int], look: np.ndarray | None = None
@@ -504,6 +523,19 @@ def _starts(tracker: FlowTracker, frame_of, prompts, looks) -> list[tuple[int, T
         track, bg = tracker.start(name, t, mask, box, (looks or {}).get(name))
         starts.append((t, track, bg))
     return starts
+
+
+def _reaches_sides(mask: np.ndarray, box: tuple[int, int, int, int], size: tuple[int, int]) -> bool:
+    """Whether ``mask`` comes within 2 px of a side of ``box`` that is not the image's edge."""
+    x0, y0, x1, y1 = box
+    ys, xs = np.nonzero(mask)
+    w, h = size
+    return bool(
+        (x0 > 0 and xs.min() <= x0 + 1)
+        or (y0 > 0 and ys.min() <= y0 + 1)
+        or (x1 < w and xs.max() >= x1 - 2)
+        or (y1 < h and ys.max() >= y1 - 2)
+    )
 
 
 def _hand_pixels(found: list[Hand], moving: np.ndarray | None, skin, shape) -> HandPixels:
