@@ -26,6 +26,7 @@ the missing file and the fix.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping
 
 from rose_usd.case.layout import Case
@@ -272,14 +273,24 @@ def check_prompted(case: Case, prompts, where: str) -> None:
             f"object(s) {', '.join(repr(n) for n in missing)} have no prompt, and the flow segment backend"
             " (a video without depth) needs one for every object",
             path=where,
-            hint=(
-                "add prompt = { frame = 0, box = [x0, y0, x1, y1] } to each [[objects]] of rose.toml"
-                if case.config.path
-                else f'write {case.folder / "rose.toml"} with [[objects]] name = "..." and'
-                " prompt = { frame = 0, box = [x0, y0, x1, y1] }"
-            )
-            + ", or pass --prompt NAME=FRAME:x0,y0,x1,y1",
+            hint=_prompt_hint(case),
         )
+
+
+def _prompt_hint(case: Case) -> str:
+    """Where a missing prompt goes: rose.toml (the case folder's, or one in a folder of the user's
+    own when the case's is read-only, a dataset's), or ``--prompt``."""
+    toml = "prompt = { frame = 0, box = [x0, y0, x1, y1] }"
+    if case.config.path:
+        where = f"add {toml} to each [[objects]] of rose.toml"
+    elif os.access(case.folder, os.W_OK) and case.folder.stat().st_mode & 0o222:  # no write bit: root too
+        where = f'write {case.folder / "rose.toml"} with [[objects]] name = "..." and {toml}'
+    else:
+        where = (
+            f"{case.folder} is read-only: make a folder of your own with a link video.mp4 -> the video (or rgb ->"
+            f' the frames) and a rose.toml with [[objects]] name = "..." and {toml}'
+        )
+    return where + ", or pass --prompt NAME=FRAME:x0,y0,x1,y1"
 
 
 def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[str, ...]]) -> None:

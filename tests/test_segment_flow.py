@@ -63,6 +63,19 @@ def test_flow_backend_without_a_prompt_fails_clearly(tmp_path, case_copy):
     assert not layer_file(tmp_path / "out", "masks").exists()
 
 
+def test_a_read_only_case_without_a_prompt_is_told_to_use_a_folder_of_its_own(tmp_path, case_copy):
+    """A dataset's folder, no rose.toml, no write bit: the fix is not to write rose.toml there but a
+    folder of the user's own linking to its frames, or --prompt."""
+    (case_copy / "rose.toml").unlink()
+    case_copy.chmod(0o555)
+    try:
+        with pytest.raises(InputError, match="have no prompt") as err:
+            Pipeline(case_copy, tmp_path / "out", _flow()).run("segment")
+    finally:
+        case_copy.chmod(0o755)
+    line = err.value.one_line()
+    assert "is read-only: make a folder of your own" in line and "--prompt" in line
+
 def test_command_line_prompt_overrides_rose_toml(tmp_path, case_copy, sample_case):
     """--prompt (segment.prompts) replaces rose.toml's box: a box around the true object works
     even when rose.toml's box is wrong, and the name may be left out for a single object."""
