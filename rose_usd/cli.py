@@ -216,12 +216,19 @@ def cmd_validate(args) -> int:
     from rose_usd.usd.validate import validate as validate_stage
 
     stage = _stage_file(args.stage)
+    root = stage.parent.parent / paths.ROOT_FILE
+    if stage.parent.name == "layers" and root.is_file():  # one layer of an output folder
+        print(f"validating {root}, the stage that layers/{stage.name} is a layer of (a layer has no stage metadata)")
+        stage = root
     report = validate_stage(stage, with_newton=not args.no_newton)
     for line in report.errors:
         print(f"error: {line}")
     for line in report.warnings:
         print(f"warning: {line}")
-    newton = f"; Newton: {report.newton['bodies']} bodies, {report.newton['shapes']} shapes" if report.newton else ""
+    newton = ""
+    if report.newton:
+        bodies = report.newton["bodies"]
+        newton = f"; Newton: {bodies} {'body' if bodies == 1 else 'bodies'}, {report.newton['shapes']} shapes"
     print(f"{report.validators} validators: {len(report.errors)} error(s), {len(report.warnings)} warning(s){newton}")
     if stage.name == paths.ROOT_FILE:  # an output folder: say which stages' layers it lacks
         present = set(existing_layers(stage.parent))
@@ -507,7 +514,9 @@ def _add_stage_commands(sub) -> None:
         help="run every pxr.UsdValidation validator and Newton's add_usd on a stage; in an output folder, also"
         " check that its layers were made from one another and one case, and name the stages whose layers it lacks",
     )
-    p.add_argument("stage", help="a .usda/.usd file, or an output folder (its rose.usda)")
+    p.add_argument(
+        "stage", help="a .usda/.usd file, or an output folder (its rose.usda; a file of its layers/ stands for it too)"
+    )
     p.add_argument("--no-newton", action="store_true", help="skip the Newton load")
     p.set_defaults(func=cmd_validate)
 

@@ -222,6 +222,11 @@ def test_validate_names_the_layers_an_output_folder_lacks_and_takes_the_folder(
     assert main(["inspect", str(oracle_out / "rose.usda")]) == 0
     assert capsys.readouterr().out == by_folder and "gate:" in by_folder
     assert main(["diff", str(oracle_out), str(oracle_out / "rose.usda")]) == 0
+    capsys.readouterr()
+    # one layer of an output folder: its stage (a layer alone has no metersPerUnit, upAxis, defaultPrim)
+    assert main(["validate", str(out / "layers" / "world.usda"), "--no-newton"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"validating {out / 'rose.usda'}") and "0 error(s)" in text, text
 
 
 def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):

@@ -905,3 +905,19 @@ def test_stereo_without_parallax_says_it_made_the_plane_scene(tmp_path, sample_c
     rose_usd.reconstruct(case, tmp_path / "out", until="scene", backends={"scene": "stereo"}, settings=settings)
     prov = read_provenance(layer_file(tmp_path / "out", "scene"))
     assert any("too little for stereo" in w for w in prov.get("warnings", [])), prov.get("warnings")
+
+
+def test_a_poor_primitive_fit_asks_only_for_what_is_not_given():
+    """The warning for a primitive that fits its masks poorly names the inputs still missing; with
+    cam_K.txt and size_m both given (a new user's cube run) it points at the masks and the shape."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from rose_usd.case.config import ObjectSpec
+    from rose_usd.object.silhouette import _poor_fit_cause
+
+    bare, sized = ObjectSpec(name="Cube"), ObjectSpec(name="Cube", overrides={"size_m": 0.0845})
+    assert _poor_fit_cause(SimpleNamespace(K_path=None), bare).endswith("(give cam_K.txt, size_m)")
+    assert _poor_fit_cause(SimpleNamespace(K_path=Path("cam_K.txt")), bare).endswith("(give size_m)")
+    given = _poor_fit_cause(SimpleNamespace(K_path=Path("cam_K.txt")), sized)
+    assert "are given" in given and "give its mesh" in given

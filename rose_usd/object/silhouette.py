@@ -169,8 +169,7 @@ def run(ctx: StageContext) -> None:
             ctx.warn(
                 f"object {name!r}: its shape overlaps its masks poorly"
                 f" (silhouette IoU {fact['silhouette_iou']:.2f}): a {fact['size_m'] * 100:.1f} cm"
-                f" {spec.category or 'object'} standing on the support does not fit them; the world's"
-                " gravity, intrinsics or scale may be wrong (give cam_K.txt, size_m)"
+                f" {spec.category or 'object'} standing on the support does not fit them; {_poor_fit_cause(case, spec)}"
             )
         models.append(model)
         facts[name] = fact
@@ -222,6 +221,21 @@ STACKED_MARGIN = 0.005
 INSIDE_FRACTION = 0.05
 """An object with this fraction of its volume inside another's hull stands in it: a fit on that
 one's top is kept whatever it costs."""
+
+
+def _poor_fit_cause(case, spec) -> str:
+    """What a poor primitive fit may come from, naming only the inputs the user has not given."""
+    missing = [
+        name
+        for name, given in (("cam_K.txt", case.K_path is not None), ("size_m", "size_m" in spec.overrides))
+        if not given
+    ]
+    if missing:
+        return f"the world's gravity, intrinsics or scale may be wrong (give {', '.join(missing)})"
+    return (
+        "cam_K.txt and size_m are given: the masks may hold more or less than the object,"
+        " or the object is not its category's shape (give its mesh)"
+    )
 
 
 def _stack(fits: dict[str, Fitted]) -> None:
