@@ -317,7 +317,8 @@ def run(ctx: StageContext) -> None:
         except grasping.NoGrasp:
             continue
         bases_tried += 1
-        say(f"collect: no rollout succeeded from the base at {np.round(outcome.base_pose[:2, 3], 3)}; trying the next")
+        x, y = outcome.base_pose[:2, 3]
+        say(f"collect: no rollout succeeded from the base at ({x:.3f}, {y:.3f}) m; trying the next")
         outcome.base_pose, ranked = base, ranked_here
         world, rollouts, t_build, checker = _roll_out_at(ctx, name, target, path, base, ranked, rng, device, batched)
     outcome.rollouts = rollouts

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import posixpath
 from pathlib import Path
 from typing import Any
 
@@ -407,5 +408,8 @@ def _collect_lines(robot: str, c: dict[str, Any]) -> list[str]:
     for reason in sorted(set(reasons)):
         lines.append(f"  failed x{reasons.count(reason)}: {reason}")
     if c.get(tokens.COLLECT_DATASET):
-        lines.append(f"  dataset: {c[tokens.COLLECT_DATASET]}")
+        # authored relative to layers/robot.usda: shown relative to the output folder
+        path = str(getattr(c[tokens.COLLECT_DATASET], "path", c[tokens.COLLECT_DATASET]))
+        shown = path if posixpath.isabs(path) else posixpath.normpath(posixpath.join("layers", path))
+        lines.append(f"  dataset: {shown} (in the output folder)")
     return lines
