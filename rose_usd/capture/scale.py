@@ -47,6 +47,7 @@ from rose_usd.geometry.silhouette import (
     log_normal_ratio,
     resting_start,
 )
+from rose_usd.progress import progress
 
 CAMERA_HEIGHT_M = (0.5, 0.5)
 """A tabletop video's camera height over the support: (typical [m], relative sigma)."""
@@ -209,9 +210,10 @@ def level_by_object(
     heading = np.array([[c, -s], [s, c]])
     starts = [heading @ np.array([a, b]) for a in pitches for b in (-LEVEL_ROLL_DEG, 0.0, LEVEL_ROLL_DEG)]
     starts = [x for x in starts if np.hypot(*x) <= span]
-    grid = [cost(x) for x in starts]
+    grid = [cost(x) for x in progress(starts, "capture: levelling by the object's fit", unit="tilt")]
     best, best_cost = np.zeros(2), level
-    for x0 in [starts[i] for i in np.argsort(grid)[:LEVEL_DESCENTS]] + [np.zeros(2)]:
+    descents = [starts[i] for i in np.argsort(grid)[:LEVEL_DESCENTS]] + [np.zeros(2)]
+    for x0 in progress(descents, "capture: refining the tilt", unit="descent"):
         x, c = nelder_mead(cost, x0, np.array([4.0, 4.0]), maxfev=40)
         if c < best_cost:
             best, best_cost = x, c
