@@ -200,9 +200,10 @@ def run(ctx: StageContext) -> None:
             f" {PLAUSIBLE_HEIGHT_M[0]}-{PLAUSIBLE_HEIGHT_M[1]} m: the gravity, the intrinsics or the scale is"
             " likely wrong (give cam_K.txt, size_m)"
         )
+    scale_from = chosen.name + (f" {chosen.detail['file']}" if "file" in chosen.detail else "")
     say(
         f"capture: {motion} camera, gravity from {gravity.source} (+-{gravity.uncertainty_deg:.1f} deg), "
-        f"scale from {chosen.name} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
+        f"scale from {scale_from} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
     )
     ctx.record(
         **record,
@@ -522,9 +523,16 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
         if fit is not None:
             record["mesh"] = {"rho_units_per_m": round(fit["rho"], 5), "iou": round(fit["iou"], 4)}
             if fit["iou"] >= 0.75:
+                source = ctx.case.mesh_file(spec)
+                where = (
+                    str(source.relative_to(ctx.case.folder)) if source.is_relative_to(ctx.case.folder) else str(source)
+                )
                 cues.append(
                     ScaleCue(
-                        "mesh", 1.0 / fit["rho"], 0.03 + max(0.0, 0.92 - fit["iou"]), {"iou": round(fit["iou"], 4)}
+                        "mesh",
+                        1.0 / fit["rho"],
+                        0.03 + max(0.0, 0.92 - fit["iou"]),
+                        {"iou": round(fit["iou"], 4), "file": where},
                     )
                 )
             else:
