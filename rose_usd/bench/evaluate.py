@@ -299,7 +299,7 @@ def height_scale(gt: GroundTruth, case_dir: Path, world_from_cv: np.ndarray) -> 
     table by d moves it by d over the camera's height (1 cm at 0.5 m: 2 %).
 
     The Sim(3) that registers the camera paths measures the scale only where the path spreads well
-    beyond its error: a hand-held path of the default suite spreads 30-50 mm RMS against 10-25 mm
+    beyond its error: a hand-held path of the default suite spreads 25-52 mm RMS against 10-25 mm
     of SfM position error, and its scale read 24-36 % off where the camera's height and the
     object's fitted size were 2-5 % off."""
     from rose_usd import registry

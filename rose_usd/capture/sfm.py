@@ -194,17 +194,7 @@ def run(ctx: StageContext) -> None:
     cues, chosen, agreement = _scale(ctx, spec, mask, K, world_units[ref], record, hidden)
     world_from_camera = _author(ctx, world_units, world_from_track, K, k_source, gravity, chosen, cues)
     height = float(world_from_camera[ref, 2, 3])
-    if not PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]:
-        ctx.warn(
-            f"the camera comes out {height:.3g} m above the support, not a tabletop video's"
-            f" {PLAUSIBLE_HEIGHT_M[0]}-{PLAUSIBLE_HEIGHT_M[1]} m: the gravity, the intrinsics or the scale is"
-            " likely wrong (give cam_K.txt, size_m)"
-        )
-    scale_from = chosen.name + (f" {chosen.detail['file']}" if "file" in chosen.detail else "")
-    say(
-        f"capture: {motion} camera, gravity from {gravity.source} (+-{gravity.uncertainty_deg:.1f} deg), "
-        f"scale from {scale_from} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
-    )
+    _summarize(ctx, motion, gravity, chosen, height)
     ctx.record(
         **record,
         gravity=gravity.source,
@@ -217,6 +207,22 @@ def run(ctx: StageContext) -> None:
         camera_height_m=round(height, 4),
         origin="prompt" if spec is not None else "view-center",
         metric_depth=False,
+    )
+
+
+def _summarize(ctx: StageContext, motion: str, gravity, chosen: ScaleCue, height: float) -> None:
+    """The capture's one line (motion, gravity, scale and its source, camera height), and a warning
+    when the camera's height above the support is not a tabletop video's."""
+    if not PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]:
+        ctx.warn(
+            f"the camera comes out {height:.3g} m above the support, not a tabletop video's"
+            f" {PLAUSIBLE_HEIGHT_M[0]}-{PLAUSIBLE_HEIGHT_M[1]} m: the gravity, the intrinsics or the scale is"
+            " likely wrong (give cam_K.txt, size_m)"
+        )
+    scale_from = chosen.name + (f" {chosen.detail['file']}" if "file" in chosen.detail else "")
+    say(
+        f"capture: {motion} camera, gravity from {gravity.source} (+-{gravity.uncertainty_deg:.1f} deg), "
+        f"scale from {scale_from} (+-{100 * chosen.sigma:.0f} %): camera {height:.3f} m above the support"
     )
 
 
