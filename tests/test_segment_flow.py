@@ -76,6 +76,7 @@ def test_a_read_only_case_without_a_prompt_is_told_to_use_a_folder_of_its_own(tm
     line = err.value.one_line()
     assert "is read-only: make a folder of your own" in line and "--prompt" in line
 
+
 def test_command_line_prompt_overrides_rose_toml(tmp_path, case_copy, sample_case):
     """--prompt (segment.prompts) replaces rose.toml's box: a box around the true object works
     even when rose.toml's box is wrong, and the name may be left out for a single object."""
