@@ -28,6 +28,8 @@ object, +X the first camera's image-right made horizontal.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from rose_usd.capture.colmap import run_sfm
@@ -523,16 +525,14 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
                 {"category": spec.category, "typical_size_m": prim["typical_size_m"], "source": prim["typical_source"]},
             )
         )
-    mesh = _metric_mesh(ctx, spec)
+    path = ctx.case.mesh_file(spec)
+    mesh = _metric_mesh(path, spec) if path is not None else None
     if mesh is not None:
         fit = fit_mesh(*mesh, view, mask, K, world_from_cv_units)
         if fit is not None:
             record["mesh"] = {"rho_units_per_m": round(fit["rho"], 5), "iou": round(fit["iou"], 4)}
             if fit["iou"] >= 0.75:
-                source = ctx.case.mesh_file(spec)
-                where = (
-                    str(source.relative_to(ctx.case.folder)) if source.is_relative_to(ctx.case.folder) else str(source)
-                )
+                where = str(path.relative_to(ctx.case.folder)) if path.is_relative_to(ctx.case.folder) else str(path)
                 cues.append(
                     ScaleCue(
                         "mesh",
@@ -550,17 +550,15 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
     return cues, record
 
 
-def _metric_mesh(ctx: StageContext, spec):
-    """The object's mesh (vertices up-aligned by mesh_up or its format's convention, faces) when it
-    is metric (1 cm to 2 m across, not TRELLIS's unit cube), decimated for silhouettes; else None."""
+def _metric_mesh(path: Path, spec):
+    """The object's mesh file ``path`` (vertices up-aligned by mesh_up or its format's convention,
+    faces) when it is metric (1 cm to 2 m across, not TRELLIS's unit cube), decimated for
+    silhouettes; else None."""
     import trimesh
 
     from rose_usd.geometry.mesh import decimate
     from rose_usd.io.meshfile import read_mesh_file
 
-    path = ctx.case.mesh_file(spec)
-    if path is None:
-        return None
     raw = read_mesh_file(path)
     v = np.asarray(raw.vertices, float)
     extent = float(np.max(v.max(axis=0) - v.min(axis=0)))

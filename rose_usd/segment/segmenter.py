@@ -444,10 +444,10 @@ class Segmenter:
         if mine.sum() < 2:
             return region
         pts = self.frame(t0).pts
-        reach = max(3, round(LED_JOIN_PX * self.scale_px**0.5))  # the rim between the walls, in pixels
-        near = (
-            cv2.dilate(region.astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)).astype(bool) if led else None
-        )
+        near = None
+        if led:
+            reach = max(3, round(LED_JOIN_PX * self.scale_px**0.5))  # the rim between the walls, in pixels
+            near = cv2.dilate(region.astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)).astype(bool)
         for label in candidates:
             part = labels == label
             if (part & region).any():

@@ -409,7 +409,7 @@ def _collect_lines(robot: str, c: dict[str, Any]) -> list[str]:
         lines.append(f"  failed x{reasons.count(reason)}: {reason}")
     if c.get(tokens.COLLECT_DATASET):
         # authored relative to layers/robot.usda: shown relative to the output folder
-        path = str(getattr(c[tokens.COLLECT_DATASET], "path", c[tokens.COLLECT_DATASET]))
+        path = str(c[tokens.COLLECT_DATASET])  # the dump holds an asset path's string
         shown = path if posixpath.isabs(path) else posixpath.normpath(posixpath.join("layers", path))
         lines.append(f"  dataset: {shown} (in the output folder)")
     return lines
