@@ -279,7 +279,7 @@ def cmd_bench_generate(args) -> int:
 
 
 def cmd_bench_run(args) -> int:
-    from rose_usd.bench.modes import PerceptionMode
+    from rose_usd.bench.modes import ModeOptions, PerceptionMode
     from rose_usd.bench.report import build_report
     from rose_usd.bench.runner import DEFAULT_CASES, run_suite
 
@@ -291,6 +291,8 @@ def cmd_bench_run(args) -> int:
         tag += "-unprompted"
     if args.size_prior:
         tag += "-size-prior"
+    if args.intrinsics:
+        tag += "-intrinsics"
     if args.until:
         tag += f"-until-{args.until}"
     out = Path(args.output) if args.output else _bench_dir(f"{args.suite}-{mode.value}-{tag}")
@@ -308,8 +310,7 @@ def cmd_bench_run(args) -> int:
         settings=settings,
         command=command,
         until=args.until,
-        prompts=not args.no_prompts,
-        size_prior=args.size_prior,
+        options=ModeOptions(prompts=not args.no_prompts, size_prior=args.size_prior, intrinsics=args.intrinsics),
         start_from=Path(args.start_from) if args.start_from else None,
         rerun=tuple(args.rerun or ()),
     )
@@ -575,6 +576,11 @@ def _add_bench_run(bsub) -> None:
         "--size-prior",
         action="store_true",
         help="give each object's size_m (its true largest extent) in the cases' rose.toml (rgb mode's metric scale)",
+    )
+    p.add_argument(
+        "--intrinsics",
+        action="store_true",
+        help="keep the cases' cam_K.txt where the mode drops it (rgb, mono-imported): a calibrated camera",
     )
     p.add_argument(
         "--start-from",

@@ -121,6 +121,7 @@ def test_results_files_and_report(small_results):
     assert "object_ape_translation_m" in header and "time_gate_s" in header
     report = build_report(out).read_text()
     assert "Table 2" in report and "Table 3" in report and "Paper" in report and "## Trajectories" in report
+    assert "The cases give: RGB, sensor depth, cam_K.txt." in report
     assert set(data["cases"][0]["stage_results"]) == set(stages)  # what each stage recorded (None: nothing)
     assert (out / "plots" / "per_task.png").stat().st_size > 0 and (
         out / "plots" / "ape_over_time.png"

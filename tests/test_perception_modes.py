@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from rose_usd.bench.modes import PerceptionMode, make_mode_case
+from rose_usd.bench.modes import ModeOptions, PerceptionMode, make_mode_case, mode_stamp
 from rose_usd.case import load_case
 from rose_usd.case.gt import GroundTruth
 from rose_usd.core import se3
@@ -44,7 +44,9 @@ def test_mode_layouts(base_case, tmp_path):
 def test_rgb_mode_with_the_size_prior_gives_each_object_its_largest_true_extent(base_case, tmp_path):
     """--size-prior: rose.toml gives size_m per object (prompts kept); the generated case's file is untouched."""
     before = (base_case / "rose.toml").read_text()
-    rgb = make_mode_case(base_case, PerceptionMode.RGB, tmp_path / "rgb-size", seed=5, size_prior=True)
+    rgb = make_mode_case(
+        base_case, PerceptionMode.RGB, tmp_path / "rgb-size", seed=5, options=ModeOptions(size_prior=True)
+    )
     truth = {o["name"]: max(o["size_m"]) for o in json.loads((base_case / "gt" / "scene.json").read_text())["objects"]}
     objects = {o.name: o for o in load_case(rgb).config.objects}
     assert set(truth) <= set(objects)
@@ -52,6 +54,19 @@ def test_rgb_mode_with_the_size_prior_gives_each_object_its_largest_true_extent(
         assert objects[name].overrides["size_m"] == pytest.approx(size, abs=1e-5)
         assert objects[name].prompt is not None
     assert (base_case / "rose.toml").read_text() == before
+
+
+def test_rgb_mode_with_the_intrinsics_keeps_cam_K_and_nothing_else(base_case, tmp_path):
+    """--intrinsics: the rgb case gets the generated case's cam_K.txt (no depth), in its own folder
+    with its own stamp; rgbd, which keeps cam_K.txt anyway, is unchanged by it."""
+    options = ModeOptions(intrinsics=True)
+    rgb = make_mode_case(base_case, PerceptionMode.RGB, tmp_path / options.folder(PerceptionMode.RGB), 5, options)
+    assert rgb.name == "rgb-K"
+    assert (rgb / "cam_K.txt").read_text() == (base_case / "cam_K.txt").read_text()
+    assert not load_case(rgb).has_depth
+    assert (rgb / ".mode").read_text() == mode_stamp(PerceptionMode.RGB, options) != mode_stamp(PerceptionMode.RGB)
+    assert options.folder(PerceptionMode.RGBD) == "rgbd"
+    assert mode_stamp(PerceptionMode.RGBD, options) == mode_stamp(PerceptionMode.RGBD)
 
 
 def test_megasam_npz_format_and_scale(mono):

@@ -49,6 +49,24 @@ def _or_nan(value) -> float:
     return float("nan") if value is None else float(value)
 
 
+def _given(data: dict) -> str:
+    """What the mode's cases gave the pipeline (``bench.modes``), in words."""
+    given = {
+        "rgbd": "RGB, sensor depth, cam_K.txt",
+        "mono-imported": "RGB and simulated learned-model outputs (no depth, no cam_K.txt)",
+        "rgb": "RGB only",
+    }[data["mode"]]
+    from rose_usd.bench.modes import ModeOptions, PerceptionMode
+
+    options = ModeOptions.of(data)
+    extra = (
+        ("; no prompts" if not options.prompts else "")
+        + ("; each object's size_m" if options.size_prior else "")
+        + ("; cam_K.txt" if options.adds_intrinsics(PerceptionMode(data["mode"])) else "")
+    )
+    return given + extra
+
+
 def _case_metrics(case: dict) -> dict:
     s = case.get("score") or {}
     objs = s.get("objects") or []
@@ -169,6 +187,8 @@ def build_report(results_dir: Path) -> Path:
         f"commit `{data.get('commit')}`, {data['date']}, "
         f"{data['machine']['cpus']} CPUs ({data['machine']['platform']}). {len(cases)} cases, "
         f"{sum('error' in c for c in cases)} failed; suite wall time {data['suite_wall_time_s']:.0f} s.",
+        "",
+        f"The cases give: {_given(data)}.",
         "",
         f"Command: `{data.get('command', '')}`",
         "",

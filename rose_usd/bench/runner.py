@@ -14,7 +14,7 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from rose_usd.bench.modes import PerceptionMode, make_mode_case, mode_stamp
+from rose_usd.bench.modes import ModeOptions, PerceptionMode, make_mode_case, mode_stamp
 from rose_usd.bench.suites import CaseSpec, get_suite
 from rose_usd.bench.worker import run_worker
 from rose_usd.case.gt import GroundTruth
@@ -45,19 +45,18 @@ def ensure_case(spec: CaseSpec, suite_dir: Path) -> tuple[Path, float]:
     return base, time.perf_counter() - t0
 
 
-def ensure_mode(
-    base: Path, spec: CaseSpec, mode: PerceptionMode, prompts: bool = True, size_prior: bool = False
-) -> Path:
-    out = base.parent / (mode.value + ("" if prompts else "-unprompted") + ("-size" if size_prior else ""))
+def ensure_mode(base: Path, spec: CaseSpec, mode: PerceptionMode, options: ModeOptions = ModeOptions()) -> Path:
+    """The ``mode`` case of generated case ``base`` with ``options``, made again when missing or stale."""
+    out = base.parent / options.folder(mode)
     stamp = out / ".mode"
     base_stamp = (base / "gt" / "scene.json").stat().st_mtime_ns
     if (
         stamp.is_file()
-        and stamp.read_text() == mode_stamp(mode, prompts, size_prior)
+        and stamp.read_text() == mode_stamp(mode, options)
         and (out / "gt" / "scene.json").stat().st_mtime_ns == base_stamp
     ):
         return out
-    return make_mode_case(base, mode, out, spec.seed, prompts=prompts, size_prior=size_prior)
+    return make_mode_case(base, mode, out, spec.seed, options)
 
 
 def _flatten(result: dict) -> list[dict]:
@@ -103,18 +102,17 @@ def run_suite(
     settings: dict | None = None,
     command: str = "",
     until: str | None = None,
-    prompts: bool = True,
+    options: ModeOptions = ModeOptions(),
     start_from: Path | None = None,
     rerun: tuple[str, ...] = (),
-    size_prior: bool = False,
 ) -> dict:
     """Run every case of ``suite`` in ``mode`` into ``out_dir``/runs and write the results. With
-    ``start_from`` (an earlier results folder of the same suite, mode and prompts), each case starts
+    ``start_from`` (an earlier results folder of the same suite, mode and options), each case starts
     from a copy of that folder's kept run: its layers that are still current are not run again
     (their recorded wall times and peak memory are carried over), so later stages can be added to
     a kept benchmark. Stages in ``rerun`` run even when current."""
     specs = get_suite(suite)
-    source = _start_from(start_from, suite, mode, prompts) if start_from else None
+    source = _start_from(start_from, suite, mode, options) if start_from else None
     commit = _git_commit()  # at the start: the code that runs
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -124,7 +122,7 @@ def run_suite(
     t_start = time.perf_counter()
     for i, spec in enumerate(specs, start=1):
         base, gen_time = ensure_case(spec, suite_dir)
-        case = ensure_mode(base, spec, mode, prompts, size_prior)
+        case = ensure_mode(base, spec, mode, options)
         run_out = out_dir / "runs" / spec.name
         result_file = out_dir / "runs" / f"{spec.name}.json"
         say(f"bench [{i}/{len(specs)}] {spec.name} ({mode.value})")
@@ -172,8 +170,9 @@ def run_suite(
         "backends": backends,
         "settings": settings or {},
         "until": until,
-        "prompts": prompts,
-        "size_prior": size_prior,
+        "prompts": options.prompts,
+        "size_prior": options.size_prior,
+        "intrinsics": options.intrinsics,
         "started_from": {"folder": str(start_from), "commit": source["commit"], "rerun": list(rerun)}
         if source
         else None,
@@ -189,7 +188,7 @@ def run_suite(
     return summary
 
 
-def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -> dict:
+def _start_from(folder: Path, suite: str, mode: PerceptionMode, options: ModeOptions) -> dict:
     """The earlier results folder's summary, checked to hold runs of the same cases; its cases by name."""
     folder = Path(folder)
     summary_file = folder / "results.json"
@@ -200,13 +199,13 @@ def _start_from(folder: Path, suite: str, mode: PerceptionMode, prompts: bool) -
             hint="pass a folder that `rose-usd bench run` wrote on this machine",
         )
     summary = json.loads(summary_file.read_text())
-    theirs = (summary["suite"], summary["mode"], summary.get("prompts", True))
-    if theirs != (suite, mode.value, prompts):
+    theirs = (summary["suite"], summary["mode"], ModeOptions.of(summary))
+    if theirs != (suite, mode.value, options):
         raise InputError(
-            f"its runs are of suite {theirs[0]!r}, mode {theirs[1]!r}, prompts {theirs[2]}, "
-            f"not {suite!r}, {mode.value!r}, {prompts}",
+            f"its runs are of suite {theirs[0]!r}, mode {theirs[1]!r}, {theirs[2]}, "
+            f"not {suite!r}, {mode.value!r}, {options}",
             path=summary_file,
-            hint="start from a folder of the same suite and mode",
+            hint="start from a folder of the same suite, mode and options",
         )
     cases = {c["case"]: c for c in summary["cases"] if "error" not in c and (folder / "runs" / c["case"]).is_dir()}
     return {"commit": summary.get("commit"), "cases": cases}
@@ -233,7 +232,8 @@ def kept_runs(results: Path, cases_dir: Path = DEFAULT_CASES, only: str | None =
     for entry in summary["cases"]:
         run = Path(results) / "runs" / entry["case"]
         if "error" not in entry and run.is_dir() and (not only or only in entry["case"]):
-            yield entry, Path(cases_dir) / summary["suite"] / entry["case"] / summary["mode"], run
+            folder = ModeOptions.of(summary).folder(PerceptionMode(summary["mode"]))
+            yield entry, Path(cases_dir) / summary["suite"] / entry["case"] / folder, run
 
 
 def rescore(out_dir: Path, *, cases_dir: Path = DEFAULT_CASES) -> dict:
@@ -252,7 +252,7 @@ def rescore(out_dir: Path, *, cases_dir: Path = DEFAULT_CASES) -> dict:
         base, _ = ensure_case(spec, Path(cases_dir) / summary["suite"])
         say(f"bench rescore {spec.name}")
         result["score"] = evaluate(
-            ensure_mode(base, spec, mode, summary.get("prompts", True), summary.get("size_prior", False)),
+            ensure_mode(base, spec, mode, ModeOptions.of(summary)),
             out_dir / "runs" / spec.name,
         ).to_json()
     summary["rescored_by"] = _git_commit()
