@@ -19,7 +19,10 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
    boundary, with the other tracks' pixels as sure background. Each track keeps its whole shape
    from its last clear view and moves it rigidly by the median flow of what is seen of it, so a
    track hidden by the hand or passing behind another keeps its shape and is not absorbed by its
-   neighbor; where shapes overlap, the one standing lower in the image is in front. A track
+   neighbor; where shapes overlap, the one standing lower in the image is in front. A track at
+   rest stays with the static background (the camera's homography of the flow) unless its pixels
+   match the next frame clearly better moved by the flow (an arm sweeping over it drags the flow
+   of what it covers), and a hidden one that was at rest stays there. A track
    that moved since the last frame takes no pixel of the static background (a still camera's
    temporal median): what is carried is not what it leaves behind. A track resting while its
    color model is broad (a mesh's texture) takes no pixel that moved relative to it (backward
@@ -73,6 +76,19 @@ frames). Keeping it at this share for the whole video was worse on visp-cube-han
 silhouette vs masks IoU 0.80 -> 0.53, the gate failed): the texture's colors then claim the hand
 and the desk whenever they are near."""
 
+STILL_GRAY = 8.0
+"""A pixel tells whether a track stayed or moved where one way matches it by this many gray levels better."""
+
+VOTE_BAND_PX = 6
+"""Pixels of a track this near its hidden part do not vote (``FlowTracker._votes``) [px]: dense
+flow bleeds from an occluder's moving edge over them."""
+
+VOTE_MARGIN = 2.0
+"""A resting track starts to move with the flow (a carried one stops) only where this many times
+more of its pixels say so than say not (``FlowTracker._votes``): a plain red block half hidden by
+an arm sweeping over it matched 74 of its pixels better at rest, 76 moved with the arm's flow; a
+plain block that moves matches better moved at its trailing edge, and nowhere better at rest."""
+
 MOVER_PX = 3.0
 """A pixel that moved this much more than a resting track since the last frame is not the track's,
 where the track's color model is broad (``Track2D.broad``). Not for every track: in sam2-cups the
@@ -110,6 +126,8 @@ class Track2D:
     other things' colors too (the browns and blues of a mug carried past a textured cube)."""
     last_visible: np.ndarray | None = None
     """What was seen of it in the last frame (empty when hidden)."""
+    carried: bool = False
+    """Whether it moved against the static background when half of it or more was last seen (``MOVING_PX``)."""
 
     def __post_init__(self):
         if self.last_visible is None:
@@ -237,11 +255,60 @@ class FlowTracker:
         gb = cv2.cvtColor(self.frame_of(b), cv2.COLOR_RGB2GRAY)
         return self.dis.calc(ga, gb, None)
 
-    def _shift(self, tr: Track2D, flow: np.ndarray) -> np.ndarray:
-        """The median flow (dx, dy) of what was seen of the track (a hand over part of an object
-        does not drag its shape along) [px]."""
-        seen = tr.last_visible if tr.last_visible is not None and tr.last_visible.sum() >= 20 else tr.mask
-        return np.median(flow[seen], axis=0) if seen.any() else np.zeros(2)
+    def _shift(self, tr: Track2D, flow: np.ndarray, camera: np.ndarray | None, prev: int, t: int) -> np.ndarray:
+        """How the track's shape moves (dx, dy) [px] from frame ``prev`` to ``t``: the median
+        flow of what was seen of it (a hand over part of an object does not drag its shape along),
+        or the static background's (``camera``: the camera's homography from ``prev``, the
+        identity for a still camera; None where unknown: the flow alone), whichever its pixels
+        favour (``_votes``, each pixel by its own flow, away from its hidden part; a resting
+        track needs ``VOTE_MARGIN`` times more pixels to start to move, a carried one to stop). A
+        hidden track that rested when last seen stays with the background: the flow over it is its
+        occluder's (default unstack-can-s100, rgb: an arm sweeping over the base can dragged its
+        shape 40 px off, and the can, seen again, was not found for 45 frames); a hidden track
+        that was carried goes with what covers it (the hand that holds it)."""
+        part = tr.last_visible if tr.last_visible is not None and tr.last_visible.sum() >= 20 else None
+        if part is None and camera is not None and not tr.carried:
+            return _camera_shift(camera, tr.mask)
+        if part is None:
+            return np.median(flow[tr.mask], axis=0) if tr.mask.any() else np.zeros(2)
+        shift = np.median(flow[part], axis=0)
+        if camera is None:
+            return shift
+        still = _camera_shift(camera, tr.mask)
+        if np.hypot(*(shift - still)) <= MOVING_PX:
+            return shift
+        # pixels beside the part of the shape not seen are left out: what hides it moves there
+        hidden = cv2.dilate((tr.mask & ~part).astype(np.uint8), _disk(VOTE_BAND_PX)).astype(bool)
+        for_still, for_moved = self._votes(part & ~hidden, flow, still, prev, t)
+        # a track keeps resting, or keeps being carried, unless clearly more pixels say otherwise
+        if tr.carried:
+            return still if for_still > VOTE_MARGIN * for_moved else shift
+        return shift if for_moved > VOTE_MARGIN * for_still else still
+
+    def _votes(self, seen: np.ndarray, flow: np.ndarray, still, prev: int, t: int) -> tuple[int, int]:
+        """How many pixels ``seen`` of frame ``prev`` match frame t better (gray levels, by more
+        than ``STILL_GRAY``) moved by ``still`` (with the background) than each by its own
+        ``flow``, and the other way round. An arm sweeping over a resting object: the flow of the
+        pixels it covers is the arm's, and their median goes with it; the pixels still seen match
+        where they were (sam2-cups: the middle cup rests while another is carried in front of it,
+        frames 96-104; its mask went with the passing cup). An object turned in the hand matches
+        its flow pixel by pixel where no one shift does (visp-cube-hand-rgb's masks are the same
+        as when the median flow alone moved the shape; with the median as the moved way, they
+        left the turned cube); a plain one carried matches both ways where it overlaps itself,
+        and only the flow's way at its trailing edge."""
+        a = cv2.cvtColor(self.frame_of(prev), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        b = cv2.cvtColor(self.frame_of(t), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        ys, xs = np.nonzero(seen)
+
+        def error(d) -> np.ndarray:
+            u = np.clip(np.round(xs + d[..., 0]).astype(int), 0, self.w - 1)
+            v = np.clip(np.round(ys + d[..., 1]).astype(int), 0, self.h - 1)
+            return np.abs(b[v, u] - a[ys, xs])
+
+        e_still, e_moved = error(np.asarray(still)), error(flow[ys, xs])
+        return int(np.count_nonzero(e_still + STILL_GRAY < e_moved)), int(
+            np.count_nonzero(e_moved + STILL_GRAY < e_still)
+        )
 
     def _moved(self, tr: Track2D, shift: np.ndarray) -> np.ndarray:
         """The track's whole shape moved rigidly by ``shift`` (dx, dy) [px]."""
@@ -259,16 +326,23 @@ class FlowTracker:
         flow: np.ndarray,
         static=None,
         hand: HandPixels | None = None,
+        camera: np.ndarray | None = None,
     ) -> list[float]:
         """Move every track from frame ``prev`` to frame ``t`` along ``flow`` (``self.flow(prev,
         t)``); returns each track's visible fraction. ``static``: (t, prev) -> bool image of the
         pixels of frame t that show the static background (``MotionForeground.background``), or
         None: a track that moved by more than ``MOVING_PX`` takes none of them (what it carries is
         not the background behind it). ``hand``: the found hands of frame t; their pixels are no
-        track's (``HandPixels.not_of``)."""
+        track's (``HandPixels.not_of``). ``camera``: the camera's homography from frame ``prev``
+        (the identity for a still camera), None where unknown (``_shift``)."""
         rgb = self.frame_of(t)
         idx = color_index(rgb)
-        shifts = [self._shift(tr, flow) for tr in tracks]
+        shifts = [self._shift(tr, flow, camera, prev, t) for tr in tracks]
+        if camera is not None:
+            for tr, d in zip(tracks, shifts):
+                # judged on half a view or more: the flow of a sliver beside its occluder is the occluder's
+                if tr.last_visible is not None and tr.last_visible.sum() >= 0.5 * tr.typical_px:
+                    tr.carried = bool(np.hypot(*(d - _camera_shift(camera, tr.mask))) > MOVING_PX)
         moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
         carried = [static is not None and np.hypot(*d) > MOVING_PX for d in shifts]
         resting = [tr.broad and np.hypot(*d) <= MOVING_PX for tr, d in zip(tracks, shifts)]
@@ -406,17 +480,22 @@ class MotionForeground:
             self._apart(lab, self._lab(prev)) < 0.5 * FOREGROUND_LAB
         )
 
-    def __call__(self, t: int, flow: np.ndarray | None) -> np.ndarray:
+    def camera(self, flow: np.ndarray | None) -> np.ndarray | None:
+        """The camera's homography along ``flow``: the identity for a still camera, None without a flow."""
+        if self.static_camera:
+            return np.eye(3)
+        return None if flow is None else camera_homography(flow)
+
+    def __call__(self, t: int, flow: np.ndarray | None, camera: np.ndarray | None = None) -> np.ndarray:
+        """The moving pixels of frame t (``flow``: from the last frame; ``camera``: its homography,
+        ``self.camera(flow)``, made here when not given)."""
         if self.static_camera:
             fg = self._apart(self._lab(t), self.median) > FOREGROUND_LAB
         elif flow is not None:
             h, w = flow.shape[:2]
-            ys, xs = np.mgrid[0:h:8, 0:w:8]
-            src = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float32)
-            dst = src + flow[ys.ravel(), xs.ravel()]
-            H, _ = cv2.findHomography(src, dst, cv2.RANSAC, 1.0)
+            H = camera if camera is not None else camera_homography(flow)
             yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-            pts = np.stack([xx, yy, np.ones_like(xx)], axis=-1) @ (H if H is not None else np.eye(3)).T
+            pts = np.stack([xx, yy, np.ones_like(xx)], axis=-1) @ H.T
             cam = pts[..., :2] / pts[..., 2:3] - np.stack([xx, yy], axis=-1)
             fg = np.linalg.norm(flow - cam, axis=2) > 1.5
         else:
@@ -427,6 +506,27 @@ class MotionForeground:
         keep = np.zeros(n, bool)
         keep[1:] = areas[1:] >= 0.002 * fg.size
         return keep[labels]
+
+
+def camera_homography(flow: np.ndarray) -> np.ndarray:
+    """The homography (3, 3) that moves the static background along ``flow`` (RANSAC over every
+    8th pixel's flow: the background is most of a tabletop view); the identity where none fits."""
+    h, w = flow.shape[:2]
+    ys, xs = np.mgrid[0:h:8, 0:w:8]
+    src = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float32)
+    dst = src + flow[ys.ravel(), xs.ravel()]
+    H, _ = cv2.findHomography(src, dst, cv2.RANSAC, 1.0)
+    return H if H is not None else np.eye(3)
+
+
+def _camera_shift(camera: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The shift (dx, dy) [px] that the camera's homography gives the centroid of ``mask``."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs):
+        return np.zeros(2)
+    c = np.array([xs.mean(), ys.mean(), 1.0])
+    moved = camera @ c
+    return moved[:2] / moved[2] - c[:2]
 
 
 def segment_video(
@@ -473,12 +573,14 @@ def segment_video(
             tracks, prev = fresh(), t0
         if prev is not None:
             flow = tracker.flow(prev, t)
-        moving = motion(t, flow) if motion is not None else None
+        camera = motion.camera(flow) if motion is not None else None
+        moving = motion(t, flow, camera) if motion is not None else None
         hand = _hand_pixels(found[t], moving, skin, (tracker.h, tracker.w)) if found and found[t] else None
         if prev is None:  # the prompt frame itself
             fracs = [1.0] * len(tracks)
         else:
-            fracs = tracker.step(prev, t, tracks, bg, flow, motion.background if motion is not None else None, hand)
+            static = motion.background if motion is not None else None
+            fracs = tracker.step(prev, t, tracks, bg, flow, static, hand, camera)
         prev = t
         everything = np.zeros((tracker.h, tracker.w), bool)
         for tr, frac in zip(tracks, fracs):
