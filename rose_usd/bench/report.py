@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rose_usd.bench.modes import ModeOptions, PerceptionMode
 from rose_usd.bench.suites import TASK_ORDER
 from rose_usd.errors import InputError
 
@@ -53,11 +54,9 @@ def _given(data: dict) -> str:
     """What the mode's cases gave the pipeline (``bench.modes``), in words."""
     given = {
         "rgbd": "RGB, sensor depth, cam_K.txt",
-        "mono-imported": "RGB and simulated learned-model outputs (no depth, no cam_K.txt)",
+        "mono-imported": "RGB and simulated learned-model outputs (perception/)",
         "rgb": "RGB only",
     }[data["mode"]]
-    from rose_usd.bench.modes import ModeOptions, PerceptionMode
-
     options = ModeOptions.of(data)
     extra = (
         ("; no prompts" if not options.prompts else "")
