@@ -137,7 +137,10 @@ def test_default_suite_is_the_papers_size():
 
 @pytest.mark.slow
 def test_default_suite_meets_oracle_targets(tmp_path):
-    """Benchmark job: the default suite with oracle backends meets the oracle targets on every task."""
+    """Benchmark job: the default suite with oracle backends meets the oracle targets on every task.
+    The object stage lifts an object whose collider sinks into the support out of it, and its
+    poses carry that lift (``settle_lift_m``): CoACD's parts bulge past a mug's mesh (place-mug-s101:
+    1.39 mm, its APE 1.39 mm since afcc7b4; every other object 0)."""
     from rose_usd.bench.runner import DEFAULT_CASES
 
     summary = run_suite(
@@ -149,8 +152,10 @@ def test_default_suite_meets_oracle_targets(tmp_path):
         assert (
             score["scene_chamfer_m"] < 0.002 and score["scene_chamfer_visible_m"] < 0.002 and score["ssim_mean"] > 0.98
         ), case["case"]
+        settled = (case["stage_results"].get("object") or {}).get("objects", {})
         for obj in score["objects"]:
-            assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001, (case["case"], obj["name"])
+            lift = (settled.get(obj["name"]) or {}).get("settle_lift_m", 0.0)
+            assert obj["chamfer_m"] < 0.001 and obj["ape_translation_m"] < 0.001 + lift, (case["case"], obj["name"])
 
 
 def test_start_from_an_earlier_run_reruns_only_what_changed(small_results, tmp_path):
