@@ -255,8 +255,11 @@ class FlowTracker:
         gb = cv2.cvtColor(self.frame_of(b), cv2.COLOR_RGB2GRAY)
         return self.dis.calc(ga, gb, None)
 
-    def _shift(self, tr: Track2D, flow: np.ndarray, camera: np.ndarray | None, prev: int, t: int) -> np.ndarray:
-        """How the track's shape moves (dx, dy) [px] from frame ``prev`` to ``t``: the median
+    def _shift(
+        self, tr: Track2D, flow: np.ndarray, camera: np.ndarray | None, prev: int, t: int
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """How the track's shape moves (dx, dy) [px] from frame ``prev`` to ``t``, and how the
+        static background moves there (None without ``camera``): the median
         flow of what was seen of it (a hand over part of an object does not drag its shape along),
         or the static background's (``camera``: the camera's homography from ``prev``, the
         identity for a still camera; None where unknown: the flow alone), whichever its pixels
@@ -267,23 +270,21 @@ class FlowTracker:
         shape 40 px off, and the can, seen again, was not found for 45 frames); a hidden track
         that was carried goes with what covers it (the hand that holds it)."""
         part = tr.last_visible if tr.last_visible is not None and tr.last_visible.sum() >= 20 else None
-        if part is None and camera is not None and not tr.carried:
-            return _camera_shift(camera, tr.mask)
+        still = _camera_shift(camera, tr.mask) if camera is not None else None
+        if part is None and still is not None and not tr.carried:
+            return still, still
         if part is None:
-            return np.median(flow[tr.mask], axis=0) if tr.mask.any() else np.zeros(2)
+            return (np.median(flow[tr.mask], axis=0) if tr.mask.any() else np.zeros(2)), still
         shift = np.median(flow[part], axis=0)
-        if camera is None:
-            return shift
-        still = _camera_shift(camera, tr.mask)
-        if np.hypot(*(shift - still)) <= MOVING_PX:
-            return shift
+        if still is None or np.hypot(*(shift - still)) <= MOVING_PX:
+            return shift, still
         # pixels beside the part of the shape not seen are left out: what hides it moves there
         hidden = cv2.dilate((tr.mask & ~part).astype(np.uint8), _disk(VOTE_BAND_PX)).astype(bool)
         for_still, for_moved = self._votes(part & ~hidden, flow, still, prev, t)
         # a track keeps resting, or keeps being carried, unless clearly more pixels say otherwise
         if tr.carried:
-            return still if for_still > VOTE_MARGIN * for_moved else shift
-        return shift if for_moved > VOTE_MARGIN * for_still else still
+            return (still if for_still > VOTE_MARGIN * for_moved else shift), still
+        return (shift if for_moved > VOTE_MARGIN * for_still else still), still
 
     def _votes(self, seen: np.ndarray, flow: np.ndarray, still, prev: int, t: int) -> tuple[int, int]:
         """How many pixels ``seen`` of frame ``prev`` match frame t better (gray levels, by more
@@ -337,12 +338,13 @@ class FlowTracker:
         (the identity for a still camera), None where unknown (``_shift``)."""
         rgb = self.frame_of(t)
         idx = color_index(rgb)
-        shifts = [self._shift(tr, flow, camera, prev, t) for tr in tracks]
-        if camera is not None:
-            for tr, d in zip(tracks, shifts):
-                # judged on half a view or more: the flow of a sliver beside its occluder is the occluder's
-                if tr.last_visible is not None and tr.last_visible.sum() >= 0.5 * tr.typical_px:
-                    tr.carried = bool(np.hypot(*(d - _camera_shift(camera, tr.mask))) > MOVING_PX)
+        shifts = []
+        for tr in tracks:
+            d, still = self._shift(tr, flow, camera, prev, t)
+            shifts.append(d)
+            # judged on half a view or more: the flow of a sliver beside its occluder is the occluder's
+            if still is not None and tr.last_visible is not None and tr.last_visible.sum() >= 0.5 * tr.typical_px:
+                tr.carried = bool(np.hypot(*(d - still)) > MOVING_PX)
         moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
         carried = [static is not None and np.hypot(*d) > MOVING_PX for d in shifts]
         resting = [tr.broad and np.hypot(*d) <= MOVING_PX for tr, d in zip(tracks, shifts)]
@@ -486,16 +488,15 @@ class MotionForeground:
             return np.eye(3)
         return None if flow is None else camera_homography(flow)
 
-    def __call__(self, t: int, flow: np.ndarray | None, camera: np.ndarray | None = None) -> np.ndarray:
-        """The moving pixels of frame t (``flow``: from the last frame; ``camera``: its homography,
-        ``self.camera(flow)``, made here when not given)."""
+    def __call__(self, t: int, flow: np.ndarray | None, camera: np.ndarray | None) -> np.ndarray:
+        """The moving pixels of frame t (``flow``: from the last frame; ``camera``: the camera's
+        homography along it, ``self.camera(flow)``)."""
         if self.static_camera:
             fg = self._apart(self._lab(t), self.median) > FOREGROUND_LAB
         elif flow is not None:
             h, w = flow.shape[:2]
-            H = camera if camera is not None else camera_homography(flow)
             yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-            pts = np.stack([xx, yy, np.ones_like(xx)], axis=-1) @ H.T
+            pts = np.stack([xx, yy, np.ones_like(xx)], axis=-1) @ camera.T
             cam = pts[..., :2] / pts[..., 2:3] - np.stack([xx, yy], axis=-1)
             fg = np.linalg.norm(flow - cam, axis=2) > 1.5
         else:
