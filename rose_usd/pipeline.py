@@ -200,6 +200,11 @@ class Pipeline:
             planning.check_prompted(self.case, self.config(registry.get("segment")).prompts, self._prompts_where())
         return stages
 
+    def check_output(self) -> None:
+        """The output folder is this case's (``usd.stage.check_out_case``), checked after the
+        inputs: a broken input is named as such, not as another case."""
+        usd_stage.check_out_case(self.out_dir, self.case.root, _files_hash(self.case.input_files(), self.case.folder))
+
     def plan_line(self, stages: list[StageDef]) -> str:
         return "plan: " + " ".join(f"{s.name}={self.config(s).backend.value}" for s in stages)
 
@@ -273,6 +278,7 @@ class Pipeline:
         fails leaves its previous layer as it was; with ``check`` its error propagates, otherwise
         it is recorded in its outcome and the stages after it are ``not run``."""
         stages = self.plan(target)
+        self.check_output()
         say(self.plan_line(stages))
         for line in usd_stage.recover(self.out_dir):
             say(f"[{self.out_dir}] {line}")

@@ -61,6 +61,25 @@ def out_copy(tmp_path, oracle_out) -> Path:
     return dst
 
 
+def made_from(out: Path, case: Path) -> None:
+    """Point the provenance of ``out``'s layers at ``case``, a copy of the case they were made from
+    (an output folder holds one case's stages: ``usd.stage.check_out_case``)."""
+    import json
+
+    from pxr import Sdf
+
+    from rose_usd.usd.stage import existing_layers, layer_file
+
+    for name in existing_layers(out):
+        layer = Sdf.Layer.FindOrOpen(str(layer_file(out, name)))
+        data = dict(layer.customLayerData)
+        prov = json.loads(data["rose"])
+        prov["case"] = str(Path(case).resolve())
+        data["rose"] = json.dumps(prov)
+        layer.customLayerData = data
+        layer.Save()
+
+
 def can_on_box():
     """A green can standing on a purple box on a noisy grey table, seen from the front: the box's
     prompt holds the can's lower half. Returns the image, the two prompts and the true masks."""

@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import made_from
 from PIL import Image
 
 from rose_usd.cli import main
@@ -631,7 +632,8 @@ def test_depth_dropouts_are_skipped(tmp_path, sample_case, capsys):
 
 
 def test_capture_on_another_case_removes_stale_layers(tmp_path, sample_case, oracle_out, capsys):
-    """Capture re-run on a 2-frame case into a folder holding the 48-frame reconstruction removes
+    """Capture run on a 2-frame copy of the sample into a folder holding the sample's reconstruction
+    is refused (another case's stages). The same case cut to 2 frames in place: capture re-run removes
     the masks, scene, object, trajectory and gate it made stale: the folder is that capture alone,
     and validate finds nothing to disagree about (class 2)."""
     from rose_usd.usd.stage import consistency_problems, existing_layers, read_time_info
@@ -639,6 +641,9 @@ def test_capture_on_another_case_removes_stale_layers(tmp_path, sample_case, ora
     case = short_case(sample_case, tmp_path / "case", 2)
     out = tmp_path / "out"
     shutil.copytree(oracle_out, out)
+    code = main(["run", "capture", str(case), "-o", str(out)])
+    assert code == 1 and "holds the stages of another case" in capsys.readouterr().err  # refused: not its folder
+    made_from(out, case)  # as if made from this case's folder before it was cut to 2 frames
     assert main(["run", "capture", str(case), "-o", str(out)]) == 0, capsys.readouterr().err
     assert existing_layers(out) == ["world"]
     assert not any((out / side).exists() for side in ("masks", "textures", "trajectory", "report"))

@@ -129,6 +129,22 @@ def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
     assert "Config" not in err  # a Python class means nothing on the command line
 
 
+def test_an_output_folder_of_another_case_or_the_case_folder_is_refused(capsys, case_copy, out_copy):
+    """Running a case into a folder that holds another case's stages would remove them as stale:
+    refused with one line, nothing touched; so is the case folder itself as the output. (A copy
+    of the case, unchanged, may use the folder its original's stages are in.)"""
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text() + "\n# another case: another folder, other inputs\n")
+    before = sorted((p.relative_to(out_copy), p.stat().st_mtime_ns) for p in out_copy.rglob("*"))
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out_copy), "--backend", "all=oracle")
+    assert_one_line_error(code, err, str(out_copy), "another case", "another folder")
+    assert sorted((p.relative_to(out_copy), p.stat().st_mtime_ns) for p in out_copy.rglob("*")) == before
+    listed = sorted(case_copy.rglob("*"))
+    code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(case_copy), "--backend", "all=oracle")
+    assert_one_line_error(code, err, "case folder itself", "-o out/case")
+    assert sorted(case_copy.rglob("*")) == listed
+
+
 def test_object_never_visible_leaves_no_mix(capsys, case_copy, out_copy):
     """An object that never appears fails the segment stage and leaves no mix: the capture re-run
     before it (its ground truth changed) made the old masks stale, so they went with the layers

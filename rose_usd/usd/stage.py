@@ -289,6 +289,30 @@ def check_out_dir(out_dir: str | os.PathLike) -> Path:
     return path
 
 
+def check_out_case(out_dir: Path, case_root: Path, case_hash: str) -> None:
+    """An output folder holds one case's stages: refused when it is the case folder itself (the
+    stages would write among its inputs) or when a layer in it was made from another case, one at
+    another path whose inputs differed too (its provenance's ``case`` and ``inputs.case`` against
+    ``case_root`` and ``case_hash``): a run would remove that case's layers as stale. The same
+    case edited in place, or copied elsewhere unchanged, may use it."""
+    root = Path(case_root).resolve()
+    if Path(out_dir).resolve() == root:
+        raise InputError(
+            "is the case folder itself: the stages would write among its inputs",
+            path=out_dir,
+            hint=f"give -o another folder, e.g. -o out/{root.stem}",
+        )
+    for name in existing_layers(out_dir):
+        prov = read_provenance(layer_file(out_dir, name)) or {}
+        made_from = prov.get("case")
+        if made_from and Path(made_from) != root and (prov.get("inputs") or {}).get("case") != case_hash:
+            raise InputError(
+                f"holds the stages of another case ({made_from}); a run would replace them",
+                path=out_dir,
+                hint="give -o another folder, or delete this one's layers/ to reuse it",
+            )
+
+
 def dir_hash(folder: Path) -> str:
     """sha256 of a folder's files (relative names and contents), first 16 hex characters."""
     h = hashlib.sha256()
