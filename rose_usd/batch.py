@@ -4,7 +4,9 @@ Each case runs :func:`rose_usd.reconstruct` into ``OUT/<name>/`` in a process of
 crash, a leak or a native library's global state stays with its case), a worker count at a time,
 or as Ray tasks on a cluster (``ray=ADDRESS``, ``"auto"`` for a running one, ``"local"`` to start
 one here) with their CPU and GPU needs declared. A case that fails is recorded with its one-line
-error and does not stop the others.
+error and does not stop the others. Every case is first checked as ``reconstruct`` checks it
+(inputs, settings, output folder): one it would refuse is recorded as failed before any case
+runs, and when it would refuse them all (a ``--set`` typo) the batch stops there, writing nothing.
 
 **Resume.** A case is done when its ``batch.json`` is written, last and atomically, after its
 reconstruction and validation; it records the hash of every layer file it saw. Run again, a case
@@ -34,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from rose_usd.errors import ConfigError, RoseError
-from rose_usd.progress import progress, quiet
+from rose_usd.progress import progress, quiet, say
 
 RECORD = "batch.json"
 """The record of a finished case, in its output folder."""
@@ -101,7 +103,11 @@ def _layer_hashes(out_dir: Path) -> dict[str, str]:
 
 def _record(out_dir: Path, options_key: str) -> CaseResult | None:
     """The finished case recorded in ``out_dir``, when it was made with the same options and its
-    layers are the ones it vouches for."""
+    layers are the ones it vouches for (after what an interrupted later run left is cleared away
+    or its commit finished: ``usd.stage.recover``)."""
+    from rose_usd.usd.stage import recover
+
+    recover(out_dir)
     path = out_dir / RECORD
     try:
         data = json.loads(path.read_text())
@@ -180,7 +186,9 @@ def batch(
         backends, settings, until, force: as for :func:`rose_usd.reconstruct`, for every case.
 
     Raises:
-        ConfigError: no case, a case that does not exist, or ``out`` that cannot be a folder.
+        RoseError: no case, a case that does not exist, ``out`` that cannot be a folder, or every
+            case refused by ``reconstruct``'s checks (inputs, settings, output folder; a ``--set``
+            typo). A case refused while others pass is recorded as failed, before any runs.
     """
     cases = [str(c) for c in cases]
     if not cases:
@@ -193,7 +201,6 @@ def batch(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError("the batch output is a file", path=out, hint="give a folder for -o")
-    out.mkdir(parents=True, exist_ok=True)
     options = {
         "backends": dict(backends or {}),
         "settings": {k: dict(v) for k, v in (settings or {}).items()},
@@ -206,6 +213,10 @@ def batch(
         options_key += f"-{time.time_ns()}"
     names = case_names(cases)
     jobs = [(name, case, str(out / name), options, options_key) for name, case in zip(names, cases)]
+    refused = _preflight(jobs)
+    if len(refused) == len(jobs):  # the command's own mistake (a --set typo), or nothing to run
+        raise next(iter(refused.values()))
+    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     results: dict[str, CaseResult] = {}
 
@@ -213,11 +224,36 @@ def batch(
         results[data["name"]] = CaseResult(**data)
         write_summary(out, [results[n] for n in names if n in results])
 
+    for name, case in zip(names, cases):
+        if name in refused:
+            line = refused[name].one_line()
+            say(f"batch: {name} refused: {line}")
+            finished(asdict(CaseResult(name=name, case=case, out_dir=str(out / name), status="failed", error=line)))
+    jobs = [job for job in jobs if job[0] not in refused]
+
     if ray:
         _run_ray(jobs, ray, cpus_per_case, gpus_per_case, finished)
     else:
         _run_local(jobs, workers, finished)
     return BatchResult(out, [results[n] for n in names], time.perf_counter() - t0)
+
+
+def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:
+    """Every case's inputs, settings and output folder checked as ``reconstruct`` checks them,
+    before any case runs: name -> the error of each case it would refuse (a typo in the tenth
+    case's rose.toml is known at once, not after nine reconstructions)."""
+    from rose_usd.pipeline import Options, Pipeline
+
+    refused = {}
+    for name, case, out_dir, options, _key in jobs:
+        try:
+            given = {"backends": options["backends"], "settings": options["settings"], "force": options["force"]}
+            pipe = Pipeline(case, out_dir, Options(**given))
+            pipe.plan(options["until"])
+            pipe.check_output()
+        except RoseError as exc:
+            refused[name] = exc
+    return refused
 
 
 def _run_local(jobs: list[tuple], workers: int, finished) -> None:

@@ -65,6 +65,12 @@ def test_each_case_runs_and_a_broken_one_is_recorded_not_fatal(tmp_path, sample_
     assert reused == {"push-0": True, "push-1": True, "broken": False}
     assert _mtimes(out / "push-0") == before
 
+    # what a run interrupted since left behind (a staging folder of a dead process) is cleared
+    litter = out / "push-0" / ".staging-gate-999999999-0badc0de"
+    litter.mkdir()
+    batch(cases, out, workers=1, **FAST)
+    assert not litter.exists() and _mtimes(out / "push-0") == before
+
     # a record that no longer matches its layers is not trusted: the case runs again
     (out / "push-1" / "layers" / "world.usda").write_text("#usda 1.0\n")
     third = batch(cases, out, workers=1, **FAST)
@@ -80,6 +86,24 @@ def test_bad_batch_arguments_are_one_line_errors(tmp_path, sample_case):
     (tmp_path / "file").write_text("x")
     with pytest.raises(ConfigError, match="file"):
         batch([sample_case], tmp_path / "file")
+
+
+def test_a_setting_typo_stops_the_batch_before_anything_and_a_case_typo_is_refused_up_front(tmp_path, sample_case):
+    """A ``--set`` typo every case would refuse stops the batch at once, writing nothing; a typo in
+    one case's rose.toml records that case as failed before the others run, and they run."""
+    cases = _cases(tmp_path, sample_case, 1)[:1]
+    out = tmp_path / "batch"
+    with pytest.raises(ConfigError, match="frame_strid"):
+        batch(cases, out, settings={"gate": {"frame_strid": 5}}, **FAST)
+    assert not out.exists()
+    typo = tmp_path / "cases" / "typo"
+    shutil.copytree(sample_case, typo)
+    toml = typo / "rose.toml"
+    toml.write_text(toml.read_text().replace("category", "categroy", 1))
+    result = batch([typo, *cases], out, **FAST)
+    status = {c.name: (c.status, c.wall_time_s) for c in result.cases}
+    assert status["push-0"][0] == "done" and status["typo"] == ("failed", 0.0)
+    assert "categroy" in next(c.error for c in result.cases if c.name == "typo")
 
 
 def test_kill_9_halfway_then_the_same_command_finishes_what_was_not(tmp_path, sample_case):
