@@ -133,6 +133,24 @@ def test_an_object_without_a_collider_gets_a_layer_that_says_so(tmp_path, small_
     assert result.status == "no-collider" and "no collision mesh" in result.message and result.rollouts == 0
 
 
+def test_an_object_held_in_every_frame_gets_a_layer_that_says_so(tmp_path, small_box_out, sample_case):
+    """The box's path raised 5 cm and moved 1 cm every frame (held on a rod through the video, as
+    deepac-cat-rgb's cat): it rests in no frame, so there is nothing to pick it up from: status
+    not-resting, no rollout (before, 12 rollouts flung the falling cat kilometres away)."""
+    out = tmp_path / "out"
+    shutil.copytree(small_box_out, out)
+    layer = Sdf.Layer.FindOrOpen(str(layer_file(out, "trajectory")))
+    stage = Usd.Stage.Open(layer)
+    translate = stage.GetPrimAtPath(paths.object_path("Box")).GetAttribute("xformOp:translate")
+    for t in translate.GetTimeSamples():
+        p = translate.Get(Usd.TimeCode(t))
+        translate.Set(type(p)(p[0] + 0.01 * t, p[1], p[2] + 0.05), Usd.TimeCode(t))
+    layer.Save()
+    result = _collect(sample_case, out)
+    assert result.status == "not-resting" and result.rollouts == 0
+    assert "'Box' rests in no frame" in result.message
+
+
 def test_a_path_out_of_reach_gets_a_layer_that_says_so(tmp_path, small_box_out, sample_case):
     """A base placed 2 m away (rose.toml / --set collect.base) reaches nothing: status unreachable."""
     out = tmp_path / "out"

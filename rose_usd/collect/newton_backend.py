@@ -27,6 +27,7 @@ from rose_usd.layers import objects as object_layer
 from rose_usd.layers.scene import scene_collider
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.progress import progress, say
+from rose_usd.sim.resting import min_run_frames, resting_frames, resting_runs
 from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
 
@@ -49,6 +50,14 @@ def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray
         if best is None or length > best[2]:
             best = (name, path, length)
     return None if best is None else best[:2]
+
+
+def _rests_somewhere(ctx: StageContext, name: str) -> bool:
+    """Whether the object rests in the video (``sim.resting``: still, untouched or still from the
+    start) for at least the run the gate's rest check counts."""
+    n = ctx.time_info.n_frames
+    frames = resting_frames(ctx.stage, {name: object_layer.object_paths(ctx.stage)[name]}, n)[name]
+    return bool(resting_runs(frames, min_run_frames(ctx.time_info.fps)))
 
 
 def _surface_points(vertices: np.ndarray, faces: np.ndarray, spacing_m: float, rng) -> np.ndarray:
@@ -287,6 +296,13 @@ def run(ctx: StageContext) -> None:
     name, path = picked
     if object_layer.collision_approximation(ctx.stage, name) is None:
         _finish(ctx, Outcome("no-collider", f"object {name!r} has no collision mesh", object_name=name))
+        return
+    if not _rests_somewhere(ctx, name):
+        why = (
+            f"object {name!r} rests in no frame of the video (held or moving in every one):"
+            " there is nowhere for the robot to pick it up from"
+        )
+        _finish(ctx, Outcome("not-resting", why, object_name=name))
         return
     target = _target(ctx, name, path, rng)
 

@@ -21,6 +21,10 @@ from rose_usd.collect.world import World
 from rose_usd.core import se3
 from rose_usd.sim import panda
 
+FLUNG_M = 100.0
+"""A body this far from the world's origin [m] means the simulation diverged (the object of a
+table-top scene flung kilometres in a rollout)."""
+
 
 @dataclass(frozen=True)
 class Perturbation:
@@ -208,7 +212,8 @@ class _Ticks:
         self.tick = 0
 
     def execute(self, upto: int) -> bool:
-        """Run the plan's ticks up to ``upto`` (exclusive); False once a body pose is not finite."""
+        """Run the plan's ticks up to ``upto`` (exclusive); False once a body's pose is not finite or
+        ``FLUNG_M`` from the origin (the simulation diverged)."""
         w, plan, rate, substeps = self.sim.world, self.plan, self.plan.rate_hz, self.substeps
         q0, d0, n = w.robot_q0, w.robot_d0, len(panda.JOINTS)
         while self.tick < upto:
@@ -229,12 +234,12 @@ class _Ticks:
         return True
 
     def _log(self, q_next: np.ndarray) -> bool:
-        """Log the state after a tick whose joint targets were ``q_next`` (9,); False if it is not finite."""
+        """Log the state after a tick whose joint targets were ``q_next`` (9,); False if it diverged."""
         w, state = self.sim.world, self.state
         q0, d0, n = w.robot_q0, w.robot_d0, len(panda.JOINTS)
         body_q = state.body_q.numpy().astype(float)
         jq = state.joint_q.numpy().astype(float)
-        if not np.all(np.isfinite(body_q)):
+        if not np.all(np.isfinite(body_q)) or np.abs(body_q[:, :3]).max() > FLUNG_M:
             return False
         self.log_q.append(jq[q0 : q0 + n])
         self.log_qd.append(state.joint_qd.numpy().astype(float)[d0 : d0 + n])
@@ -302,7 +307,8 @@ def run_rollout(
         finite = ticks.execute(len(plan))
     ticks.fill(result)
     if not finite:
-        result.reason = f"the simulation diverged (NaN) in phase {plan.phase[min(ticks.tick, len(plan) - 1)]!r}"
+        phase = plan.phase[min(ticks.tick, len(plan) - 1)]
+        result.reason = f"the simulation diverged (a body's pose not finite or {FLUNG_M:g} m away) in phase {phase!r}"
     else:
         judge(result, path, carry_from, cfg)
     result.wall_s = time.perf_counter() - t_wall

@@ -20,7 +20,7 @@ from rose_usd.layers.objects import object_paths
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras
 from rose_usd.progress import progress, say
-from rose_usd.sim.resting import rest_checks, still_frames, still_from_start, untouched_frames
+from rose_usd.sim.resting import rest_checks, resting_frames
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import read_mesh
@@ -113,17 +113,10 @@ def _rest(stage, objects: dict[str, str], cfg, n: int, fps: float) -> tuple[list
     """The rest check from each object's first and last resting frame (``sim.resting``; the
     frames it is still from the first count as resting, touched or not): a list of (frame,
     ``RestResult``), and the objects resting in no frame."""
-    from rose_usd.sim.rest import body_corners, simulate_rest
+    from rose_usd.sim.rest import simulate_rest
 
-    masks = read_masks(stage, n)
     poses = {name: object_poses(stage, name, n) for name in objects}
-    corners = body_corners(stage, objects)
-    still = {name: still_frames(poses[name], corners[name]) for name in objects}
-    resting = {
-        name: still[name] & (untouched_frames(masks, name, n) | still_from_start(poses[name], corners[name]))
-        for name in objects
-    }
-    checks = rest_checks(resting, fps)
+    checks = rest_checks(resting_frames(stage, objects, n), fps)
     out = []
     for check in checks:
         results = simulate_rest(

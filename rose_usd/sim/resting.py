@@ -90,6 +90,23 @@ def untouched_frames(masks: Masks, name: str, n_frames: int) -> np.ndarray:
     return out
 
 
+def resting_frames(stage, objects: dict[str, str], n_frames: int) -> dict[str, np.ndarray]:
+    """Per object (name -> prim path), the frames it rests in: still, and untouched by the
+    interactor or still from the start."""
+    from rose_usd.layers.masks import read_masks
+    from rose_usd.layers.trajectory import object_poses
+    from rose_usd.sim.rest import body_corners
+
+    masks = read_masks(stage, n_frames)
+    corners = body_corners(stage, objects)
+    out = {}
+    for name in objects:
+        poses = object_poses(stage, name, n_frames)
+        still = still_frames(poses, corners[name])
+        out[name] = still & (untouched_frames(masks, name, n_frames) | still_from_start(poses, corners[name]))
+    return out
+
+
 def resting_runs(resting: np.ndarray, min_frames: int) -> list[tuple[int, int]]:
     """(first, last) frame of each run of ``resting`` frames at least ``min_frames`` long."""
     return [(a, b) for a, b in true_runs(resting) if b - a + 1 >= min_frames]
