@@ -147,3 +147,17 @@ def test_a_box_set_down_in_the_air_fails_the_rest_check_from_its_last_resting_fr
     stage = open_stage(out_copy / "rose.usda")
     rest, never = _rest(stage, object_paths(stage), GateConfig(), 48, 30.0)
     assert [t for t, _ in rest] == [0] and never == []  # still from the first frame: rests there alone
+
+
+def test_the_gate_summary_lists_an_object_resting_in_no_frame_without_a_stray_comma():
+    from rose_usd.layers.gate import GateResult
+
+    def summary(moved, never):
+        return GateResult(
+            passed=True, ssim_mean=0.9, ssim_min=0.8, ssim_threshold=0.75, rest_displacement_m=moved,
+            rest_frames={name: [0] for name in moved}, not_resting=never, rest_threshold_m=0.005,
+            physics_passed=True, geometry_passed=True, geometry_report="", track_iou={}, track_threshold=0.5,
+        ).summary()  # fmt: skip
+
+    assert "rest Cat rests in no frame;" in summary({}, ["Cat"])
+    assert "rest Box 1.00 mm (frames 0), Cat rests in no frame;" in summary({"Box": 0.001}, ["Cat"])

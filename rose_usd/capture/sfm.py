@@ -307,8 +307,9 @@ def _scale(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_units: np
     chosen, agreement = choose(cues)
     if chosen.name == "camera-height":
         ctx.warn(
-            "no size of any object is known (no size_m, no metric mesh, no prompted object of a known category):"
-            " the metric scale assumes the camera is 0.5 m above the support (+-50 %)"
+            "no object's size could be used (a size_m, a metric mesh standing in its prompt frame's silhouette,"
+            " a prompted object of a known category): the metric scale assumes the camera is 0.5 m above the"
+            " support (+-50 %)"
         )
     elif chosen.name == "category-prior":
         ctx.warn(
@@ -543,7 +544,7 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
                 )
             else:
                 ctx.warn(
-                    f"object {spec.name!r}'s mesh stands poorly in its prompt frame's silhouette"
+                    f"the mesh of object {spec.name!r} stands poorly in its prompt frame's silhouette"
                     f" (IoU {fit['iou']:.2f}):"
                     " not used for the scale (held in the air?)"
                 )

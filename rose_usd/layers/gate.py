@@ -36,10 +36,12 @@ class GateResult:
 
     def summary(self) -> str:
         rest = ", ".join(
-            f"{name} {1e3 * d:.2f} mm (frames {', '.join(map(str, self.rest_frames.get(name, [])))})"
-            for name, d in self.rest_displacement_m.items()
+            [
+                f"{name} {1e3 * d:.2f} mm (frames {', '.join(map(str, self.rest_frames.get(name, [])))})"
+                for name, d in self.rest_displacement_m.items()
+            ]
+            + [f"{name} rests in no frame" for name in self.not_resting]
         )
-        rest += "".join(f", {name} rests in no frame" for name in self.not_resting)
         track = ", ".join(f"{name} {iou:.2f}" for name, iou in self.track_iou.items())
         return (
             f"gate {'PASS' if self.passed else 'FAIL'}: SSIM {self.ssim_mean:.4f} (min {self.ssim_min:.4f}, "

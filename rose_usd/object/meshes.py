@@ -96,9 +96,12 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
             repairs.append(f"{int(keep.sum())} separate parts kept as one rigid body")
         mesh = trimesh.util.concatenate([p for p, k in zip(parts, keep) if k])
     if not mesh.is_watertight:
-        holes = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
+        _, uses = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+        holes, shared = int(np.count_nonzero(uses == 1)), int(np.count_nonzero(uses > 2))
         mesh = _fill_holes(mesh)
-        repairs.append(f"filled holes ({holes} open edges)")
+        repairs.append(
+            f"filled holes ({holes} open edges)" if holes else f"closed it ({shared} edges shared by over two faces)"
+        )
     if not mesh.is_winding_consistent or mesh.volume < 0:
         trimesh.repair.fix_normals(mesh)
     problems = collider_problems(mesh.vertices, mesh.faces) or (

@@ -361,8 +361,10 @@ def _gate_lines(g: dict[str, Any]) -> list[str]:
     disp = g.get(tokens.GATE_PHYSICS_DISPLACEMENT, [])
     frames = g.get(tokens.GATE_PHYSICS_FRAMES, [])
     at = [f" from frame {t}" for t in frames] if len(frames) == len(objs) else [""] * len(objs)
-    moves = ", ".join(f"{o}{f} {d * 1000:.2f} mm" for o, f, d in zip(objs, at, disp))
-    moves += "".join(f", {o} rests in no frame" for o in g.get(tokens.GATE_PHYSICS_NOT_RESTING, []))
+    moves = ", ".join(
+        [f"{o}{f} {d * 1000:.2f} mm" for o, f, d in zip(objs, at, disp)]
+        + [f"{o} rests in no frame" for o in g.get(tokens.GATE_PHYSICS_NOT_RESTING, [])]
+    )
     lines.append(
         f"  physics: rest check over {g.get(tokens.GATE_PHYSICS_DURATION, 0):g} s: {moves or 'not run'}: "
         f"{'pass' if g.get(tokens.GATE_PHYSICS_PASSED) else 'FAIL'}"
