@@ -22,12 +22,14 @@ cases finished so far.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import html
 import io
 import json
 import os
+import sys
 import time
 import traceback
 from collections.abc import Iterable, Mapping, Sequence
@@ -40,6 +42,10 @@ from rose_usd.progress import progress, quiet, say
 
 RECORD = "batch.json"
 """The record of a finished case, in its output folder."""
+REFUSED = "refused before any case ran"
+"""How the error of a case the batch's first check refused begins."""
+LOG = "batch.log"
+"""A case's stages' progress and warnings, in its output folder (appended each run)."""
 FIELDS = ("name", "case", "status", "gate_passed", "ssim_mean", "collect_success", "wall_time_s", "error")
 """The summary's columns."""
 
@@ -129,8 +135,8 @@ def run_case(
     options: Mapping[str, Any],
     options_key: str,
 ) -> dict[str, Any]:
-    """Reconstruct one case (in a worker process or a Ray task) and record it; never raises."""
-    os.environ.setdefault("ROSE_USD_QUIET", "1")
+    """Reconstruct one case (in a worker process or a Ray task) and record it, its stages' progress
+    and warnings going to ``out_dir/batch.log``; never raises."""
     out = Path(out_dir)
     earlier = _record(out, options_key)
     if earlier is not None:
@@ -140,7 +146,8 @@ def run_case(
     try:
         from rose_usd.api import reconstruct
 
-        rec = reconstruct(case, out, validate=True, check=False, **options)
+        with _stderr_to(out / LOG):
+            rec = reconstruct(case, out, validate=True, check=False, **options)
         result.stages_ran = [o.name for o in rec.outcomes if o.status == "ran"]
         result.error = rec.error
         if rec.validation is not None and not rec.validation.ok:
@@ -213,29 +220,70 @@ def batch(
         options_key += f"-{time.time_ns()}"
     names = case_names(cases)
     jobs = [(name, case, str(out / name), options, options_key) for name, case in zip(names, cases)]
-    refused = _preflight(jobs)
-    if len(refused) == len(jobs):  # the command's own mistake (a --set typo), or nothing to run
+    earlier = {job[0]: _record(Path(job[2]), options_key) for job in jobs}
+    refused = _preflight([job for job in jobs if earlier[job[0]] is None])
+    if len(refused) == len(jobs):  # the command's own mistake (a --set typo)
         raise next(iter(refused.values()))
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     results: dict[str, CaseResult] = {}
 
     def finished(data: dict) -> None:
-        results[data["name"]] = CaseResult(**data)
+        result = results[data["name"]] = CaseResult(**data)
         write_summary(out, [results[n] for n in names if n in results])
+        say(_line(result))
 
     for name, case in zip(names, cases):
         if name in refused:
-            line = refused[name].one_line()
-            say(f"batch: {name} refused: {line}")
+            line = f"{REFUSED}: {refused[name].one_line()}"
             finished(asdict(CaseResult(name=name, case=case, out_dir=str(out / name), status="failed", error=line)))
-    jobs = [job for job in jobs if job[0] not in refused]
+        elif earlier[name] is not None:
+            finished(asdict(earlier[name]))
+    jobs = [job for job in jobs if job[0] not in results]
 
-    if ray:
+    if jobs and ray:
         _run_ray(jobs, ray, cpus_per_case, gpus_per_case, finished)
-    else:
+    elif jobs:
         _run_local(jobs, workers, finished)
     return BatchResult(out, [results[n] for n in names], time.perf_counter() - t0)
+
+
+@contextlib.contextmanager
+def _stderr_to(path: Path):
+    """Send this process's stderr (and its children's: each stage runs in one) to the end of
+    ``path``, progress and warnings on, until the block ends."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sys.stderr.flush()
+    saved, quiet_was = os.dup(2), os.environ.get("ROSE_USD_QUIET")
+    os.environ["ROSE_USD_QUIET"] = "0"
+    try:
+        with open(path, "a") as log:
+            log.write(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} pid {os.getpid()}\n")
+            log.flush()
+            os.dup2(log.fileno(), 2)
+            try:
+                yield
+            finally:
+                sys.stderr.flush()
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+        if quiet_was is None:
+            os.environ.pop("ROSE_USD_QUIET", None)
+        else:
+            os.environ["ROSE_USD_QUIET"] = quiet_was
+
+
+def _line(r: CaseResult) -> str:
+    """One line on a finished case."""
+    if r.status != "done":
+        if (r.error or "").startswith(REFUSED):
+            return f"batch: {r.name} {r.error}"
+        return f"batch: {r.name} failed after {r.wall_time_s:.0f} s: {r.error}"
+    gate = "" if r.gate_passed is None else f", gate {'PASS' if r.gate_passed else 'FAIL'} SSIM {r.ssim_mean:.3f}"
+    collect = "" if r.collect_success is None else f", collect {100 * r.collect_success:.0f} %"
+    how = "recorded earlier" if r.reused else f"in {r.wall_time_s:.0f} s"
+    return f"batch: {r.name} done {how}{gate}{collect}"
 
 
 def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:

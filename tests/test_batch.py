@@ -52,6 +52,7 @@ def test_each_case_runs_and_a_broken_one_is_recorded_not_fatal(tmp_path, sample_
     broken = next(c for c in result.cases if c.name == "broken")
     assert "rgb" in broken.error and "\n" not in broken.error
     assert (out / "push-0" / "layers" / "world.usda").is_file() and (out / "push-0" / RECORD).is_file()
+    assert "[capture] wrote" in (out / "push-0" / "batch.log").read_text()  # its stages' progress, logged
     assert not (out / "broken" / RECORD).exists()
     rows = list(csv.DictReader((out / "summary.csv").open()))
     assert [r["name"] for r in rows] == ["push-0", "push-1", "broken"]
@@ -103,6 +104,7 @@ def test_a_setting_typo_stops_the_batch_before_anything_and_a_case_typo_is_refus
     result = batch([typo, *cases], out, **FAST)
     status = {c.name: (c.status, c.wall_time_s) for c in result.cases}
     assert status["push-0"][0] == "done" and status["typo"] == ("failed", 0.0)
+    assert "refused before any case ran" in next(c.error for c in result.cases if c.name == "typo")
     assert "categroy" in next(c.error for c in result.cases if c.name == "typo")
 
 
