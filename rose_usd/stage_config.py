@@ -20,6 +20,7 @@ agree with each other (a nearest depth below the farthest) are checked by the co
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import enum
 import functools
 import hashlib
@@ -146,9 +147,14 @@ def _consistent(stage: str, config: Any, source: str | None) -> Any:
 
 
 def _setting_hint(key: str, names: list[str], stage: str) -> str:
+    """What to say of an unknown setting: the known one it is a near miss of (a moved one: the same
+    last part under another backend; a typo), else every setting of the stage."""
     moved = [n for n in names if n.rpartition(".")[2] == key.rpartition(".")[2]]
     if moved:
         return f"did you mean {' or '.join(f'{stage}.{n}' for n in moved)}?"
+    close = difflib.get_close_matches(key, names, n=1, cutoff=0.75)
+    if close:
+        return f"did you mean {stage}.{close[0]}?"
     return f"settings: {', '.join(names)}"
 
 

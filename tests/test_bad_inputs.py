@@ -112,10 +112,10 @@ def test_rose_toml_typo(capsys, case_copy, tmp_path):
     text = (case_copy / "rose.toml").read_text().replace("category", "categroy")
     (case_copy / "rose.toml").write_text(text)
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
-    assert_one_line_error(code, err, "rose.toml", "categroy", "did you mean 'categroy' -> 'category'?")
+    assert_one_line_error(code, err, "rose.toml", "categroy", "did you mean 'category'?")
     (case_copy / "rose.toml").write_text(text.replace("fps = 30", "fsp = 30"))
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
-    assert_one_line_error(code, err, "rose.toml", "did you mean 'fsp' -> 'fps'?")
+    assert_one_line_error(code, err, "rose.toml", "did you mean 'fps'?")
 
 
 def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
@@ -269,3 +269,14 @@ def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):
     )
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert done.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+
+
+def test_a_missing_mesh_names_rose_toml_and_the_mesh_beside_it(capsys, case_copy, tmp_path):
+    """rose.toml's mesh = "mesh/Box.obj" where mesh/ holds Box_m.obj: one line naming rose.toml, the
+    missing file and the one beside it."""
+    (case_copy / "mesh").mkdir()
+    (case_copy / "mesh" / "Box_m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text().replace('category = "box"', 'category = "box"\nmesh = "mesh/Box.obj"', 1))
+    code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "rose.toml", "mesh/Box.obj", "holds 'Box_m.obj'")

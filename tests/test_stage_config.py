@@ -47,6 +47,7 @@ def test_hash_covers_the_running_backend_only():
         ({"voxel_m": float("nan")}, "not finite"),
         ({"backend": "colmap"}, "one of auto, fusion, imported, silhouette, oracle"),
         ({"revolution_tolerance": 0.04}, "did you mean object.fusion.revolution_tolerance"),
+        ({"voxel_mm": 0.004}, "did you mean object.voxel_m?"),
     ],
 )
 def test_a_value_that_does_not_fit_is_one_line_error(values, needle):

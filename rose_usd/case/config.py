@@ -123,7 +123,7 @@ def _fail(path: Path, message: str, hint: str) -> ConfigError:
 def _did_you_mean(unknown, known) -> str:
     """The start of a hint naming the known key each unknown one is a near miss of (a typo), or ""."""
     pairs = [(k, difflib.get_close_matches(k, sorted(known), n=1, cutoff=0.6)) for k in sorted(unknown)]
-    close = [f"{k!r} -> {m[0]!r}" for k, m in pairs if m]
+    close = [f"{m[0]!r} for {k!r}" if len(pairs) > 1 else repr(m[0]) for k, m in pairs if m]
     return f"did you mean {', '.join(close)}? " if close else ""
 
 

@@ -7,6 +7,7 @@ an InputError naming the file and the fix, so a bad case fails before a single l
 
 from __future__ import annotations
 
+import difflib
 import functools
 import hashlib
 import math
@@ -437,9 +438,13 @@ class Case:
         if override is not None:
             path = (self.folder / override).resolve()
             if not path.is_file():
+                named = self.folder / override
+                near = sorted(p.name for p in named.parent.glob("*") if p.suffix.lower() in MESH_SUFFIXES)
+                close = difflib.get_close_matches(named.name, near, n=1, cutoff=0.5)
+                there = f"; {named.parent} holds {close[0]!r}" if close else ""
                 raise InputError(
-                    f"object {spec.name!r}: the mesh named in rose.toml does not exist",
-                    path=path,
+                    f"object {spec.name!r}: its mesh = {override!r} does not exist ({named}){there}",
+                    path=self.config.path or self.folder / "rose.toml",
                     hint="fix mesh = ... (relative to the case folder)",
                 )
             return path

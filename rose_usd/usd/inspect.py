@@ -367,7 +367,7 @@ def _gate_lines(g: dict[str, Any]) -> list[str]:
     )
     lines.append(
         f"  physics: rest check over {g.get(tokens.GATE_PHYSICS_DURATION, 0):g} s: {moves or 'not run'}: "
-        f"{'pass' if g.get(tokens.GATE_PHYSICS_PASSED) else 'FAIL'}"
+        f"{('pass' if g.get(tokens.GATE_PHYSICS_PASSED) else 'FAIL') if objs else 'nothing checked'}"
     )
     names, ious = g.get(tokens.GATE_TRACK_OBJECTS, []), g.get(tokens.GATE_TRACK_IOU, [])
     track = ", ".join(f"{o} {v:.3f}" for o, v in zip(names, ious))
