@@ -32,7 +32,7 @@ from scipy.optimize import minimize
 from rose_usd.core import se3
 from rose_usd.core.pinhole import project, resized_K, silhouette
 from rose_usd.core.raster import convex_spans, fill_convex, row_sums, running_sums
-from rose_usd.geometry.primitives import PrimitiveKind, yaw_starts
+from rose_usd.geometry.primitives import PrimitiveKind, largest_dimension, yaw_starts
 
 
 @dataclass
@@ -328,6 +328,30 @@ def log_normal_sizes(expected: np.ndarray, sigma: float) -> Callable[[np.ndarray
     def cost(size: np.ndarray) -> float:
         z = (np.log(np.asarray(size, float)) - log_expected) / max(sigma, 1e-6)
         return PRIOR_WEIGHT * float(np.sum(z * z))
+
+    return cost
+
+
+def log_normal_given_size(
+    kind: PrimitiveKind, typical_dims: np.ndarray, size_m: float, sigma_size: float, sigma_shape: float
+) -> Callable[[np.ndarray], float]:
+    """A size prior for ``fit_standing`` where the object's largest dimension is given:
+    ``PRIOR_WEIGHT`` * z**2 for that dimension's log ratio to ``size_m`` over ``sigma_size``, and for
+    each proportion (a size parameter over the largest dimension; a box's sides sorted, since its
+    yaw may swap them) its log ratio to the typical one over ``sigma_shape``. A given size says how
+    large the object is, not its shape: a cube of category box is no carton."""
+
+    def shape(size: np.ndarray) -> np.ndarray:
+        d = np.asarray(size, float)
+        d = np.sort(d)[::-1] if kind is PrimitiveKind.BOX else d
+        return np.log(d / largest_dimension(kind, d))
+
+    typical_shape = shape(typical_dims)
+
+    def cost(size: np.ndarray) -> float:
+        z_size = np.log(largest_dimension(kind, size) / size_m) / max(sigma_size, 1e-6)
+        z_shape = (shape(size) - typical_shape) / max(sigma_shape, 1e-6)
+        return PRIOR_WEIGHT * float(z_size * z_size + np.sum(z_shape * z_shape))
 
     return cost
 

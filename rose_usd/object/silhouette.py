@@ -63,6 +63,7 @@ from rose_usd.geometry.silhouette import (
     fit_free,
     fit_standing,
     footprint_xy,
+    log_normal_given_size,
     log_normal_sizes,
     resting_start,
     search_free,
@@ -319,19 +320,22 @@ def _object_width_m(view: View, xy) -> float:
     return float(xs.max() - xs.min()) * foot[2] / view.K[0, 0]
 
 
-def size_prior(typ, size_given_m: float | None, scale_uncertainty: float) -> tuple[np.ndarray, float]:
-    """The expected dimensions of a category's primitive in the world's meters and their relative
-    one-sigma: the typical ones (scaled to ``size_m`` where given, then known to
-    ``GIVEN_SIZE_SIGMA``), uncertain by the category's spread and the world's scale together."""
+def size_prior(typ, size_given_m: float | None, scale_uncertainty: float) -> tuple[np.ndarray, Callable]:
+    """Where a category's primitive fit starts (its typical dimensions, scaled to ``size_m`` where
+    given) and its size cost: with ``size_m``, that largest dimension known to ``GIVEN_SIZE_SIGMA``
+    and the world's scale together, the proportions to the category's spread; without, every
+    dimension to the category's spread and the world's scale together."""
     dims = np.asarray(typ.dims, float)
     if size_given_m:
-        return dims * float(size_given_m) / typ.size_m, float(np.hypot(GIVEN_SIZE_SIGMA, scale_uncertainty))
-    return dims, float(np.hypot(typ.sigma, scale_uncertainty))
+        sigma = float(np.hypot(GIVEN_SIZE_SIGMA, scale_uncertainty))
+        return dims * float(size_given_m) / typ.size_m, log_normal_given_size(
+            typ.kind, dims, float(size_given_m), sigma, typ.sigma
+        )
+    return dims, log_normal_sizes(dims, float(np.hypot(typ.sigma, scale_uncertainty)))
 
 
 GIVEN_SIZE_SIGMA = 0.05
-"""Relative one-sigma of a primitive's dimensions around a given ``size_m`` (its proportions are
-the category's)."""
+"""Relative one-sigma of a primitive's largest dimension around a given ``size_m``."""
 
 
 def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scale):
@@ -339,7 +343,7 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
     if not known:
         ctx.warn(f"object {spec.name!r}: no primitive for category {spec.category!r}: a box stands in for it")
     width = _object_width_m(views[0], xy)
-    expected, sigma = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
+    expected, size_cost = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
     kind, fit = None, None
     first = views[0]
     for candidate in resting_kinds(typ.kind):  # a can standing, or lying where that fits clearly better
@@ -355,7 +359,7 @@ def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scal
             yaws=yaws,
             turn=turns(candidate),
             convex=True,
-            size_cost=log_normal_sizes(expected, sigma),
+            size_cost=size_cost,
         )
         if fit is None or tried.iou > fit.iou + RESTING_MARGIN:
             kind, fit = candidate, tried
