@@ -416,6 +416,8 @@ def fit_standing(
     maxfev: int = 300,
     convex: bool = False,
     size_cost: Callable[[np.ndarray], float] | None = None,
+    step_m: float | None = None,
+    step_deg: float = 20.0,
 ) -> StandingFit:
     """A shape standing on z = ``support_z``: position, yaw and (where ``free_size`` says) its
     size parameters fitted to the views' silhouettes.
@@ -429,6 +431,8 @@ def fit_standing(
         free_size: bool per size parameter, True = fitted (default all).
         turn: whether yaw is fitted (not for a shape symmetric about +Z).
         size_cost: size parameters -> a cost added to 1 - IoU (``log_normal_sizes``).
+        step_m, step_deg: the first simplex's steps in position (default 0.15 of the largest size
+            parameter) and yaw: small ones keep a frame-to-frame refit near where it starts.
     """
     size0 = np.asarray(size0, float)
     free = np.ones(len(size0), bool) if free_size is None else np.asarray(free_size, bool)
@@ -451,7 +455,8 @@ def fit_standing(
     best = None
     for yaw in yaws:
         p0 = np.concatenate([[xy0[0], xy0[1], yaw], np.zeros(free.sum())])
-        steps = np.concatenate([[0.15 * extent, 0.15 * extent, np.radians(20.0)], np.full(free.sum(), 0.15)])
+        shift = 0.15 * extent if step_m is None else step_m
+        steps = np.concatenate([[shift, shift, np.radians(step_deg)], np.full(free.sum(), 0.15)])
         p, c = nelder_mead(cost, p0, steps, maxfev=maxfev)
         p, c = nelder_mead(cost, p, steps / 4, maxfev=maxfev // 2)  # restart: the simplex collapses on plateaus
         if best is None or c < best[1]:
