@@ -136,6 +136,19 @@ def test_object_correspondence_of_a_too_large_can_stays_put():
     assert np.linalg.norm(se3.transform_points(c, can.centroid[None])[0] - can.centroid) < 0.003
 
 
+def test_a_hollow_mug_and_its_solid_outer_shape_have_one_hull_size():
+    """A cup's inner wall pulls its surface's rms radius under its outer shape's; their hulls agree."""
+    hollow = trimesh.creation.annulus(r_min=0.035, r_max=0.04, height=0.1, sections=48)
+    solid = trimesh.creation.cylinder(radius=0.04, height=0.1, sections=48)
+    assert metrics.surface_rms_radius(hollow.vertices, hollow.faces) < 0.95 * metrics.surface_rms_radius(
+        solid.vertices, solid.faces
+    )
+    assert metrics.hull_rms_radius(hollow.vertices) == pytest.approx(metrics.hull_rms_radius(solid.vertices), rel=1e-9)
+    assert metrics.hull_rms_radius(solid.vertices) == pytest.approx(
+        metrics.surface_rms_radius(solid.vertices, solid.faces), rel=1e-9
+    )
+
+
 def test_surface_rms_radius_is_exact():
     # a cube of side s: the 2 faces across an axis lie at s/2, the other 4 spread over [-s/2, s/2],
     # so E[x^2] = (2/6) s^2/4 + (4/6) s^2/12 = 5 s^2/36 and the rms radius is s sqrt(5/12)

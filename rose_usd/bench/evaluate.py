@@ -46,8 +46,8 @@ class ObjectScore:
     mass_kg: float | None = None
     true_mass_kg: float | None = None
     size_error: float | None = None
-    """Signed relative size error at frame 0: RMS distance of surface samples to their centroid,
-    reconstructed over true, minus 1 (the object's scale error)."""
+    """Signed relative size error at frame 0: the RMS distance of the convex hull's surface from its
+    centroid, reconstructed over true, minus 1 (the object's scale error)."""
     mass_range_kg: list[float] | None = None
     """The mass the category's density range gives the reconstructed volume (or shell) [kg]."""
     rest_drift_m: float | None = None
@@ -205,13 +205,11 @@ class ObjectRegistration:
     correction: np.ndarray
 
     def size_error(self) -> float:
-        """The mesh's size against the true one's: the ratio of their surfaces' rms radii (exact,
-        ``metrics.surface_rms_radius``) minus 1."""
-        return (
-            metrics.surface_rms_radius(self.rec_world0, self.rec_faces)
-            / metrics.surface_rms_radius(self.true_world0, self.true_faces)
-            - 1.0
-        )
+        """The mesh's size against the true one's: the ratio of their convex hulls' surface rms
+        radii (exact, ``metrics.hull_rms_radius``) minus 1. The hulls': a true mug's inner wall
+        pulled its surface's radius 8-9 % under its hull's, so a solid proxy of its exact outer
+        size scored +7 %."""
+        return metrics.hull_rms_radius(self.rec_world0) / metrics.hull_rms_radius(self.true_world0) - 1.0
 
     def placed_chamfer(self) -> float:
         """The object Chamfer [m] of the mesh where it was placed at frame 0."""

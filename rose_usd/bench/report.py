@@ -302,8 +302,9 @@ def build_report(results_dir: Path) -> Path:
             "",
             "Chamfer at frame 0 (as above); shape Chamfer: the same after the rigid transform that best registers "
             "the mesh onto the true one (ICP, no scale: "
-            "its shape and size alone, its placement left to the APE); size error: RMS radius of the surface "
-            "about its centroid, reconstructed over true, minus 1; "
+            "its shape and size alone, its placement left to the APE); size error: RMS radius of the convex "
+            "hull's surface about its centroid (the outer size: a mug's inner wall left out), reconstructed over "
+            "true, minus 1; "
             "category range: the mass the category's density range gives the reconstructed volume "
             "(the wall's, for hollow categories); rest drift: largest corner displacement in 1 s of Newton "
             "from frame 0 (target < 5 mm); "

@@ -137,6 +137,15 @@ def surface_rms_radius(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.sqrt(max(second - centroid @ centroid, 0.0)))
 
 
+def hull_rms_radius(vertices: np.ndarray) -> float:
+    """``surface_rms_radius`` of the points' convex hull: an object's outer size, whatever lies
+    inside it (a mug's inner wall counts in its surface's rms radius, not in its hull's)."""
+    from scipy.spatial import ConvexHull
+
+    points = np.asarray(vertices, dtype=float)
+    return surface_rms_radius(points, ConvexHull(points).simplices)
+
+
 class SurfaceDistance:
     """Unsigned distance from points to a triangle mesh (Open3D's raycasting scene)."""
 
