@@ -245,10 +245,13 @@ START_FEV = 3
 runs once, from a pose that may be far off (a box turned 20 deg: 10.9 deg left at 160, 1.9 at 400)."""
 
 
-LIFT_MARGIN = 0.03
+LIFT_MARGIN = 0.02
 """Silhouette IoU by which a free 6-DoF refit of an object resting on the support must beat it
 slid and turned on the support to be taken: a box turned in place under a hand fits a tilted pose
-in the air as well as standing (default rotate-box-s204, rgb: tipped 50 deg, 4 cm up)."""
+in the air as well as standing (default rotate-box-s204, rgb: tipped 50 deg, 4 cm up). At 0.01
+realistic unstack-can-s300's base was lifted off (path error 0.57 -> 6.74 cm); at 0.03 the
+carried cube of visp-cube-hand-rgb overlapped its masks less (mean IoU 0.742; 0.755 at 0.02, 0.759
+without the standing refit)."""
 
 
 TURN_GAIN = 0.005
