@@ -52,6 +52,19 @@ def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray
     return None if best is None else best[:2]
 
 
+def _unmovable(ctx: StageContext, name: str) -> Outcome | None:
+    """Why no robot can move the object (status no-collider or not-resting), or None."""
+    if object_layer.collision_approximation(ctx.stage, name) is None:
+        return Outcome("no-collider", f"object {name!r} has no collision mesh", object_name=name)
+    if not _rests_somewhere(ctx, name):
+        why = (
+            f"object {name!r} rests in no frame of the video (held or moving in every one):"
+            " there is nowhere for the robot to pick it up from"
+        )
+        return Outcome("not-resting", why, object_name=name)
+    return None
+
+
 def _rests_somewhere(ctx: StageContext, name: str) -> bool:
     """Whether the object rests in the video (``sim.resting``: still, untouched or still from the
     start) for at least the run the gate's rest check counts."""
@@ -294,15 +307,9 @@ def run(ctx: StageContext) -> None:
         _finish(ctx, Outcome("no-object", "the stage has no object to move"))
         return
     name, path = picked
-    if object_layer.collision_approximation(ctx.stage, name) is None:
-        _finish(ctx, Outcome("no-collider", f"object {name!r} has no collision mesh", object_name=name))
-        return
-    if not _rests_somewhere(ctx, name):
-        why = (
-            f"object {name!r} rests in no frame of the video (held or moving in every one):"
-            " there is nowhere for the robot to pick it up from"
-        )
-        _finish(ctx, Outcome("not-resting", why, object_name=name))
+    refused = _unmovable(ctx, name)
+    if refused is not None:
+        _finish(ctx, refused)
         return
     target = _target(ctx, name, path, rng)
 
