@@ -203,7 +203,9 @@ class Pipeline:
     def check_output(self) -> None:
         """The output folder is this case's (``usd.stage.check_out_case``), checked after the
         inputs: a broken input is named as such, not as another case."""
-        usd_stage.check_out_case(self.out_dir, self.case.root, _files_hash(self.case.input_files(), self.case.folder))
+        usd_stage.check_out_case(
+            self.out_dir, self.case.root, lambda: _files_hash(self.case.input_files(), self.case.folder)
+        )
 
     def plan_line(self, stages: list[StageDef]) -> str:
         return "plan: " + " ".join(f"{s.name}={self.config(s).backend.value}" for s in stages)

@@ -481,7 +481,7 @@ def _set_down(view, v, f, pose, support_z, cfg, convex):
     """The pose turned onto its stable face and standing on the support, position and yaw refitted;
     (pose, IoU) or None when the object is not near the support or standing fits worse."""
     world = se3.transform_points(pose, v)
-    if world[:, 2].min() - support_z > cfg.settle_m:
+    if not _resting(world, [], support_z, cfg.settle_m):
         return None
     standing = _standing(view, v, f, stable_down(v, pose) @ pose[:3, :3], world.mean(axis=0)[:2], support_z, convex)
     if standing[1] < iou([view], world, f, convex=convex) - 0.03:
@@ -496,7 +496,7 @@ def _slid(view, v, f, pose, support_z, cfg, convex, free: np.ndarray):
     only where that gains ``TURN_GAIN`` again: a free fit keeps an object's turn about the vertical
     well, the support its tilt and height."""
     world = se3.transform_points(pose, v)
-    if world[:, 2].min() - support_z > cfg.settle_m:
+    if not _resting(world, [], support_z, cfg.settle_m):
         return None
     at = world.mean(axis=0)[:2]
     spin = cv2.Rodrigues(np.array([0.0, 0.0, _yaw(free[:3, :3]) - _yaw(pose[:3, :3])]))[0]

@@ -16,6 +16,7 @@ import shutil
 import tempfile
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -289,12 +290,13 @@ def check_out_dir(out_dir: str | os.PathLike) -> Path:
     return path
 
 
-def check_out_case(out_dir: Path, case_root: Path, case_hash: str) -> None:
+def check_out_case(out_dir: Path, case_root: Path, case_hash: Callable[[], str]) -> None:
     """An output folder holds one case's stages: refused when it is the case folder itself (the
     stages would write among its inputs) or when a layer in it was made from another case, one at
     another path whose inputs differed too (its provenance's ``case`` and ``inputs.case`` against
-    ``case_root`` and ``case_hash``): a run would remove that case's layers as stale. The same
-    case edited in place, or copied elsewhere unchanged, may use it."""
+    ``case_root`` and ``case_hash()``, called only for a layer made at another path: it reads every
+    input file): a run would remove that case's layers as stale. The same case edited in place, or
+    copied elsewhere unchanged, may use it."""
     root = Path(case_root).resolve()
     if Path(out_dir).resolve() == root:
         raise InputError(
@@ -305,7 +307,7 @@ def check_out_case(out_dir: Path, case_root: Path, case_hash: str) -> None:
     for name in existing_layers(out_dir):
         prov = read_provenance(layer_file(out_dir, name)) or {}
         made_from = prov.get("case")
-        if made_from and Path(made_from) != root and (prov.get("inputs") or {}).get("case") != case_hash:
+        if made_from and Path(made_from) != root and (prov.get("inputs") or {}).get("case") != case_hash():
             raise InputError(
                 f"holds the stages of another case ({made_from}); a run would replace them",
                 path=out_dir,
