@@ -384,6 +384,7 @@ CORPUS: list[Bad] = [
     _toml_case("hollow-int", 3, "hollow = 1", "hollow"),
     _toml_case("density-zero", 3, "density_kg_m3 = 0", "density_kg_m3"),
     _toml_case("mesh-up-bad", 3, 'mesh_up = "up"', "mesh_up"),
+    _toml_case("mesh-units-bad", 3, 'mesh_units = "feet"', "mesh_units", "not a unit"),
     _toml_case("mesh-not-text", 3, "mesh = 3", "mesh"),
     _toml_case("mesh-missing", 3, 'mesh = "nope/box.obj"', "nope/box.obj", "does not exist"),
     # 4. reserved object names

@@ -62,7 +62,7 @@ def case_dir(tmp_path_factory, sample_case) -> Path:
 # ----------------------------------------------------------------------------- strategies
 KEYS = [
     "fps", "objects", "backends", "name", "category", "prompt", "frame", "box", "point", "mass_kg", "friction",
-    "restitution", "hollow", "size_m", "density_kg_m3", "mesh", "mesh_up", *registry.STAGE_NAMES,
+    "restitution", "hollow", "size_m", "density_kg_m3", "mesh", "mesh_up", "mesh_units", *registry.STAGE_NAMES,
     "depth_max_m", "rgbd", "track_width", "spp", "prompts", "tsdf", "voxel_m", "gravity", "fusion",
 ]  # fmt: skip
 scalars = st.one_of(

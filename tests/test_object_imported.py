@@ -21,6 +21,7 @@ from rose_usd.core.pinhole import silhouette
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.io import trellis
+from rose_usd.io.meshfile import FileUnit, file_unit
 from rose_usd.object.author import decomposition_coverage
 from rose_usd.object.imported import View, choose_unit, find_mesh, fit_scale_and_pose, read_imported, world_from_up
 from rose_usd.pipeline import Options, Pipeline
@@ -149,6 +150,19 @@ def test_choose_unit_recognizes_millimeters_and_refuses_a_guess():
     assert choose_unit(0.00108) == (1e-3, "millimeters")
     assert choose_unit(0.0262) == (0.0254, "inches")
     assert choose_unit(0.3) == (None, None)
+
+
+def test_a_files_unit_is_meters_when_plausible_else_guessed_or_given():
+    """Without depth nothing measures a mesh's unit: meters when that makes a tabletop object,
+    else millimeters, else centimeters (guessed), unknown for TRELLIS's cube or when none fits."""
+    assert file_unit(0.128, False) == FileUnit(1.0, "meters")
+    assert file_unit(128.0, False) == FileUnit(1e-3, "millimeters", guessed=True)
+    assert file_unit(5.0, False) == FileUnit(1e-2, "centimeters", guessed=True)
+    assert file_unit(5000.0, False) == FileUnit(None, None)
+    assert file_unit(1.0, True) == FileUnit(None, None)
+    assert file_unit(128.0, False, "cm") == FileUnit(1e-2, "centimeters")
+    assert file_unit(0.128, False, "auto") == FileUnit(1.0, "meters")
+    assert file_unit(128.0, False).describe(128.0) == "128 units across: read as millimeters (0.128 m)"
 
 
 def _textured_box_glb(path, extents=(1.0, 0.6, 0.8), color=(200, 40, 30)):

@@ -998,3 +998,26 @@ def test_a_poor_primitive_fit_asks_only_for_what_is_not_given():
     assert _poor_fit_cause(SimpleNamespace(K_path=Path("cam_K.txt")), bare).endswith("(give size_m)")
     given = _poor_fit_cause(SimpleNamespace(K_path=Path("cam_K.txt")), sized)
     assert "are given" in given and "give its mesh" in given
+
+
+def test_a_mesh_in_millimeters_makes_the_same_object_as_in_meters(tmp_path, sample_case):
+    """The sample without depth, given its box's true mesh written in millimeters (as CAD and 3D-print
+    files are): the object is the true box's size and the layer says the unit was guessed."""
+    import rose_usd
+    from rose_usd.layers.objects import is_proxy
+    from rose_usd.usd.stage import layer_file, read_provenance
+
+    case = tmp_path / "case"
+    shutil.copytree(sample_case, case, ignore=shutil.ignore_patterns("depth"))
+    box = trimesh.load(case / "gt" / "objects" / "Box.obj", force="mesh", process=False)
+    (case / "mesh").mkdir()
+    trimesh.Trimesh(box.vertices * 1000.0, box.faces, process=False).export(case / "mesh" / "Box_mm.obj")
+    toml = case / "rose.toml"
+    toml.write_text(toml.read_text().replace('category = "box"', 'category = "box"\nmesh = "mesh/Box_mm.obj"', 1))
+    result = rose_usd.reconstruct(case, tmp_path / "out", until="object", validate=False)
+    assert not is_proxy(result.stage, "Box")
+    provenance = read_provenance(layer_file(tmp_path / "out", "object"))
+    fact = provenance["results"]["objects"]["Box"]
+    assert fact["mesh_units"] == "millimeters" and fact["units_guessed"] and fact["rho"] == pytest.approx(1e-3)
+    assert fact["size_m"] == pytest.approx(float(np.ptp(box.vertices, axis=0).max()), abs=1e-5)
+    assert any("read as millimeters" in w for w in provenance["warnings"])

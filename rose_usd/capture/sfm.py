@@ -552,19 +552,21 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
 
 
 def _metric_mesh(path: Path, spec):
-    """The object's mesh file ``path`` (vertices up-aligned by mesh_up or its format's convention,
-    faces) when it is metric (1 cm to 2 m across, not TRELLIS's unit cube), decimated for
-    silhouettes; else None."""
+    """The object's mesh file ``path`` (vertices in meters, up-aligned by mesh_up or its format's
+    convention, faces) when its unit is known (``object.meshes.file_unit``: not TRELLIS's unit
+    cube), decimated for silhouettes; else None."""
     import trimesh
 
     from rose_usd.geometry.mesh import decimate
-    from rose_usd.io.meshfile import read_mesh_file
+    from rose_usd.io.meshfile import file_unit, read_mesh_file
 
     raw = read_mesh_file(path)
     v = np.asarray(raw.vertices, float)
     extent = float(np.max(v.max(axis=0) - v.min(axis=0)))
-    if not 0.01 <= extent <= 2.0 or (np.abs(v).max() <= 0.5 + 1e-3 and extent > 0.9):
+    unit = file_unit(extent, bool(np.abs(v).max() <= 0.5 + 1e-3 and extent > 0.9), spec.overrides.get("mesh_units"))
+    if unit.meters is None:
         return None
+    v = v * unit.meters
     up = str(spec.overrides.get("mesh_up", "auto")).lower()
     if up == "auto":
         up = "y" if path.suffix.lower() in (".glb", ".gltf") else "z"

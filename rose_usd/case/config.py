@@ -39,6 +39,7 @@ _OBJECT_KEYS = {
     "size_m",
     "mesh",
     "mesh_up",
+    "mesh_units",
 }
 _SPEC_KEYS = {"name", "category", "prompt"}
 
@@ -100,8 +101,9 @@ class ObjectSpec:
     overrides: dict = field(default_factory=dict)
     """Values the user fixed: physics (mass_kg, density_kg_m3, friction, restitution, hollow) and
     size_m, the object's largest dimension [m] (a metric scale prior); mesh, the object's mesh file
-    (relative to the case) and mesh_up, its up axis ("x", "y", "z", "-x", ... or "auto": each is tried),
-    for the imported object backend."""
+    (relative to the case), mesh_up, its up axis ("x", "y", "z", "-x", ... or "auto": each is tried),
+    and mesh_units, its file's unit ("m", "cm", "mm", "in" or "auto": meters when plausible, else
+    guessed from its size), for the backends that use a mesh file."""
 
 
 @dataclass(frozen=True)
@@ -193,6 +195,15 @@ def _check_physics(name: str, key: str, value, path: Path) -> object:
                 path,
                 f"{where} = {_show(value)} is not an axis",
                 hint='write mesh_up = "x", "y", "z", "-x", "-y", "-z" or "auto"',
+            )
+        return text
+    if key == "mesh_units":
+        text = value.strip().lower() if isinstance(value, str) else None
+        if text not in ("m", "cm", "mm", "in", "auto"):
+            raise _fail(
+                path,
+                f"{where} = {_show(value)} is not a unit",
+                hint='write mesh_units = "m", "cm", "mm", "in" or "auto"',
             )
         return text
     raise AssertionError(key)

@@ -1,15 +1,57 @@
-"""Mesh files: a minimal Wavefront OBJ writer (positions, per-vertex UVs, one material) and a
-reader that keeps vertex order. Reading any format goes through trimesh."""
+"""Mesh files: a minimal Wavefront OBJ writer (positions, per-vertex UVs, one material), a
+reader that keeps vertex order (any format, through trimesh) and a file's length unit."""
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from rose_usd.errors import MeshError
+
+UNITS = {"millimeters": 1e-3, "centimeters": 1e-2, "inches": 0.0254}
+"""Units a metric-looking mesh may be in by mistake, and meters per unit."""
+UNIT_NAMES = {"m": "meters", "cm": "centimeters", "mm": "millimeters", "in": "inches"}
+"""rose.toml's ``mesh_units`` values and the units they name."""
+METRIC_EXTENT_M = (0.01, 2.0)
+"""The sizes [m] an object of a tabletop video may have: a file whose largest side lies in this
+range read in meters is taken as metric."""
+
+
+@dataclass(frozen=True)
+class FileUnit:
+    """The length unit of a mesh file's coordinates."""
+
+    meters: float | None
+    """Meters per file unit; None: unknown (a normalized mesh, or no plausible unit)."""
+    name: str | None
+    guessed: bool = False
+    """Chosen from the file's size alone (not meters, not given): the caller warns."""
+
+    def describe(self, extent: float) -> str:
+        """What was assumed, for a warning: '128 units across: read as millimeters (0.128 m)'."""
+        return f"{extent:.4g} units across: read as {self.name} ({extent * self.meters:.3g} m)"
+
+
+def file_unit(extent: float, normalized: bool, given: str | None = None) -> FileUnit:
+    """The unit of a mesh file ``extent`` (its largest side, in file units) across: rose.toml's
+    ``mesh_units`` when given; meters when that makes it a tabletop object's size; else guessed:
+    millimeters (3D-print and CAD files mostly are) when that does, else centimeters when that
+    does; unknown for a normalized mesh or when none does."""
+    if given and given != "auto":
+        name = UNIT_NAMES[given]
+        return FileUnit(1.0 if name == "meters" else UNITS[name], name)
+    if normalized:
+        return FileUnit(None, None)
+    low, high = METRIC_EXTENT_M
+    for name in ("meters", "millimeters", "centimeters"):
+        scale = 1.0 if name == "meters" else UNITS[name]
+        if low <= extent * scale <= high:
+            return FileUnit(scale, name, guessed=name != "meters")
+    return FileUnit(None, None)
 
 
 def write_obj(

@@ -49,6 +49,7 @@ from rose_usd.core.watertight import is_closed
 from rose_usd.geometry.mesh import decimate, longest_edge
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import foundationpose
+from rose_usd.io.meshfile import UNIT_NAMES, UNITS
 from rose_usd.layers.masks import Masks, read_masks
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
@@ -376,9 +377,9 @@ def _foundationpose_start(ctx: StageContext, name: str, t: int, cameras, up_rot:
 
 
 def _initial_scale(ctx: StageContext, name: str, path: Path, normalized: bool, d_image: float, d_mesh: float):
-    """rho_0, whether to search the scale, and how it was chosen: the paper's diameter ratio for a
-    normalized mesh (or one in unknown units), a metric mesh's own unit otherwise (with a warning
-    unless meters)."""
+    """rho_0, whether to search the scale, and how it was chosen (without ``mesh_units``): the
+    paper's diameter ratio for a normalized mesh (or one in unknown units), a metric mesh's own unit
+    otherwise, the one the measured diameter points to (with a warning unless meters)."""
     rho0 = d_image / d_mesh
     if normalized:
         return rho0, True, "searched (normalized mesh)"
@@ -444,7 +445,11 @@ def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, c
     )
     observed = cloud.points[cloud.points[:, 2] > support + cfg.support_gap_m]
     d_image, d_mesh = diameter(observed), diameter(imp.vertices)
-    rho0, search, how = _initial_scale(ctx, spec.name, path, imp.normalized, d_image, d_mesh)
+    given = spec.overrides.get("mesh_units")
+    if given and given != "auto":
+        rho0, search, how = UNITS.get(UNIT_NAMES[given], 1.0), False, f"file units ({UNIT_NAMES[given]}, given)"
+    else:
+        rho0, search, how = _initial_scale(ctx, spec.name, path, imp.normalized, d_image, d_mesh)
     views = _views(layer, spec.name, cloud.frames, cloud.masks, cameras)
     up_rot, level, up_costs = _choose_up(
         imp,

@@ -20,10 +20,7 @@ from rose_usd.errors import InputError, MeshError
 from rose_usd.geometry.mesh import self_intersects
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import trellis
-from rose_usd.io.meshfile import read_mesh_file, unless_placeholder
-
-UNITS = {"millimeters": 1e-3, "centimeters": 1e-2, "inches": 0.0254}
-"""Units a metric-looking mesh may be in by mistake, and meters per unit."""
+from rose_usd.io.meshfile import UNITS, read_mesh_file, unless_placeholder
 
 
 def find_mesh(case: Case, spec: ObjectSpec) -> Path:

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import trimesh
@@ -69,6 +69,7 @@ from rose_usd.geometry.silhouette import (
     search_free,
 )
 from rose_usd.geometry.texture import transfer_colors
+from rose_usd.io.meshfile import file_unit
 from rose_usd.layers.masks import read_masks
 from rose_usd.layers.scene import support_heights
 from rose_usd.layers.world import read_cameras, read_scale
@@ -394,8 +395,16 @@ def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
     for repair in imp.repairs:
         ctx.warn(f"object {spec.name!r} ({path.name}): {repair}")
     extent = float(np.max(imp.vertices.max(axis=0) - imp.vertices.min(axis=0)))
+    unit = file_unit(extent, imp.normalized, spec.overrides.get("mesh_units"))
+    metric = unit.meters is not None
+    if metric:
+        imp = replace(imp, vertices=imp.vertices * unit.meters)
+    if unit.guessed:
+        ctx.warn(
+            f"object {spec.name!r} ({path.name}): the mesh is {unit.describe(extent)}:"
+            ' write mesh_units = "m", "cm", "mm" or "in" in its [[objects]] entry if it is not'
+        )
     width = _object_width_m(views[0], xy)
-    metric = not imp.normalized and 0.01 <= extent <= 2.0
     small = trimesh.Trimesh(imp.vertices, imp.faces, process=False)
     if len(small.faces) > 1500:
         small = decimate(small, 1500, check=False)
@@ -430,7 +439,9 @@ def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
         "mesh_file": str(path),
         "proxy": False,
         "metric_mesh": metric,
-        "rho": round(rho, 6),
+        "mesh_units": unit.name,
+        "units_guessed": unit.guessed,
+        "rho": round(rho * (unit.meters or 1.0), 9),
         "size_m": round(float(np.ptp(vertices, axis=0).max()), 5),
         "size_given_m": spec.overrides.get("size_m"),
         "up_axis": axis_name(axis),
