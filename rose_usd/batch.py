@@ -39,6 +39,7 @@ from typing import Any
 
 from rose_usd.errors import ConfigError, RoseError
 from rose_usd.progress import progress, quiet, say
+from rose_usd.registry import STAGE_NAMES
 
 RECORD = "batch.json"
 """The record of a finished case, in its output folder."""
@@ -47,7 +48,7 @@ REFUSED = "refused before any case ran"
 LOG = "batch.log"
 """A case's stages' progress and warnings, in its output folder (appended each run)."""
 FIELDS = ("name", "case", "status", "gate_passed", "ssim_mean", "collect_success", "wall_time_s", "error")
-"""The summary's columns."""
+"""The summary's columns, then each stage's seconds (``<stage>_s``, empty where it did not run)."""
 
 
 @dataclass
@@ -65,6 +66,8 @@ class CaseResult:
     """The collect stage's success rate over its rollouts, None when it did not run."""
     wall_time_s: float = 0.0
     """Seconds spent on this case in the run that finished it."""
+    stage_times_s: dict[str, float] = field(default_factory=dict)
+    """Seconds per stage that ran in that run (a stage whose layer was up to date is absent)."""
     error: str | None = None
     stages_ran: list[str] = field(default_factory=list)
     layers: dict[str, str] = field(default_factory=dict)
@@ -73,7 +76,7 @@ class CaseResult:
     """Taken from an earlier run's record (nothing ran)."""
 
     def row(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in FIELDS}
+        return {k: getattr(self, k) for k in FIELDS} | {f"{s}_s": self.stage_times_s.get(s) for s in STAGE_NAMES}
 
 
 @dataclass
@@ -149,6 +152,7 @@ def run_case(
         with _stderr_to(out / LOG):
             rec = reconstruct(case, out, validate=True, check=False, **options)
         result.stages_ran = [o.name for o in rec.outcomes if o.status == "ran"]
+        result.stage_times_s = {o.name: round(o.wall_time_s, 2) for o in rec.outcomes if o.status == "ran"}
         result.error = rec.error
         if rec.validation is not None and not rec.validation.ok:
             result.error = result.error or f"{rec.path}: the stage is not valid ({rec.validation.errors[0]})"
@@ -342,7 +346,7 @@ def write_summary(out: Path, results: list[CaseResult]) -> None:
     from rose_usd.usd.stage import write_text_atomic
 
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(FIELDS))
+    writer = csv.DictWriter(buf, fieldnames=[*FIELDS, *(f"{s}_s" for s in STAGE_NAMES)])
     writer.writeheader()
     for r in results:
         writer.writerow(r.row())
@@ -371,11 +375,14 @@ def _html(out: Path, results: list[CaseResult]) -> str:
             "" if r.ssim_mean is None else f"{r.ssim_mean:.4f}",
             "" if r.collect_success is None else f"{100 * r.collect_success:.0f} %",
             f"{r.wall_time_s:.1f} s",
+            html.escape(", ".join(f"{k} {v:.1f} s" for k, v in r.stage_times_s.items())),
             html.escape(r.error or ""),
             img,
         ]
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    head = "".join(f"<th>{h}</th>" for h in ("case", "status", "gate", "SSIM", "collect", "time", "error", "compare"))
+    head = "".join(
+        f"<th>{h}</th>" for h in ("case", "status", "gate", "SSIM", "collect", "time", "stages", "error", "compare")
+    )
     return (
         "<!doctype html><meta charset='utf-8'><title>rose-usd batch</title>"
         "<style>body{font-family:sans-serif}td,th{border:1px solid #ccc;padding:4px;vertical-align:top}"

@@ -164,8 +164,12 @@ def cmd_batch(args) -> int:
     for c in result.cases:
         gate = "" if c.gate_passed is None else ("gate PASS" if c.gate_passed else "gate FAIL")
         ssim = "" if c.ssim_mean is None else f"SSIM {c.ssim_mean:.4f}"
+        collect = "" if c.collect_success is None else f"collect {100 * c.collect_success:.0f} %"
         how = "recorded" if c.reused else f"{c.wall_time_s:.1f} s"
-        print(f"{c.name:<{width}}  {c.status:<6}  {gate:<9}  {ssim:<11}  {how}" + (f"  {c.error}" if c.error else ""))
+        print(
+            f"{c.name:<{width}}  {c.status:<6}  {gate:<9}  {ssim:<11}  {collect:<12}  {how}"
+            + (f"  {c.error}" if c.error else "")
+        )
     done = len(result.cases) - len(result.failed)
     print(
         f"batch: {done} of {len(result.cases)} case(s) done in {result.wall_time_s:.1f} s; "

@@ -56,6 +56,7 @@ def test_each_case_runs_and_a_broken_one_is_recorded_not_fatal(tmp_path, sample_
     assert not (out / "broken" / RECORD).exists()
     rows = list(csv.DictReader((out / "summary.csv").open()))
     assert [r["name"] for r in rows] == ["push-0", "push-1", "broken"]
+    assert float(rows[0]["capture_s"]) > 0 and rows[0]["collect_s"] == "" and rows[2]["capture_s"] == ""
     assert len(json.loads((out / "summary.json").read_text())) == 3
     assert "broken" in (out / "index.html").read_text()
 
