@@ -12,7 +12,7 @@ from test_collect import _collect, _shrink_object
 
 from rose_usd.collect import batch, newton_backend
 from rose_usd.collect.config import CollectConfig, NewtonConfig, SimDevice
-from rose_usd.collect.rollout import Perturbation, perturbed_pose, pose7_to_matrix
+from rose_usd.collect.rollout import FLUNG_M, Perturbation, diverged, perturbed_pose, pose7_to_matrix
 from rose_usd.core import se3
 from rose_usd.errors import ConfigError
 from rose_usd.layers.robot import read_collect
@@ -29,6 +29,16 @@ def test_a_perturbation_turns_the_object_about_up_and_shifts_it():
     np.testing.assert_allclose(
         moved[:3, :3], se3.rotation_about([0, 0, 1.0], np.radians(4.0)) @ tilt[:3, :3], atol=1e-9
     )
+
+
+def test_a_body_not_finite_or_flung_means_the_simulation_diverged():
+    """Ticks (3) of worlds (2) of bodies (2): a NaN anywhere, or a body past FLUNG_M, is divergence;
+    both the serial rollout and the batch judge by it."""
+    q = np.zeros((3, 2, 2, 7))
+    q[..., 6] = 1.0
+    q[1, 0, 1, 3] = np.nan
+    q[2, 1, 0, 0] = -1.5 * FLUNG_M
+    np.testing.assert_array_equal(diverged(q), [[False, False], [True, False], [False, True]])
 
 
 def test_the_device_is_the_cpu_without_a_gpu_and_cuda_asked_for_is_an_error():

@@ -18,7 +18,16 @@ import numpy as np
 
 from rose_usd.collect import motion
 from rose_usd.collect.config import CollectConfig
-from rose_usd.collect.rollout import Perturbation, Rollout, judge, mujoco_solver, perturbed_pose, pose7_to_matrix
+from rose_usd.collect.rollout import (
+    FLUNG_M,
+    Perturbation,
+    Rollout,
+    diverged,
+    judge,
+    mujoco_solver,
+    perturbed_pose,
+    pose7_to_matrix,
+)
 from rose_usd.collect.world import World
 from rose_usd.sim import panda
 
@@ -188,8 +197,8 @@ def run_batch(
 def _rollout(plan, grasp, pert, path, cfg, k, log_q, log_qd, log_tcp, log_obj, deepest, wall, sim_s) -> Rollout:
     """World k's log as a judged ``Rollout``."""
     r = Rollout(grasp=grasp, perturbation=pert, rate_hz=plan.rate_hz)
-    finite = np.isfinite(log_tcp[:, k]).all(axis=1) & np.isfinite(log_obj[:, k]).all(axis=1)
-    t = len(finite) if finite.all() else int(np.argmin(finite))
+    bad = diverged(np.stack([log_tcp[:, k], log_obj[:, k]], axis=1))
+    t = int(np.argmax(bad)) if bad.any() else len(bad)
     r.q, r.qd = log_q[:t, k].astype(float), log_qd[:t, k].astype(float)
     r.tcp, r.object_pose = (
         pose7_to_matrix(log_tcp[:t, k].astype(float)),
@@ -202,8 +211,10 @@ def _rollout(plan, grasp, pert, path, cfg, k, log_q, log_qd, log_tcp, log_obj, d
     r.penetration_m, r.ik_error_m, r.ik_error_deg = float(deepest), plan.ik_error_m, plan.ik_error_deg
     r.approach = plan.approach
     r.wall_s, r.sim_s = wall, sim_s
-    if t < len(finite):
-        r.reason = f"the simulation diverged (NaN) in phase {plan.phase[t]!r}"
+    if t < len(bad):
+        r.reason = (
+            f"the simulation diverged (a body's pose not finite or {FLUNG_M:g} m away) in phase {plan.phase[t]!r}"
+        )
         return r
     carry_from = int(plan.phase_ticks("lift")[0])
     judge(r, path, carry_from, cfg)

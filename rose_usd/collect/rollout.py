@@ -26,6 +26,14 @@ FLUNG_M = 100.0
 table-top scene flung kilometres in a rollout)."""
 
 
+def diverged(body_q: np.ndarray) -> np.ndarray:
+    """For poses (..., B, 7) (position, quaternion) of B bodies: whether the simulation diverged,
+    some body's pose not finite or ``FLUNG_M`` from the origin (shape (...))."""
+    q = np.asarray(body_q, dtype=float)
+    bad = ~np.isfinite(q).all(axis=-1) | (np.abs(np.nan_to_num(q[..., :3], nan=0.0)).max(axis=-1) > FLUNG_M)
+    return bad.any(axis=-1)
+
+
 @dataclass(frozen=True)
 class Perturbation:
     """How one rollout's object differs from the reconstruction."""
@@ -239,7 +247,7 @@ class _Ticks:
         q0, d0, n = w.robot_q0, w.robot_d0, len(panda.JOINTS)
         body_q = state.body_q.numpy().astype(float)
         jq = state.joint_q.numpy().astype(float)
-        if not np.all(np.isfinite(body_q)) or np.abs(body_q[:, :3]).max() > FLUNG_M:
+        if diverged(body_q):
             return False
         self.log_q.append(jq[q0 : q0 + n])
         self.log_qd.append(state.joint_qd.numpy().astype(float)[d0 : d0 + n])
