@@ -280,3 +280,13 @@ def test_a_missing_mesh_names_rose_toml_and_the_mesh_beside_it(capsys, case_copy
     toml.write_text(toml.read_text().replace('category = "box"', 'category = "box"\nmesh = "mesh/Box.obj"', 1))
     code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(tmp_path / "out"))
     assert_one_line_error(code, err, "rose.toml", "mesh/Box.obj", "holds 'Box_m.obj'")
+
+
+def test_a_link_to_nothing_in_the_case_folder_is_named(capsys, case_copy, tmp_path):
+    """mesh -> a mistyped folder: one line naming the link and where it points, nothing written
+    (the case would otherwise run without its mesh, on a guessed scale)."""
+    (case_copy / "mesh").symlink_to(tmp_path / "meshh")
+    out = tmp_path / "out"
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out))
+    assert_one_line_error(code, err, "mesh", "meshh", "does not exist")
+    assert not out.exists()

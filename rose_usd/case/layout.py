@@ -101,6 +101,23 @@ def _videos_only(folder: Path) -> list[Path]:
     return [p for p in names if p.suffix.lower() in VIDEO_SUFFIXES]
 
 
+CASE_ENTRIES = ("rgb", "depth", "mesh", "perception", "gt", "imu", "cam_K.txt", "camera-intrinsics.txt", "rose.toml")
+"""What a case folder's layout reads (and ``video.<suffix>``)."""
+
+
+def _check_links(folder: Path) -> None:
+    """InputError for an entry the layout reads that is a link to nothing: left as it is, the case
+    would run as if it were not there (a ``mesh`` link to a mistyped folder: no mesh, a guessed scale)."""
+    for name in (*CASE_ENTRIES, *(f"video{s}" for s in VIDEO_SUFFIXES)):
+        entry = folder / name
+        if entry.is_symlink() and not entry.exists():
+            raise InputError(
+                f"{name} is a link to {os.readlink(entry)}, which does not exist",
+                path=entry,
+                hint="point the link at the file or folder, or remove it",
+            )
+
+
 class Case:
     """A validated input case. Frames are read lazily; sizes and counts are checked up front."""
 
@@ -123,6 +140,7 @@ class Case:
             self.config = CaseConfig()
         else:
             self.folder = self.root
+            _check_links(self.root)
             self.config = load_case_config(self.root, stage_names)
             rgb_dir = self.root / "rgb"
             videos = [self.root / f"video{s}" for s in VIDEO_SUFFIXES if (self.root / f"video{s}").is_file()]
@@ -445,7 +463,7 @@ class Case:
                 raise InputError(
                     f"object {spec.name!r}: its mesh = {override!r} does not exist ({named}){there}",
                     path=self.config.path or self.folder / "rose.toml",
-                    hint="fix mesh = ... (relative to the case folder)",
+                    hint="fix mesh = ..." + ("" if Path(override).is_absolute() else " (relative to the case folder)"),
                 )
             return path
         for suffix in MESH_SUFFIXES:
