@@ -39,12 +39,12 @@ import numpy as np
 
 from rose_usd import registry
 from rose_usd.bench.coverage import CARRIED_WINDOW, silhouette_ious
-from rose_usd.bench.sheets import mask_sheet, object_sheet
 from rose_usd.case.layout import load_case
 from rose_usd.core import se3
 from rose_usd.layers.objects import object_paths
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras, read_scale
+from rose_usd.render.sheets import mask_sheet, object_sheet
 from rose_usd.usd import paths
 from rose_usd.usd.stage import layer_file, open_stage, read_provenance
 

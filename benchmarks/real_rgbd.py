@@ -28,11 +28,11 @@ from PIL import Image
 
 from rose_usd import reconstruct, registry
 from rose_usd.bench.coverage import silhouette_ious
-from rose_usd.bench.sheets import mask_sheet, object_sheet, outline_sheet
 from rose_usd.case.layout import load_case
 from rose_usd.layers.masks import read_masks
 from rose_usd.layers.objects import object_paths, visual_mesh
 from rose_usd.layers.trajectory import object_poses
+from rose_usd.render.sheets import mask_sheet, object_sheet, outline_sheet
 from rose_usd.usd import paths
 
 

@@ -3,6 +3,8 @@ closed colliders; the stage validates and loads in Newton."""
 
 import json
 
+import cv2
+import numpy as np
 import pytest
 from pxr import Usd
 
@@ -56,6 +58,12 @@ def test_report_pictures_exist(oracle_out):
         assert (report / name).stat().st_size > 0
     summary = json.loads((report / "gate.json").read_text())
     assert summary["passed"] and summary["frames_rendered"] == 48
+    # contact sheets: 16 of the 48 frames (every 3rd), 4 across, the box's mask and mesh in green
+    for name in ("masks.jpg", "object.jpg"):
+        sheet = cv2.imread(str(report / name))
+        assert sheet.shape[:2] == (4 * 240, 4 * 320)
+        b, g, r = (sheet[..., k].astype(int) for k in range(3))
+        assert np.count_nonzero((g > 150) & (g > r + 60) & (g > b + 60)) > 16 * 100
 
 
 def test_newton_reads_default_pose_frame_0(oracle_out):

@@ -50,6 +50,20 @@ def _geometry_check(stage: Usd.Stage) -> list[str]:
     return problems
 
 
+SHEET_FRAMES = 16
+"""The contact sheets in ``report/`` show about this many frames, spread over the video."""
+
+
+def _contact_sheets(ctx: StageContext, report_dir) -> None:
+    """``report/masks.jpg`` (each object's mask and the interactor's over the video) and
+    ``report/object.jpg`` (each object's mesh at its trajectory pose, its mask's outline red)."""
+    from rose_usd.render.sheets import mask_sheet, object_sheet
+
+    every = max(1, -(-ctx.time_info.n_frames // SHEET_FRAMES))
+    mask_sheet(ctx.case, ctx.stage, report_dir / "masks.jpg", every=every)
+    object_sheet(ctx.case, ctx.stage, report_dir / "object.jpg", every=every)
+
+
 def run(ctx: StageContext) -> None:
     cfg, stage, n = ctx.config, ctx.stage, ctx.time_info.n_frames
     from rose_usd.render.from_usd import StageRenderer
@@ -95,6 +109,7 @@ def run(ctx: StageContext) -> None:
     }
     (report_dir / "gate.json").write_text(json.dumps(summary, indent=2) + "\n")
     write_report(report_dir, ssim, cfg.ssim_threshold, keep)
+    _contact_sheets(ctx, report_dir)
     for name, iou in track["iou"].items():
         if iou is not None and iou < cfg.track_iou_threshold:
             ctx.warn(

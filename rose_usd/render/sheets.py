@@ -1,5 +1,6 @@
-"""Contact sheets of a reconstruction, every few frames, optionally cropped to a region of
-interest and enlarged (real clips' objects can be 20-40 px wide):
+"""Contact sheets of a reconstruction (a run folder or its composed stage), every few frames,
+optionally cropped to a region of interest and enlarged (real clips' objects can be 20-40 px
+wide); the gate writes the first two into ``report/``:
 
 - ``mask_sheet``: each object's mask (its own colour) and the interactor's (blue) over the video;
 - ``object_sheet``: each object's mesh posed by the trajectory layer, drawn through the world
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from pxr import Usd
 
 from rose_usd.case.layout import Case
 from rose_usd.core import se3
@@ -24,13 +26,16 @@ from rose_usd.layers.trajectory import object_poses
 from rose_usd.layers.world import read_cameras
 from rose_usd.usd.stage import open_stage
 
+Source = Path | Usd.Stage
+"""A run folder (its ``rose.usda`` is opened) or a stage."""
+
 COLOURS = [(0, 230, 0), (255, 60, 200), (255, 200, 0), (0, 220, 255)]
 HAND = (40, 80, 255)
 
 
 def mask_sheet(
     case: Case,
-    run_dir: Path,
+    run_dir: Source,
     path: Path,
     *,
     every: int = 20,
@@ -43,7 +48,7 @@ def mask_sheet(
     frames of ``case``, every ``every`` frames; ``crop`` is (x0, y0, x1, y1) in pixels;
     ``label(t)`` adds text under the frame number."""
     n = case.n_frames
-    masks = read_masks(open_stage(run_dir / "rose.usda"), n, (case.height, case.width))
+    masks = read_masks(_open(run_dir), n, (case.height, case.width))
     tiles = []
     for t in range(0, n, every):
         rgb = case.rgb(t)
@@ -61,7 +66,7 @@ def mask_sheet(
 
 def object_sheet(
     case: Case,
-    run_dir: Path,
+    run_dir: Source,
     path: Path,
     *,
     every: int = 20,
@@ -72,7 +77,7 @@ def object_sheet(
     """Write ``path``: every object's mesh at its trajectory pose over the frames of ``case``
     (shaded in the object's colour, outlined), with its mask's outline (red)."""
     n = case.n_frames
-    stage = open_stage(run_dir / "rose.usda")
+    stage = _open(run_dir)
     cams = read_cameras(stage, n)
     masks = read_masks(stage, n, (case.height, case.width))
     names = list(object_paths(stage))
@@ -99,7 +104,7 @@ def object_sheet(
 
 def outline_sheet(
     case: Case,
-    run_dir: Path,
+    run_dir: Source,
     path: Path,
     name: str,
     *,
@@ -113,7 +118,7 @@ def outline_sheet(
     (w, h) pixel window centred on the mask (where it was last seen when it is empty), enlarged
     ``scale`` times without smoothing."""
     n = case.n_frames
-    masks = read_masks(open_stage(run_dir / "rose.usda"), n, (case.height, case.width))
+    masks = read_masks(_open(run_dir), n, (case.height, case.width))
     w, h = window
     centre = (case.width // 2, case.height // 2)
     tiles = []
@@ -165,3 +170,7 @@ def _write(tiles: list[np.ndarray], cols: int, path: Path) -> Path:
     params = [cv2.IMWRITE_JPEG_QUALITY, 80] if path.suffix.lower() in (".jpg", ".jpeg") else []
     cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), params)
     return path
+
+
+def _open(source: Source) -> Usd.Stage:
+    return source if isinstance(source, Usd.Stage) else open_stage(Path(source) / "rose.usda")
