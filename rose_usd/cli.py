@@ -448,14 +448,14 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_pipeline_commands(sub) -> None:
     """reconstruct, run, demo."""
     p = sub.add_parser("reconstruct", help="run every stage on a case (skips stages that are up to date)")
-    p.add_argument("case", help="case folder or video file")
+    p.add_argument("case", help="case folder, or video file (with its settings in <name>.toml beside it)")
     _add_pipeline_flags(p)
     p.add_argument("--no-validate", action="store_true", help="skip UsdValidation and the Newton load at the end")
     p.set_defaults(func=cmd_reconstruct)
 
     p = sub.add_parser("run", help="run one stage, first running stages it needs whose layers are missing or stale")
     p.add_argument("stage", help="stage name (see `rose-usd stages`)")
-    p.add_argument("case", help="case folder or video file")
+    p.add_argument("case", help="case folder, or video file (with its settings in <name>.toml beside it)")
     _add_pipeline_flags(p)
     p.set_defaults(func=cmd_run)
 

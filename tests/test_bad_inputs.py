@@ -214,6 +214,23 @@ def test_a_video_inside_rgb_is_the_cases_frames(capsys, tmp_path):
     assert "demo_video.avi" in err.value.one_line() and "second.avi" in err.value.one_line()
 
 
+def test_a_video_files_settings_are_the_toml_beside_it(capsys, tmp_path):
+    """A video given as the case: one generic "Object" alone; <stem>.toml beside it (rose.toml's
+    format) names its objects, their categories and sizes, and is checked like rose.toml."""
+    video = tmp_path / "cups.avi"
+    _video(video)
+    assert [o.name for o in load_case(video).config.objects] == ["Object"]
+    toml = tmp_path / "cups.toml"
+    toml.write_text('[[objects]]\nname = "Cup"\ncategory = "cup"\nsize_m = 0.095\n')
+    loaded = load_case(video)
+    (cup,) = loaded.config.objects
+    assert (cup.name, cup.category, cup.overrides["size_m"]) == ("Cup", "cup", 0.095)
+    assert toml in loaded.input_files()
+    toml.write_text('[[objects]]\nname = "Cup"\ncategory = "cupp"\n')
+    code, err = run_cli(capsys, "reconstruct", str(video), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "cups.toml", "'cupp'", "did you mean 'cup'")
+
+
 def test_validate_names_the_layers_an_output_folder_lacks_and_takes_the_folder(
     capsys, sample_case, oracle_out, tmp_path
 ):

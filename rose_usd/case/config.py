@@ -295,11 +295,12 @@ def _read_toml(path: Path) -> dict:
         raise _fail(path, f"not valid TOML ({exc})", "fix the syntax") from None
 
 
-def load_case_config(case_root: Path, stage_names: tuple[str, ...]) -> CaseConfig:
-    """Parse ``<case>/rose.toml`` if present, against its schema: every key known (unknown keys
-    are usually typos), every value of its type and in its range; one ConfigError naming the file
-    and the fix otherwise. Stage settings are type-checked by the pipeline (their dataclasses)."""
-    path = Path(case_root) / CASE_CONFIG_FILE
+def load_case_config(case_root: Path, stage_names: tuple[str, ...], file: Path | None = None) -> CaseConfig:
+    """Parse ``<case>/rose.toml`` (or ``file``) if present, against its schema: every key known
+    (unknown keys are usually typos), every value of its type and in its range; one ConfigError
+    naming the file and the fix otherwise. Stage settings are type-checked by the pipeline (their
+    dataclasses)."""
+    path = Path(file) if file is not None else Path(case_root) / CASE_CONFIG_FILE
     if not path.is_file():
         return CaseConfig()
     data = _read_toml(path)

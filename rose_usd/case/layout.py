@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rose_usd.case.config import CaseConfig, ObjectSpec, load_case_config
+from rose_usd.case.config import ObjectSpec, load_case_config
 from rose_usd.errors import InputError
 from rose_usd.io import images
 from rose_usd.usd.camera import check_K
@@ -137,7 +137,8 @@ class Case:
                 )
             self.video = self.root
             self.folder = self.root.parent
-            self.config = CaseConfig()
+            # a video's own settings (objects, categories, sizes, fps): <video stem>.toml beside it
+            self.config = load_case_config(self.folder, stage_names, file=self.root.with_suffix(".toml"))
         else:
             self.folder = self.root
             _check_links(self.root)
@@ -493,9 +494,10 @@ class Case:
         """Every input file a stage may read (for provenance hashes), ground truth excluded."""
         files = list(self.frame_paths) if self.video is None else [self.video]
         files += list(self.depth_paths or [])
-        for extra in ("cam_K.txt", "camera-intrinsics.txt", "rose.toml"):
-            if (self.folder / extra).is_file():
-                files.append(self.folder / extra)
+        if self.root.is_dir():
+            files += [self.folder / n for n in ("cam_K.txt", "camera-intrinsics.txt") if (self.folder / n).is_file()]
+        if self.config.path is not None:
+            files.append(self.config.path)
         for sub in ("perception", "imu"):
             if (self.folder / sub).is_dir():
                 files += sorted(p for p in (self.folder / sub).rglob("*") if p.is_file() and p.name != "simulated.json")
