@@ -143,6 +143,10 @@ def test_an_output_folder_of_another_case_or_the_case_folder_is_refused(capsys, 
     code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(case_copy), "--backend", "all=oracle")
     assert_one_line_error(code, err, "case folder itself", "-o out/case")
     assert sorted(case_copy.rglob("*")) == listed
+    inside = case_copy / "gt" / "out"
+    code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(inside), "--backend", "all=oracle")
+    assert_one_line_error(code, err, "inside the case's gt/", str(case_copy / "out"))
+    assert sorted(case_copy.rglob("*")) == listed
 
 
 def test_object_never_visible_leaves_no_mix(capsys, case_copy, out_copy):

@@ -68,7 +68,9 @@ def run_sfm(
     """
     import pycolmap
 
-    pycolmap.logging.minloglevel = 2  # errors only: INFO is a line per image and step
+    # fatal only: INFO is a line per image and step, and its errors ("Failed to create any sparse
+    # model") are outcomes the caller reports in its own words
+    pycolmap.logging.minloglevel = 3
     h, w = frames[0].shape[:2]
     s = min(1.0, max_side / max(w, h))
     sw, sh = int(round(w * s)), int(round(h * s))
