@@ -13,7 +13,9 @@ from typing import Any
 from pxr import Usd
 
 from rose_usd.layers.gate import GateResult, read_gate
+from rose_usd.layers.objects import describe, object_paths
 from rose_usd.layers.robot import CollectResult, read_collect
+from rose_usd.layers.world import read_scale
 from rose_usd.pipeline import BackendChoice, Options, Pipeline, StageOutcome
 from rose_usd.usd import stage as usd_stage
 from rose_usd.usd.validate import ValidationReport
@@ -64,6 +66,10 @@ class Reconstruction:
             f"  {o.name:<11} {o.backend:<15} {o.status:<8} {o.wall_time_s:7.1f} s" + (f"  {o.error}" if o.error else "")
             for o in self.outcomes
         ]
+        if object_paths(self.stage):
+            scale = read_scale(self.stage)  # a prior's (RGB only) is uncertain: say which
+            how = f"; metric scale from {scale.source} (+-{100 * scale.uncertainty:.0f} %)" if scale.uncertainty else ""
+            lines.append(f"objects: {'; '.join(describe(self.stage, n) for n in object_paths(self.stage))}{how}")
         if self.gate is not None:
             lines.append(self.gate.summary())
         if self.collect is not None:

@@ -158,6 +158,9 @@ def test_reconstruct_returns_the_stage_the_gate_and_the_validation(out_copy, sam
     assert result.gate.ssim_mean > 0.9 and set(result.gate.rest_displacement_m) == {"Box"}
     assert result.stage.GetPrimAtPath("/World/Objects/Box")
     assert "gate PASS" in result.summary()
+    # what was made, in a line: the true box's sides (8.76 x 8.14 x 7.90 cm) and its mass; no scale prior
+    (line,) = [x for x in result.summary().splitlines() if x.startswith("objects: ")]
+    assert line.startswith("objects: Box (mesh) 8.8 x 8.1 x 7.9 cm, ") and line.endswith(" kg"), line
 
 
 def test_a_failing_stage_is_an_outcome_with_check_false(out_copy, sample_case, monkeypatch):

@@ -553,7 +553,7 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
 
 def _metric_mesh(path: Path, spec):
     """The object's mesh file ``path`` (vertices in meters, up-aligned by mesh_up or its format's
-    convention, faces) when its unit is known (``object.meshes.file_unit``: not TRELLIS's unit
+    convention, faces) when its unit is known (``io.meshfile.file_unit``: not TRELLIS's unit
     cube), decimated for silhouettes; else None."""
     import trimesh
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Usd, UsdGeom, UsdPhysics
 
+from rose_usd.core import se3
 from rose_usd.errors import StageError
 from rose_usd.usd import paths, tokens
 from rose_usd.usd.geom import MeshData, read_mesh
@@ -96,3 +97,16 @@ def physics_prior(stage: Usd.Stage, name: str) -> PhysicsPrior:
         friction_sigma=prior(tokens.PRIOR_FRICTION_UNCERTAINTY, 0.0),
         center_of_mass_m=np.asarray(value(mass.GetCenterOfMassAttr(), (0.0, 0.0, 0.0)), dtype=float),
     )
+
+
+def describe(stage: Usd.Stage, name: str) -> str:
+    """One phrase for a person: object ``name``'s shape (its mesh, or the category primitive that
+    stands in for it), its sides in its own frame and its mass: "Cube (mesh) 8.5 x 8.5 x 8.5 cm, 0.58 kg"."""
+    prim = _prim(stage, paths.object_path(name), name)
+    local = se3.transform_points(se3.invert(default_pose(stage, name)), visual_mesh(stage, name).vertices)
+    sides = " x ".join(f"{100 * d:.1f}" for d in sorted(np.ptp(local, axis=0), reverse=True))
+    shape = "mesh"
+    if is_proxy(stage, name):
+        kind = prim.GetAttribute(tokens.SHAPE_PRIMITIVE)
+        shape = f"a {kind.Get() if kind and kind.HasAuthoredValue() else 'primitive'} standing in for it"
+    return f"{name} ({shape}) {sides} cm, {physics_prior(stage, name).mass_kg:.3g} kg"
