@@ -66,10 +66,11 @@ class Reconstruction:
             f"  {o.name:<11} {o.backend:<15} {o.status:<8} {o.wall_time_s:7.1f} s" + (f"  {o.error}" if o.error else "")
             for o in self.outcomes
         ]
-        if object_paths(self.stage):
+        names = list(object_paths(self.stage))
+        if names:
             scale = read_scale(self.stage)  # a prior's (RGB only) is uncertain: say which
             how = f"; metric scale from {scale.source} (+-{100 * scale.uncertainty:.0f} %)" if scale.uncertainty else ""
-            lines.append(f"objects: {'; '.join(describe(self.stage, n) for n in object_paths(self.stage))}{how}")
+            lines.append(f"objects: {'; '.join(describe(self.stage, n) for n in names)}{how}")
         if self.gate is not None:
             lines.append(self.gate.summary())
         if self.collect is not None:

@@ -48,7 +48,9 @@ REFUSED = "refused before any case ran"
 LOG = "batch.log"
 """A case's stages' progress and warnings, in its output folder (appended each run)."""
 FIELDS = ("name", "case", "status", "gate_passed", "ssim_mean", "collect_success", "wall_time_s", "error")
-"""The summary's columns, then each stage's seconds (``<stage>_s``, empty where it did not run)."""
+"""The summary's columns, then each stage's seconds (``STAGE_FIELDS``)."""
+STAGE_FIELDS = tuple(f"{s}_s" for s in STAGE_NAMES)
+"""A stage's seconds in the summary (empty where it did not run)."""
 
 
 @dataclass
@@ -76,7 +78,8 @@ class CaseResult:
     """Taken from an earlier run's record (nothing ran)."""
 
     def row(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in FIELDS} | {f"{s}_s": self.stage_times_s.get(s) for s in STAGE_NAMES}
+        times = {field: self.stage_times_s.get(s) for field, s in zip(STAGE_FIELDS, STAGE_NAMES, strict=True)}
+        return {k: getattr(self, k) for k in FIELDS} | times
 
 
 @dataclass
@@ -346,7 +349,7 @@ def write_summary(out: Path, results: list[CaseResult]) -> None:
     from rose_usd.usd.stage import write_text_atomic
 
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=[*FIELDS, *(f"{s}_s" for s in STAGE_NAMES)])
+    writer = csv.DictWriter(buf, fieldnames=[*FIELDS, *STAGE_FIELDS])
     writer.writeheader()
     for r in results:
         writer.writerow(r.row())

@@ -101,7 +101,9 @@ def _videos_only(folder: Path) -> list[Path]:
     return [p for p in names if p.suffix.lower() in VIDEO_SUFFIXES]
 
 
-CASE_ENTRIES = ("rgb", "depth", "mesh", "perception", "gt", "imu", "cam_K.txt", "camera-intrinsics.txt", "rose.toml")
+CASE_DIRS = ("rgb", "depth", "mesh", "perception", "gt", "imu")
+"""A case folder's folders of inputs."""
+CASE_ENTRIES = (*CASE_DIRS, "cam_K.txt", "camera-intrinsics.txt", "rose.toml")
 """What a case folder's layout reads (and ``video.<suffix>``)."""
 
 

@@ -49,7 +49,7 @@ from rose_usd.core.watertight import is_closed
 from rose_usd.geometry.mesh import decimate, longest_edge
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import foundationpose
-from rose_usd.io.meshfile import UNIT_NAMES, UNITS
+from rose_usd.io.meshfile import file_unit
 from rose_usd.layers.masks import Masks, read_masks
 from rose_usd.layers.world import metric_depth_reader, read_cameras
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
@@ -447,7 +447,8 @@ def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, c
     d_image, d_mesh = diameter(observed), diameter(imp.vertices)
     given = spec.overrides.get("mesh_units")
     if given and given != "auto":
-        rho0, search, how = UNITS.get(UNIT_NAMES[given], 1.0), False, f"file units ({UNIT_NAMES[given]}, given)"
+        unit = file_unit(d_mesh, imp.normalized, given)
+        rho0, search, how = unit.meters, False, f"file units ({unit.name}, given)"
     else:
         rho0, search, how = _initial_scale(ctx, spec.name, path, imp.normalized, d_image, d_mesh)
     views = _views(layer, spec.name, cloud.frames, cloud.masks, cameras)

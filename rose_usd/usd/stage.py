@@ -290,10 +290,6 @@ def check_out_dir(out_dir: str | os.PathLike) -> Path:
     return path
 
 
-CASE_INPUT_DIRS = ("rgb", "depth", "mesh", "perception", "gt", "imu")
-"""A case folder's folders of inputs: no output folder may lie in one."""
-
-
 def check_out_case(out_dir: Path, case_root: Path, case_hash: Callable[[], str]) -> None:
     """An output folder holds one case's stages: refused when it is the case folder itself or lies
     in one of its folders of inputs (the stages would write among them; ``CASE/out`` is fine), or
@@ -302,6 +298,8 @@ def check_out_case(out_dir: Path, case_root: Path, case_hash: Callable[[], str])
     called only for a layer made at another path: it reads every input file): a run would remove
     that case's layers as stale. The same case edited in place, or copied elsewhere unchanged, may
     use it."""
+    from rose_usd.case.layout import CASE_DIRS
+
     root, out = Path(case_root).resolve(), Path(out_dir).resolve()
     if out == root:
         raise InputError(
@@ -309,7 +307,7 @@ def check_out_case(out_dir: Path, case_root: Path, case_hash: Callable[[], str])
             path=out_dir,
             hint=f"give -o another folder, e.g. -o out/{root.stem}",
         )
-    inputs = next((root / d for d in CASE_INPUT_DIRS if out.is_relative_to(root / d)), None) if root.is_dir() else None
+    inputs = next((root / d for d in CASE_DIRS if out.is_relative_to(root / d)), None) if root.is_dir() else None
     if inputs is not None:
         raise InputError(
             f"is inside the case's {inputs.name}/: the stages would write among its inputs",
