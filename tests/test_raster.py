@@ -109,3 +109,36 @@ def test_convex_iou_from_row_spans_is_the_drawn_one(soft):
         else:
             want = (drawn & mask & keep).sum() / ((drawn | mask) & keep).sum()
         assert iou([view], v, box.faces, convex=True) == pytest.approx(want, abs=1e-12)
+
+
+@pytest.mark.parametrize("closed", [True, False])
+def test_a_mesh_drawn_in_one_kernel_is_the_mesh_projected_first(closed):
+    """``fill_mesh`` projects and culls in its kernel: the same pixels as projecting the camera
+    points in NumPy, leaving out the triangles with a corner too near and (closed) those facing
+    away, and filling the rest, in a window too."""
+    import trimesh
+
+    from rose_usd.core.pinhole import project
+    from rose_usd.core.raster import fill_mesh
+
+    rng = np.random.default_rng(5)
+    K = np.array([[210.0, 0, 61.7], [0, 205.0, 44.2], [0, 0, 1]])
+    drawn = 0
+    for trial in range(20):
+        mesh = trimesh.creation.icosphere(subdivisions=2, radius=rng.uniform(0.03, 0.1))
+        faces = mesh.faces[mesh.triangles_center @ rng.normal(size=3) > -0.02]  # open: a cap, its inside seen
+        cam = mesh.vertices + np.array([*rng.uniform(-0.05, 0.05, 2), rng.uniform(0.02, 0.4)])
+        if trial % 2:
+            cam = cam + rng.normal(0, 0.004, cam.shape)  # a bumpy one
+        x0, y0 = (int(rng.integers(0, 20)), int(rng.integers(0, 15))) if trial % 3 else (0, 0)
+        u, v = project(np.where(cam[:, 2:3] > 0.05, cam, 1.0), K)
+        tri = faces[np.all(cam[faces, 2] > 0.05, axis=1)]
+        if closed:
+            a, b, c = cam[tri[:, 0]], cam[tri[:, 1]], cam[tri[:, 2]]
+            tri = tri[np.einsum("ij,ij->i", np.cross(b - a, c - a), a) < 0.0]
+        want = fill_triangles(np.column_stack([u - x0, v - y0]), tri, 100 - x0, 80 - y0)
+        got = fill_mesh(cam, faces, K, 100 - x0, 80 - y0, min_z=0.05, closed=closed, origin=(x0, y0))
+        assert np.array_equal(got, want), trial
+        drawn += int(want.any())
+    assert drawn >= 15
+    assert not fill_mesh(cam, faces, K, 100, 80, min_z=5.0, closed=closed).any()

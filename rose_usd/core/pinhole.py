@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from rose_usd.core import se3
-from rose_usd.core.raster import fill_triangles
+from rose_usd.core.raster import fill_mesh
 
 
 def backproject(u, v, z, K: np.ndarray) -> np.ndarray:
@@ -161,13 +161,8 @@ def silhouette(
     y0, x1, y1), only those pixels of it: a (y1 - y0, x1 - x0) image, the same pixels as the
     whole image's there."""
     cam = se3.transform_points(se3.invert(world_from_cv), vertices_world)
-    u, v = project(np.where(cam[:, 2:3] > min_z, cam, 1.0), K)
-    tri = faces[np.all(cam[faces, 2] > min_z, axis=1)]
-    if closed:
-        a, b, c = cam[tri[:, 0]], cam[tri[:, 1]], cam[tri[:, 2]]
-        tri = tri[np.einsum("ij,ij->i", np.cross(b - a, c - a), a) < 0.0]  # normal toward the camera
     x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
-    return fill_triangles(np.column_stack([u - x0, v - y0]), tri, x1 - x0, y1 - y0)
+    return fill_mesh(cam, faces, K, x1 - x0, y1 - y0, min_z=min_z, closed=closed, origin=(x0, y0))
 
 
 def world_points(depth: np.ndarray, K: np.ndarray, world_from_cv: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -59,6 +60,21 @@ class View:
     nearest image edge of about that direction (outside what is ignored) over ``EDGE_REACH_PX``,
     capped at 1 (``edge_distance``); where given, a fit can ask its outline to lie on edges
     (``edge_cost``)."""
+
+    @functools.cached_property
+    def counted(self) -> SimpleNamespace:
+        """What ``iou`` counts against, made once: the pixels not ignored (``keep``), the mask's
+        among them (``mask``) and their number (``mask_px``), the soft mask there and its sum."""
+        keep = ~self.ignore
+        mask = self.mask & keep
+        soft = np.where(keep, self.soft, 0.0) if self.soft is not None else None
+        return SimpleNamespace(
+            keep=keep,
+            mask=mask,
+            mask_px=int(np.count_nonzero(mask)),
+            soft=soft,
+            soft_sum=float(soft.sum()) if soft is not None else 0.0,
+        )
 
     def render(
         self, vertices_world: np.ndarray, faces: np.ndarray, *, closed: bool = True, convex: bool = False
@@ -263,16 +279,16 @@ def iou(
             inter, union = inter + overlap[0], union + overlap[1]
             continue
         r = view.render(vertices_world, faces, closed=closed, convex=convex)
-        keep = ~view.ignore
+        counted = view.counted
         if view.soft is not None:  # soft IoU: sum(r S) / sum(r + S - r S)
-            soft = np.where(keep, view.soft, 0.0)
-            rk = r & keep
-            inside = float(soft[rk].sum())
+            rk = r & counted.keep
+            inside = float(counted.soft[rk].sum())
             inter += inside
-            union += float(np.count_nonzero(rk)) + float(soft.sum()) - inside
+            union += float(np.count_nonzero(rk)) + counted.soft_sum - inside
             continue
-        inter += int(np.count_nonzero(r & view.mask & keep))
-        union += int(np.count_nonzero((r | view.mask) & keep))
+        both = int(np.count_nonzero(r & counted.mask))
+        inter += both
+        union += int(np.count_nonzero(r & counted.keep)) + counted.mask_px - both
     return inter / max(union, 1e-9)
 
 
