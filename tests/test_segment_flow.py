@@ -463,3 +463,40 @@ def test_a_resting_object_is_not_dragged_off_by_an_arm_sweeping_over_it():
     after = [t for t in range(len(frames)) if 5 * t - 100 > 96]  # the bar has left the block
     ious = [(masks["Block"][t] & truth[t]).sum() / (masks["Block"][t] | truth[t]).sum() for t in after]
     assert after and min(ious) >= 0.9, ious
+
+
+@pytest.mark.parametrize("radius", [0.4, 3, 6.6, 52])
+def test_growing_a_mask_within_its_box_is_the_whole_image_dilation(radius):
+    import cv2
+
+    from rose_usd.segment.flow import _grown
+
+    rng = np.random.default_rng(1)
+    mask = np.zeros((90, 120), bool)
+    mask[rng.integers(0, 90, 12), rng.integers(0, 120, 12)] = True
+    mask[0:5, 100:120] = True  # touching the image's edge
+    r = int(round(radius))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    assert np.array_equal(_grown(mask, radius), cv2.dilate(mask.astype(np.uint8), disk).astype(bool))
+    assert not _grown(np.zeros((9, 9), bool), radius).any()
+
+
+def test_flows_made_ahead_are_the_flows_asked_for():
+    """The propagation's flows come from a worker thread where the plan has them (the same as
+    made on demand); a planned flow not asked for is dropped once the plan moves past it."""
+    from rose_usd.segment.flow import FLOW_AHEAD, FlowTracker
+
+    frames, _ = _turning_block(12)
+    on_demand = FlowTracker(lambda t: frames[t], (160, 120))
+    planned = FlowTracker(lambda t: frames[t], (160, 120))
+    planned.plan([pair for t in range(1, 12) for pair in ((t - 1, t), (t, t - 1))])
+    try:
+        for t in range(1, 12):
+            assert np.array_equal(planned.flow(t - 1, t), on_demand.flow(t - 1, t))
+            if t % 2:  # the flow back is asked for in some steps only
+                assert np.array_equal(planned.flow(t, t - 1), on_demand.flow(t, t - 1))
+            assert len(planned._ahead) <= FLOW_AHEAD
+            assert (t - 1, t) not in planned._ahead and (t - 1, t - 2) not in planned._ahead
+    finally:
+        planned.close()
+    assert planned._pool is None
