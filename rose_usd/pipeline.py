@@ -196,8 +196,11 @@ class Pipeline:
             stages = registry.closure(target, lambda s: self.config(s).backend.value)
         backends = {s.name: self.config(s).backend.value for s in stages}
         planning.preflight(self.case, backends, {s.name: s.requires_of(backends[s.name]) for s in stages})
+        prompts = self.config(registry.get("segment")).prompts if "segment" in backends else None
         if backends.get("segment") == "flow":
-            planning.check_prompted(self.case, self.config(registry.get("segment")).prompts, self._prompts_where())
+            planning.check_prompted(self.case, prompts, self._prompts_where())
+        elif backends.get("segment") == "classical":
+            planning.check_all_or_none(self.case, prompts, self._prompts_where())
         return stages
 
     def check_output(self) -> None:

@@ -57,6 +57,11 @@ def capture(ctx, *extra):
     return ["run", "capture", str(ctx.case), "-o", str(ctx.out), *extra]
 
 
+def segment(ctx, *extra):
+    """Up to the segment stage: capture would write its layer first, were a check of the prompts late."""
+    return ["run", "segment", str(ctx.case), "-o", str(ctx.out), *extra]
+
+
 def toml(ctx, text: str, *, keep_object: bool = False) -> None:
     base = 'fps = 30\n[[objects]]\nname = "Box"\ncategory = "box"\nprompt = { frame = 0, box = [174, 90, 208, 127] }\n'
     (ctx.case / "rose.toml").write_text((base if keep_object else "") + text)
@@ -545,6 +550,23 @@ CORPUS: list[Bad] = [
         15,
         lambda ctx: (toml(ctx, "objects = []\n"), capture(ctx, "--prompt", "0:1,2,30,40"))[1],
         "--prompt",
+    ),
+    _c(
+        "prompt-half-toml",
+        15,
+        lambda ctx: (toml(ctx, '[[objects]]\nname = "Ball"\n', keep_object=True), segment(ctx))[1],
+        "rose.toml",
+        "'Ball' not",
+    ),
+    _c(
+        "prompt-half-flag",
+        15,
+        lambda ctx: (
+            toml(ctx, '[[objects]]\nname = "Box"\n[[objects]]\nname = "Ball"\n'),
+            segment(ctx, "--prompt", "Box=0:174,90,208,127"),
+        )[1],
+        "--prompt",
+        "'Ball' not",
     ),
     _toml_case("toml-unknown-backend", 15, '[backends]\ncapture = "colmap"\n', "colmap"),
     _toml_case("category-typo", 15, '[[objects]]\nname = "Box"\ncategory = "boxx"\n', "boxx", keep=False),

@@ -311,3 +311,19 @@ def test_a_link_to_nothing_in_the_case_folder_is_named(capsys, case_copy, tmp_pa
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out))
     assert_one_line_error(code, err, "mesh", "meshh", "does not exist")
     assert not out.exists()
+
+
+def test_objects_half_prompted_fail_before_capture_writes(capsys, case_copy, tmp_path):
+    """Some objects prompted and some not: one line naming rose.toml (or --prompt), before the
+    capture stage writes anything."""
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text() + '\n[[objects]]\nname = "Ball"\n')
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "rose.toml", "'Ball' not", "prompt every object, or none")
+    assert not (tmp_path / "out").exists()
+    toml.write_text('fps = 30\n[[objects]]\nname = "Box"\n[[objects]]\nname = "Ball"\n')
+    code, err = run_cli(
+        capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"), "--prompt", "Box=0:174,90,208,127"
+    )
+    assert_one_line_error(code, err, "--prompt", "'Ball' not")
+    assert not (tmp_path / "out").exists()
