@@ -35,7 +35,8 @@ class RoseError(Exception):
             parts.append(f"{self.path}: ")
         parts.append(self.message.rstrip("."))
         if self.hint:
-            parts.append(f". {self.hint.rstrip('.')}.")
+            hint = self.hint.rstrip(".")
+            parts.append(f". {hint}" + ("" if hint.endswith(("?", "!")) else "."))
         else:
             parts.append(".")
         return "".join(parts).replace("\n", " ")

@@ -30,7 +30,7 @@ def test_missing_frame(capsys, case_copy, tmp_path):
     """A gap in the frame numbers names the folder and the missing frame."""
     (case_copy / "rgb" / "000010.png").unlink()
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
-    assert_one_line_error(code, err, "rgb", "frame(s) 10..10 missing", "000009.png")
+    assert_one_line_error(code, err, "rgb", "frame 10 missing", "000009.png")
     assert not (tmp_path / "out").exists()
 
 

@@ -54,6 +54,7 @@ def test_a_value_that_does_not_fit_is_one_line_error(values, needle):
     with pytest.raises(ConfigError) as err:
         _object(**values)
     assert needle in err.value.one_line(), err.value.one_line()
+    assert not err.value.one_line().endswith("?."), err.value.one_line()  # a question ends the line
 
 
 def test_settings_that_contradict_each_other_are_one_line_error():

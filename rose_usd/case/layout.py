@@ -84,7 +84,9 @@ def _sorted_frames(folder: Path, suffixes: tuple[str, ...], what: str, infix: st
         for prev, cur, prev_path in zip(nums, nums[1:], files):
             if cur != prev + 1:
                 raise InputError(
-                    f"{what} frame(s) {prev + 1}..{cur - 1} missing after {prev_path.name}",
+                    f"{what} frame {prev + 1} missing after {prev_path.name}"
+                    if cur == prev + 2
+                    else f"{what} frames {prev + 1}..{cur - 1} missing after {prev_path.name}",
                     path=folder,
                     hint="frames must be numbered consecutively; restore the missing files or renumber",
                 )
