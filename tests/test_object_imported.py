@@ -165,6 +165,28 @@ def test_a_files_unit_is_meters_when_plausible_else_guessed_or_given():
     assert file_unit(128.0, False).describe(128.0) == "128 units across: read as millimeters (0.128 m)"
 
 
+def test_a_cube_with_a_material_per_face_loads_without_warnings(tmp_path):
+    """Blender's OBJ of a cube whose faces each have a material and their own texture corners
+    (ViSP's cube.obj): trimesh's reader lets NumPy warnings through that read like an error."""
+    import warnings
+
+    from rose_usd.io.meshfile import read_mesh_file
+
+    corners = [(x, y, z) for x in (-0.04, 0.04) for y in (-0.04, 0.04) for z in (-0.04, 0.04)]
+    quads = [(1, 2, 4, 3), (5, 7, 8, 6), (1, 5, 6, 2), (3, 4, 8, 7), (1, 3, 7, 5), (2, 6, 8, 4)]
+    lines = ["mtllib six.mtl", *(f"v {x} {y} {z}" for x, y, z in corners)]
+    lines += [f"vt {0.1 + 0.03 * i:.3f} {0.9 - 0.03 * i:.3f}" for i in range(24)]
+    lines += [f"vn {n}" for n in ("-1 0 0", "1 0 0", "0 -1 0", "0 1 0", "0 0 -1", "0 0 1")]
+    for k, quad in enumerate(quads):
+        lines += [f"usemtl face{k + 1}", "f " + " ".join(f"{a}/{4 * k + j + 1}/{k + 1}" for j, a in enumerate(quad))]
+    (tmp_path / "six.obj").write_text("\n".join(lines) + "\n")
+    (tmp_path / "six.mtl").write_text("".join(f"newmtl face{k + 1}\nKa 0.2 0.2 0.2\nd 1.0\n\n" for k in range(6)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = read_mesh_file(tmp_path / "six.obj")
+    assert mesh.faces.shape == (12, 3) and np.ptp(mesh.vertices, axis=0) == pytest.approx([0.08] * 3)
+
+
 def _textured_box_glb(path, extents=(1.0, 0.6, 0.8), color=(200, 40, 30)):
     import xatlas
 

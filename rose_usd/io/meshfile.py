@@ -4,6 +4,7 @@ reader that keeps vertex order (any format, through trimesh) and a file's length
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -96,7 +97,7 @@ def read_mesh_file(path: str | os.PathLike) -> trimesh.Trimesh:
     if not path.is_file():
         raise MeshError("mesh file not found", path=path, hint="check the path")
     try:
-        loaded = trimesh.load(str(path), process=False, maintain_order=True)
+        loaded = quiet_load(path)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise MeshError(
             f"cannot read the mesh ({type(exc).__name__}: {exc})", path=path, hint="export it again as OBJ, PLY or GLB"
@@ -107,6 +108,15 @@ def read_mesh_file(path: str | os.PathLike) -> trimesh.Trimesh:
         raise MeshError("the file holds no triangles", path=path, hint="export a triangle mesh")
     check_vertices(loaded, path)
     return loaded
+
+
+def quiet_load(path: Path):
+    """``trimesh.load`` keeping vertex order, without the NumPy warnings its OBJ reader lets through
+    (an OBJ whose faces each have their own material and texture corners, as Blender exports a
+    cube: "All-NaN slice encountered"), which a user would take for an error."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"(trimesh|numpy)\.")
+        return trimesh.load(str(path), process=False, maintain_order=True)
 
 
 def check_vertices(mesh: trimesh.Trimesh, path: Path) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 import trimesh
 
 from rose_usd.errors import MeshError
-from rose_usd.io.meshfile import check_vertices
+from rose_usd.io.meshfile import check_vertices, quiet_load
 
 # Z-up (x, y, z) -> glTF Y-up (x, z, -y): a rotation of -90 degrees about X
 Y_UP_FROM_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -42,7 +42,7 @@ def read_trellis_glb(path: str | os.PathLike) -> trimesh.Trimesh:
     """Load a TRELLIS GLB as one mesh (Y-up, normalized cube); MeshError if it does not look like one."""
     path = Path(path)
     try:
-        loaded = trimesh.load(str(path), process=False, maintain_order=True)
+        loaded = quiet_load(path)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise MeshError(
             f"cannot read the GLB ({type(exc).__name__}: {exc})", path=path, hint="export it again from TRELLIS"
