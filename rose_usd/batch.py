@@ -9,11 +9,13 @@ error and does not stop the others. Every case is first checked as ``reconstruct
 runs, and when it would refuse them all (a ``--set`` typo) the batch stops there, writing nothing.
 
 **Resume.** A case is done when its ``batch.json`` is written, last and atomically, after its
-reconstruction and validation; it records the hash of every layer file it saw. Run again, a case
-whose record matches its layers on disk is taken as it is, without opening a stage; any other is
-reconstructed again, and that is make-like (``reconstruct`` skips the layers that are current,
-and a stage commits its layer atomically), so a case killed halfway resumes at the stage it was
-in and a finished case is left untouched (no file of it is rewritten).
+reconstruction and validation; it records the hash of every layer file it saw, and what the case
+was made from (``inputs_key``: rose_usd's code and the case's input files, by size and time). Run
+again, a case whose record matches its layers on disk and its inputs is taken as it is, without
+opening a stage; any other (an edited rose.toml, new frames, new code) is reconstructed again,
+and that is make-like (``reconstruct`` skips the layers that are current, and a stage commits its
+layer atomically), so a case killed halfway resumes at the stage it was in and a finished case is
+left untouched (no file of it is rewritten).
 
 The summary (``OUT/summary.csv``, ``summary.json``, ``index.html`` with each case's compare
 picture) is rewritten atomically after every case, so a killed batch leaves the summary of the
@@ -113,17 +115,37 @@ def _layer_hashes(out_dir: Path) -> dict[str, str]:
     return {str(p.relative_to(out_dir)): hashlib.sha256(p.read_bytes()).hexdigest()[:16] for p in files if p.is_file()}
 
 
-def _record(out_dir: Path, options_key: str) -> CaseResult | None:
-    """The finished case recorded in ``out_dir``, when it was made with the same options and its
-    layers are the ones it vouches for (after what an interrupted later run left is cleared away
-    or its commit finished: ``usd.stage.recover``)."""
+def inputs_key(case: str | os.PathLike) -> str:
+    """What a finished case's record was made from, told by stat alone: rose_usd's source files and
+    the case's input files (``Case.input_files``: frames or video, depth, cam_K.txt, rose.toml,
+    perception/, imu/), each by path, size and modification time; "" when the case cannot be read
+    (its run says why). A change makes the case run again through ``reconstruct``, which redoes
+    only the stages whose config, inputs or code changed (a file touched, not changed: none)."""
+    from rose_usd.case.layout import load_case
+
+    try:
+        files = load_case(case, STAGE_NAMES).input_files()
+    except (RoseError, OSError):
+        return ""
+    h = hashlib.sha256()
+    for path in [*sorted(Path(__file__).resolve().parent.rglob("*.py")), *files]:
+        st = path.stat()
+        h.update(f"{path}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()[:16]
+
+
+def _record(out_dir: Path, options_key: str, case_key: str) -> CaseResult | None:
+    """The finished case recorded in ``out_dir``, when it was made with the same options from the
+    same inputs and code (``case_key``: ``inputs_key``) and its layers are the ones it vouches for
+    (after what an interrupted later run left is cleared away or its commit finished:
+    ``usd.stage.recover``)."""
     from rose_usd.usd.stage import recover
 
     recover(out_dir)
     path = out_dir / RECORD
     try:
         data = json.loads(path.read_text())
-        if data.pop("options") != options_key:
+        if data.pop("options") != options_key or data.pop("inputs") != case_key or not case_key:
             return None
         result = CaseResult(**data)
     except (OSError, ValueError, TypeError, KeyError):
@@ -144,7 +166,8 @@ def run_case(
     """Reconstruct one case (in a worker process or a Ray task) and record it, its stages' progress
     and warnings going to ``out_dir/batch.log``; never raises."""
     out = Path(out_dir)
-    earlier = _record(out, options_key)
+    case_key = inputs_key(case)
+    earlier = _record(out, options_key, case_key)
     if earlier is not None:
         return asdict(earlier)
     t0 = time.perf_counter()
@@ -174,7 +197,8 @@ def run_case(
         from rose_usd.usd.stage import write_text_atomic
 
         result.layers = _layer_hashes(out)
-        write_text_atomic(out / RECORD, json.dumps(asdict(result) | {"options": options_key}, indent=1))
+        record = asdict(result) | {"options": options_key, "inputs": case_key}
+        write_text_atomic(out / RECORD, json.dumps(record, indent=1))
     return asdict(result)
 
 
@@ -227,7 +251,7 @@ def batch(
         options_key += f"-{time.time_ns()}"
     names = case_names(cases)
     jobs = [(name, case, str(out / name), options, options_key) for name, case in zip(names, cases)]
-    earlier = {job[0]: _record(Path(job[2]), options_key) for job in jobs}
+    earlier = {job[0]: _record(Path(job[2]), options_key, inputs_key(job[1])) for job in jobs}
     refused = _preflight([job for job in jobs if earlier[job[0]] is None])
     if len(refused) == len(jobs):  # the command's own mistake (a --set typo)
         raise next(iter(refused.values()))

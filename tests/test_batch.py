@@ -73,6 +73,19 @@ def test_each_case_runs_and_a_broken_one_is_recorded_not_fatal(tmp_path, sample_
     batch(cases, out, workers=1, **FAST)
     assert not litter.exists() and _mtimes(out / "push-0") == before
 
+    # an edited case runs again (reconstruct redoes what the edit made stale); one touched, not
+    # changed, goes through reconstruct too, which finds every layer current and rewrites none
+    toml = cases[0] / "rose.toml"
+    toml.write_text(toml.read_text().replace("fps = 30", "fps = 15"))
+    edited = batch(cases, out, workers=1, **FAST)
+    assert {c.name: c.reused for c in edited.cases} == {"push-0": False, "push-1": True, "broken": False}
+    assert "framesPerSecond = 15" in (out / "push-0" / "layers" / "world.usda").read_text()
+    os.utime(cases[1] / "rose.toml")
+    before = _mtimes(out / "push-1" / "layers")
+    touched = batch(cases, out, workers=1, **FAST)
+    assert {c.name: c.reused for c in touched.cases}["push-1"] is False
+    assert _mtimes(out / "push-1" / "layers") == before
+
     # a record that no longer matches its layers is not trusted: the case runs again
     (out / "push-1" / "layers" / "world.usda").write_text("#usda 1.0\n")
     third = batch(cases, out, workers=1, **FAST)
