@@ -266,3 +266,38 @@ def test_an_obstacle_on_the_straight_approach_is_gone_around(tmp_path, small_box
     demos, _ = robomimic.read_hdf5(out / "dataset" / "robomimic.hdf5")
     for demo in demos:  # from home to the start of the follow, the arm kept clear of the cube
         assert obstacle.clearance(demo.obs["robot0_joint_pos"][: demo.attrs["follow_start"]]).min() > 0
+
+
+def test_an_object_the_gripper_cannot_take_is_passed_over_for_the_next(monkeypatch):
+    """Objects are tried longest path first; one no grasp fits (visp-desk's 8.45 cm cube) is passed
+    over, with a warning, for the next one that can be grasped (its dragon); when none can, the
+    layer says why for the first and names the others' reasons."""
+    from types import SimpleNamespace
+
+    from rose_usd.collect import grasping
+    from rose_usd.collect import newton_backend as nb
+
+    path = np.repeat(np.eye(4)[None], 3, axis=0)
+    warned, finished = [], []
+    ctx = SimpleNamespace(warn=warned.append)
+
+    def grasps(cfg, target, path, outcome, rng, clearance):
+        if target == "Cube":
+            raise grasping.NoGrasp("the object is too large for the gripper")
+        return "candidates", "ranked", []
+
+    monkeypatch.setattr(nb, "_pick_objects", lambda ctx, cfg: [("Cube", path), ("Dragon", path)])
+    monkeypatch.setattr(nb, "_unmovable", lambda ctx, name: None)
+    monkeypatch.setattr(nb, "_target", lambda ctx, name, path, rng: name)
+    monkeypatch.setattr(nb, "_grasps_and_base", grasps)
+    monkeypatch.setattr(nb, "_finish", lambda ctx, outcome: finished.append(outcome))
+    name, _, target, outcome, plan = nb._planned(ctx, None, None, lambda name: None)
+    assert (name, target, outcome.object_name, plan[1]) == ("Dragon", "Dragon", "Dragon", "ranked")
+    assert warned == ["the robot moves 'Dragon': 'Cube': the object is too large for the gripper"]
+    assert not finished
+
+    monkeypatch.setattr(nb, "_pick_objects", lambda ctx, cfg: [("Cube", path), ("Cube2", path)])
+    monkeypatch.setattr(nb, "_unmovable", lambda ctx, name: nb.Outcome("not-resting", "held", object_name=name))
+    assert nb._planned(ctx, None, None, lambda name: None) is None
+    assert finished[0].status == "not-resting" and finished[0].object_name == "Cube"
+    assert finished[0].message == "held (nor any other object: 'Cube2': held)"

@@ -32,8 +32,9 @@ from rose_usd.stage_api import StageContext
 from rose_usd.usd.geom import MeshData
 
 
-def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray] | None:
-    """The object to move and its path (N, 4, 4): the configured one, else the one whose path is longest."""
+def _pick_objects(ctx: StageContext, cfg: CollectConfig) -> list[tuple[str, np.ndarray]]:
+    """The objects the robot may move, with their paths (N, 4, 4), in the order to try them: the
+    configured one alone, else every object, the one whose path is longest first."""
     names = object_layer.object_paths(ctx.stage)
     n = ctx.time_info.n_frames
     if cfg.object_name:
@@ -42,14 +43,42 @@ def _pick_object(ctx: StageContext, cfg: CollectConfig) -> tuple[str, np.ndarray
                 f"collect.object_name = {cfg.object_name!r} is not an object of the stage",
                 hint=f"objects: {', '.join(names) or 'none'}",
             )
-        return cfg.object_name, object_poses(ctx.stage, cfg.object_name, n)
-    best = None
-    for name in names:
-        path = object_poses(ctx.stage, name, n)
-        length = float(np.linalg.norm(np.diff(path[:, :3, 3], axis=0), axis=1).sum())
-        if best is None or length > best[2]:
-            best = (name, path, length)
-    return None if best is None else best[:2]
+        return [(cfg.object_name, object_poses(ctx.stage, cfg.object_name, n))]
+    paths = [(name, object_poses(ctx.stage, name, n)) for name in names]
+    length = {name: float(np.linalg.norm(np.diff(p[:, :3, 3], axis=0), axis=1).sum()) for name, p in paths}
+    return sorted(paths, key=lambda item: -length[item[0]])
+
+
+def _planned(ctx: StageContext, cfg: CollectConfig, rng, clearance_for):
+    """The first object of ``_pick_objects`` a grasp and a base are found for: (name, path, target,
+    outcome, (candidates, ranked grasps, other bases)); or None, the first object's outcome (with
+    the others' reasons) finished into the layer. A warning names the objects passed over."""
+    refusals: list[Outcome] = []
+    for name, path in _pick_objects(ctx, cfg):
+        refused = _unmovable(ctx, name)
+        if refused is None:
+            target = _target(ctx, name, path, rng)
+            outcome = Outcome("ok", object_name=name)
+            try:
+                plan = _grasps_and_base(cfg, target, path, outcome, rng, clearance_for(name))
+            except grasping.NoGrasp as why:  # the outcome keeps what was found (the base tried)
+                outcome.status = "unreachable" if "reach" in str(why) else "no-grasp"
+                outcome.message, refused = str(why), outcome
+            else:
+                if refusals:
+                    passed = "; ".join(f"{r.object_name!r}: {r.message}" for r in refusals)
+                    ctx.warn(f"the robot moves {name!r}: {passed}")
+                return name, path, target, outcome, plan
+        refusals.append(refused)
+    if not refusals:
+        _finish(ctx, Outcome("no-object", "the stage has no object to move"))
+        return None
+    first = refusals[0]
+    if len(refusals) > 1:
+        others = "; ".join(f"{r.object_name!r}: {r.message}" for r in refusals[1:])
+        first.message = f"{first.message} (nor any other object: {others})"
+    _finish(ctx, first)
+    return None
 
 
 def _unmovable(ctx: StageContext, name: str) -> Outcome | None:
@@ -302,29 +331,16 @@ def run(ctx: StageContext) -> None:
     cfg: CollectConfig = ctx.config
     t_start = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
-    picked = _pick_object(ctx, cfg)
-    if picked is None:
-        _finish(ctx, Outcome("no-object", "the stage has no object to move"))
-        return
-    name, path = picked
-    refused = _unmovable(ctx, name)
-    if refused is not None:
-        _finish(ctx, refused)
-        return
-    target = _target(ctx, name, path, rng)
 
-    def clearance_at(base: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-        """The arm's clearance from the scene and the other objects with its base at ``base``."""
-        return _arm_checker(ctx, base, cfg, held=name).clearance
+    def clearance_for(name: str):
+        """The arm's clearance from the scene and the objects but ``name``, with its base at a point."""
+        return lambda base: _arm_checker(ctx, base, cfg, held=name).clearance
 
-    outcome = Outcome("ok", object_name=name)
-    try:
-        cands, ranked, other_bases = _grasps_and_base(cfg, target, path, outcome, rng, clearance_at)
-    except grasping.NoGrasp as why:
-        status = "unreachable" if "reach" in str(why) else "no-grasp"
-        outcome.status, outcome.message = status, str(why)
-        _finish(ctx, outcome)
+    planned = _planned(ctx, cfg, rng, clearance_for)
+    if planned is None:
         return
+    name, path, target, outcome, (cands, ranked, other_bases) = planned
+    clearance_at = clearance_for(name)
     t_plan = time.perf_counter() - t_start
 
     device, batched = _device(cfg)
