@@ -478,9 +478,15 @@ def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, c
         extra_starts=() if fp is None else (fp,),
     )
     if best.iou < 0.5:
+        unprompted = (
+            "; unprompted, its masks may be another object's: a box around it on its first frame (rose.toml's"
+            " prompt = { frame = 0, box = [x0, y0, x1, y1] }, or --prompt) puts them on it"
+            if spec.prompt is None
+            else ""
+        )
         ctx.warn(
             f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); "
-            f"check that {path.name} is this object"
+            f"check that {path.name} is this object and its masks are on it{unprompted}"
         )
     model, colors = _scaled_model(ctx, spec, imp, best, up_rot, cloud, cameras)
     facts = {
