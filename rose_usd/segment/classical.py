@@ -61,6 +61,14 @@ def _segment(ctx: StageContext, seg: Segmenter, support: SupportSurface, where) 
         toucher = (lambda t: _hand_pixels(seg, t, found_hands)) if by_hand else (lambda t: interactor_mask(seg, t, []))
         starts = [(0, tr) for tr in seg.discover([s.name for s in specs], toucher, n, where)]
         how = "hand-contact" if by_hand else "interactor-contact"
+        if not by_hand:
+            ctx.warn(
+                f"no prompt, and hands found in {sum(bool(h) for h in found_hands or [])} of {n} frames: the"
+                " objects are the regions on the support that what moves in front of the static world came"
+                " nearest to (a moving camera's depth edges move too, so where no hand moves anything this is"
+                " a guess); give each object a prompt box (rose.toml's prompt = { frame = 0, box = [x0, y0,"
+                " x1, y1] }, or --prompt NAME=0:x0,y0,x1,y1)"
+            )
     t0 = min((f for f, _ in starts), default=0)
     masks = {s.name: [None] * n for s in specs}
     hands = _follow(seg, specs, starts, _order(t0, n), found_hands, masks)
