@@ -1,0 +1,114 @@
+"""What moves in an RGB video, for the flow segment backend's interactor and its tracks: against
+a still camera's static background (the per-pixel temporal median, chroma weighted over lightness),
+else the pixels whose flow departs from the camera's (a RANSAC homography of the flow)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from rose_usd.segment.regions import components
+
+if TYPE_CHECKING:
+    from rose_usd.segment.flow import FlowTracker
+
+FOREGROUND_LAB = 20.0
+"""A still camera's pixel is foreground this far from the temporal median (weighted Lab)."""
+
+
+class MotionForeground:
+    """What is not the static background: a temporal median when the camera stands still, else
+    flow that departs from the camera's homography."""
+
+    def __init__(self, tracker: FlowTracker, n: int, *, samples: int = 40):
+        self.tracker = tracker
+        picks = np.linspace(0, n - 1, min(n, samples)).round().astype(int)
+        shifts = []
+        for a, b in zip(picks[:-1], picks[1:]):
+            f = tracker.flow(int(a), int(b))
+            shifts.append(float(np.median(np.linalg.norm(f, axis=2))))
+        self.static_camera = bool(np.median(shifts) < 1.0) if shifts else True
+        self.median = None
+        self._labs: dict[int, np.ndarray] = {}
+        if self.static_camera:
+            stack = np.stack([cv2.cvtColor(tracker.frame_of(int(t)), cv2.COLOR_RGB2LAB) for t in picks])
+            self.median = np.median(stack, axis=0).astype(np.float32)
+
+    def _lab(self, t: int) -> np.ndarray:
+        """Frame t in Lab (float32); the last two asked are kept (a frame is asked as the current
+        one, for the interactor, and as the previous one of the next)."""
+        if t not in self._labs:
+            self._labs = {k: v for k, v in self._labs.items() if k in (t - 1, t + 1)}
+            self._labs[t] = cv2.cvtColor(self.tracker.frame_of(t), cv2.COLOR_RGB2LAB).astype(np.float32)
+        return self._labs[t]
+
+    @staticmethod
+    def _apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Per-pixel distance of two Lab images, lightness weighted by a quarter (shadows of the
+        hands change it more than chroma), their mean difference (exposure and white balance
+        drift) removed."""
+        d = a - b
+        d -= np.median(d.reshape(-1, 3), axis=0)
+        d[..., 0] *= 0.25
+        return np.linalg.norm(d, axis=2)
+
+    def background(self, t: int, prev: int) -> np.ndarray | None:
+        """Pixels of frame t that surely show the static background: within half the foreground's
+        threshold of the temporal median and of frame ``prev`` (unchanged since the last frame:
+        an object being set down where it will rest, and so where the median shows it, still
+        changes); None when the camera moves."""
+        if not self.static_camera:
+            return None
+        lab = self._lab(t)
+        return (self._apart(lab, self.median) < 0.5 * FOREGROUND_LAB) & (
+            self._apart(lab, self._lab(prev)) < 0.5 * FOREGROUND_LAB
+        )
+
+    def camera(self, flow: np.ndarray | None) -> np.ndarray | None:
+        """The camera's homography along ``flow``: the identity for a still camera, None without a flow."""
+        if self.static_camera:
+            return np.eye(3)
+        return None if flow is None else camera_homography(flow)
+
+    def __call__(self, t: int, flow: np.ndarray | None, camera: np.ndarray | None) -> np.ndarray:
+        """The moving pixels of frame t (``flow``: from the last frame; ``camera``: the camera's
+        homography along it, ``self.camera(flow)``)."""
+        if self.static_camera:
+            fg = self._apart(self._lab(t), self.median) > FOREGROUND_LAB
+        elif flow is not None:
+            h, w = flow.shape[:2]
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+            pts = np.stack([xx, yy, np.ones_like(xx)], axis=-1) @ camera.T
+            cam = pts[..., :2] / pts[..., 2:3] - np.stack([xx, yy], axis=-1)
+            fg = np.linalg.norm(flow - cam, axis=2) > 1.5
+        else:
+            return np.zeros((self.tracker.h, self.tracker.w), bool)
+        fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8)).astype(bool)
+        n, labels, areas = components(fg)
+        keep = np.zeros(n, bool)
+        keep[1:] = areas[1:] >= 0.002 * fg.size
+        return keep[labels]
+
+
+def camera_homography(flow: np.ndarray) -> np.ndarray:
+    """The homography (3, 3) that moves the static background along ``flow`` (RANSAC over every
+    8th pixel's flow: the background is most of a tabletop view); the identity where none fits."""
+    h, w = flow.shape[:2]
+    ys, xs = np.mgrid[0:h:8, 0:w:8]
+    src = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float32)
+    dst = src + flow[ys.ravel(), xs.ravel()]
+    H, _ = cv2.findHomography(src, dst, cv2.RANSAC, 1.0)
+    return H if H is not None else np.eye(3)
+
+
+def camera_shift(camera: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The shift (dx, dy) [px] that the camera's homography gives the centroid of ``mask``."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs):
+        return np.zeros(2)
+    c = np.array([xs.mean(), ys.mean(), 1.0])
+    moved = camera @ c
+    return moved[:2] / moved[2] - c[:2]
