@@ -137,6 +137,20 @@ def test_a_can_lying_on_its_side_is_fitted_lying_and_a_standing_one_standing(yaw
         assert fit["iou"] > 0.9
 
 
+def test_primitives_are_closed_and_their_hull_points_are_their_vertices():
+    """Every primitive but the mug: a closed mesh wound outward, whose vertices are the points a
+    convex fit draws (made without its faces); a mesh's faces are its own to change."""
+    rng = np.random.default_rng(2)
+    for kind in [k for k in PrimitiveKind if k is not PrimitiveKind.MUG]:
+        dims = rng.uniform(0.01, 0.2, 3)
+        v, f = primitive_mesh(kind, dims, segments=24)
+        solid = trimesh.Trimesh(v, f, process=False)
+        assert solid.is_watertight and solid.volume > 0, kind
+        assert np.array_equal(hull_points(kind, dims, segments=24)[0], v), kind
+        f[:] = 0
+        assert primitive_mesh(kind, dims, segments=24)[1].any(), kind
+
+
 def test_the_metric_scale_of_a_mug_counts_its_handle():
     """A mug's size_m is its largest dimension, the width across its handle (synth's hollow mug with
     a ring handle, 8.5 cm tall, 11.4 cm across the handle): fitted with the category's primitive,

@@ -71,13 +71,15 @@ def fill_convex(polygon: np.ndarray, width: int, height: int, out: np.ndarray | 
     return out
 
 
-def row_sums(prefix: np.ndarray, spans: tuple[int, np.ndarray, np.ndarray]) -> float:
-    """The sum of an image over ``convex_spans``' pixels, from its running sums along each row
-    ``prefix`` (H, W + 1; column 0 zeros): two lookups a row."""
+def row_sums(prefixes: tuple[np.ndarray, ...], spans: tuple[int, np.ndarray, np.ndarray]) -> tuple[float, ...]:
+    """The sums of images over ``convex_spans``' pixels, from each one's running sums along its
+    rows (``running_sums``: H, W + 1; column 0 zeros): two lookups a row, the spans' rows and
+    columns found once for all the images."""
     r0, lo, hi = spans
     ok = hi >= lo
     rows = r0 + np.flatnonzero(ok)
-    return float((prefix[rows, hi[ok] + 1] - prefix[rows, lo[ok]]).sum())
+    right, left = hi[ok] + 1, lo[ok]
+    return tuple(float((prefix[rows, right] - prefix[rows, left]).sum()) for prefix in prefixes)
 
 
 def running_sums(image: np.ndarray) -> np.ndarray:

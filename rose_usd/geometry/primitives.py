@@ -15,6 +15,7 @@ Every primitive's frame: origin at the center of its bottom (what it stands on),
 from __future__ import annotations
 
 import enum
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -169,16 +170,31 @@ def primitive_mesh(kind: PrimitiveKind, dims, *, segments: int = 32) -> tuple[np
     d = np.asarray(dims, dtype=float)
     if kind is PrimitiveKind.BOX:
         return box_mesh(d)
-    if kind is PrimitiveKind.CYLINDER:
-        return frustum_mesh(d[0], d[0], d[1], segments)
-    if kind is PrimitiveKind.FRUSTUM:
-        return frustum_mesh(d[0], d[1], d[2], segments)
     if kind is PrimitiveKind.MUG:
         return mug_mesh(d[0], d[1], d[2], segments)
-    v, f = frustum_mesh(d[0], d[0], d[1], segments)
+    return primitive_vertices(kind, d, segments=segments), _frustum_faces(segments).copy()
+
+
+_LYING = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]).T
+"""Turns a standing cylinder's axis +Z to +X (applied as ``v @ _LYING``)."""
+
+
+def primitive_vertices(kind: PrimitiveKind, dims, *, segments: int = 32) -> np.ndarray:
+    """``primitive_mesh``'s vertices alone (not a mug's): what a convex silhouette fit needs, made
+    thousands of times a fit."""
+    d = np.asarray(dims, dtype=float)
+    if kind is PrimitiveKind.BOX:
+        return box_mesh(d)[0]
+    if kind is PrimitiveKind.CYLINDER:
+        return frustum_vertices(d[0], d[0], d[1], segments)
+    if kind is PrimitiveKind.FRUSTUM:
+        return frustum_vertices(d[0], d[1], d[2], segments)
+    if kind is PrimitiveKind.MUG:
+        raise ValueError("a mug's vertices come with its mesh (mug_mesh) or its hull (hull_points)")
+    v = frustum_vertices(d[0], d[0], d[1], segments)  # a lying cylinder
     v = v - np.array([0.0, 0.0, 0.5 * d[1]])
-    v = v @ np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]).T  # axis +Z -> +X
-    return v + np.array([0.0, 0.0, d[0]]), f
+    v = v @ _LYING  # axis +Z -> +X
+    return v + np.array([0.0, 0.0, d[0]])
 
 
 def box_mesh(extents) -> tuple[np.ndarray, np.ndarray]:
@@ -207,7 +223,7 @@ def hull_points(kind: PrimitiveKind, dims, *, segments: int = 32) -> tuple[np.nd
     rim, not the joined solid (``mug_mesh``, 40x slower to make)."""
     d = np.asarray(dims, dtype=float)
     if kind is not PrimitiveKind.MUG:
-        return primitive_mesh(kind, d, segments=segments)[0], NO_FACES
+        return primitive_vertices(kind, d, segments=segments), NO_FACES
     radius, height, reach = d
     a = 2 * np.pi * np.arange(segments) / segments
     rim = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
@@ -247,11 +263,32 @@ def mug_mesh(radius: float, height: float, reach: float, segments: int = 32) -> 
 
 def frustum_mesh(r_bottom: float, r_top: float, height: float, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """A closed frustum (a cylinder when the radii agree) standing on z = 0, axis +Z."""
+    return frustum_vertices(r_bottom, r_top, height, segments), _frustum_faces(segments).copy()
+
+
+def frustum_vertices(r_bottom: float, r_top: float, height: float, segments: int = 32) -> np.ndarray:
+    """``frustum_mesh``'s vertices: the bottom ring, the top ring, the bottom's and the top's center."""
+    ring = _unit_ring(segments)
+    out = np.empty((2 * segments + 2, 3))
+    out[:segments, :2] = r_bottom * ring
+    out[:segments, 2] = 0.0
+    out[segments : 2 * segments, :2] = r_top * ring
+    out[segments : 2 * segments, 2] = height
+    out[2 * segments :] = [[0.0, 0.0, 0.0], [0.0, 0.0, height]]
+    return out
+
+
+@functools.cache
+def _unit_ring(segments: int) -> np.ndarray:
     a = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
     ring = np.column_stack([np.cos(a), np.sin(a)])
-    bottom = np.column_stack([r_bottom * ring, np.zeros(segments)])
-    top = np.column_stack([r_top * ring, np.full(segments, height)])
-    vertices = np.concatenate([bottom, top, [[0.0, 0.0, 0.0], [0.0, 0.0, height]]])
+    ring.flags.writeable = False
+    return ring
+
+
+@functools.cache
+def _frustum_faces(segments: int) -> np.ndarray:
+    """``frustum_mesh``'s faces (outward): the side's quads as two triangles each, then the caps' fans."""
     i = np.arange(segments)
     j = (i + 1) % segments
     cb, ct = 2 * segments, 2 * segments + 1
@@ -262,4 +299,6 @@ def frustum_mesh(r_bottom: float, r_top: float, height: float, segments: int = 3
             np.column_stack([np.full(segments, ct), segments + i, segments + j]),
         ]
     )
-    return vertices, np.concatenate([side, caps])
+    faces = np.concatenate([side, caps])
+    faces.flags.writeable = False
+    return faces

@@ -166,7 +166,7 @@ class View:
             return None
         spans = convex_spans(hull, self.mask.shape[1], self.mask.shape[0])
         keep, target, total = self._sums
-        drawn, inside = row_sums(keep, spans), row_sums(target, spans)
+        drawn, inside = row_sums((keep, target), spans)
         return inside, drawn + total - inside
 
 
