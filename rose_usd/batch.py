@@ -162,11 +162,11 @@ def run_case(
     out_dir: str,
     options: Mapping[str, Any],
     options_key: str,
+    case_key: str,
 ) -> dict[str, Any]:
     """Reconstruct one case (in a worker process or a Ray task) and record it, its stages' progress
-    and warnings going to ``out_dir/batch.log``; never raises."""
+    and warnings going to ``out_dir/batch.log``; never raises. ``case_key``: its ``inputs_key``."""
     out = Path(out_dir)
-    case_key = inputs_key(case)
     earlier = _record(out, options_key, case_key)
     if earlier is not None:
         return asdict(earlier)
@@ -250,8 +250,8 @@ def batch(
     if force:
         options_key += f"-{time.time_ns()}"
     names = case_names(cases)
-    jobs = [(name, case, str(out / name), options, options_key) for name, case in zip(names, cases)]
-    earlier = {job[0]: _record(Path(job[2]), options_key, inputs_key(job[1])) for job in jobs}
+    jobs = [(name, case, str(out / name), options, options_key, inputs_key(case)) for name, case in zip(names, cases)]
+    earlier = {job[0]: _record(Path(job[2]), options_key, job[5]) for job in jobs}
     refused = _preflight([job for job in jobs if earlier[job[0]] is None])
     if len(refused) == len(jobs):  # the command's own mistake (a --set typo)
         raise next(iter(refused.values()))
@@ -324,7 +324,7 @@ def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:
     from rose_usd.pipeline import Options, Pipeline
 
     refused = {}
-    for name, case, out_dir, options, _key in jobs:
+    for name, case, out_dir, options, *_keys in jobs:
         try:
             given = {"backends": options["backends"], "settings": options["settings"], "force": options["force"]}
             pipe = Pipeline(case, out_dir, Options(**given))
