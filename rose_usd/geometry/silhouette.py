@@ -63,18 +63,11 @@ class View:
 
     @functools.cached_property
     def counted(self) -> SimpleNamespace:
-        """What ``iou`` counts against, made once: the pixels not ignored (``keep``), the mask's
-        among them (``mask``) and their number (``mask_px``), the soft mask there and its sum."""
+        """What an IoU counts against, made once: the pixels not ignored (``keep``), the mask there
+        (``target``: soft where given, else the bool mask) and its total."""
         keep = ~self.ignore
-        mask = self.mask & keep
-        soft = np.where(keep, self.soft, 0.0) if self.soft is not None else None
-        return SimpleNamespace(
-            keep=keep,
-            mask=mask,
-            mask_px=int(np.count_nonzero(mask)),
-            soft=soft,
-            soft_sum=float(soft.sum()) if soft is not None else 0.0,
-        )
+        target = np.where(keep, self.soft, 0.0) if self.soft is not None else self.mask & keep
+        return SimpleNamespace(keep=keep, target=target, total=float(target.sum()))
 
     def render(
         self, vertices_world: np.ndarray, faces: np.ndarray, *, closed: bool = True, convex: bool = False
@@ -152,11 +145,10 @@ class View:
 
     @functools.cached_property
     def _sums(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """Running row sums of what counts (not ignored) and of the mask there (soft where given),
-        and the mask's total there: a convex silhouette's IoU from its row spans alone."""
-        keep = ~self.ignore
-        target = np.where(keep, self.soft, 0.0) if self.soft is not None else self.mask & keep
-        return running_sums(keep), running_sums(target), float(target.sum())
+        """``counted``'s keep and target as running row sums, and the target's total: a convex
+        silhouette's IoU from its row spans alone."""
+        c = self.counted
+        return running_sums(c.keep), running_sums(c.target), c.total
 
     def convex_overlap(self, vertices_world: np.ndarray) -> tuple[float, float] | None:
         """(intersection, union) of a convex mesh's silhouette with the mask (soft where given),
@@ -282,13 +274,13 @@ def iou(
         counted = view.counted
         if view.soft is not None:  # soft IoU: sum(r S) / sum(r + S - r S)
             rk = r & counted.keep
-            inside = float(counted.soft[rk].sum())
+            inside = float(counted.target[rk].sum())
             inter += inside
-            union += float(np.count_nonzero(rk)) + counted.soft_sum - inside
+            union += float(np.count_nonzero(rk)) + counted.total - inside
             continue
-        both = int(np.count_nonzero(r & counted.mask))
+        both = int(np.count_nonzero(r & counted.target))
         inter += both
-        union += int(np.count_nonzero(r & counted.keep)) + counted.mask_px - both
+        union += int(np.count_nonzero(r & counted.keep)) + int(counted.total) - both
     return inter / max(union, 1e-9)
 
 
