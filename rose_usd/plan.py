@@ -280,17 +280,9 @@ def check_prompted(case: Case, prompts, where: str) -> None:
 def check_all_or_none(case: Case, prompts, where: str) -> None:
     """Either every object has a prompt (rose.toml's, or one of ``prompts``, from ``where``) or none
     has: the classical segment backend prompts them all or finds them all (``segment.prompts``)."""
-    from rose_usd.segment.prompts import parse_prompts
+    from rose_usd.segment.prompts import all_or_none, parse_prompts
 
-    specs = parse_prompts(prompts, list(case.config.objects))
-    prompted = [s for s in specs if s.prompt is not None]
-    if prompted and len(prompted) != len(specs):
-        missing = ", ".join(repr(s.name) for s in specs if s.prompt is None)
-        raise InputError(
-            f"some objects have a prompt and some do not ({missing} not)",
-            path=where,
-            hint="prompt every object, or none",
-        )
+    all_or_none(parse_prompts(prompts, list(case.config.objects)), where)
 
 
 def _prompt_hint(case: Case) -> str:

@@ -41,9 +41,19 @@ def check_prompts(specs, width: int, height: int, n: int, where) -> list:
                 hint="prompt a frame of this video",
             )
         _check_prompt_inside(s, width, height, where)
-    if prompted and len(prompted) != len(specs):
-        raise InputError("some objects have a prompt and some do not", path=where, hint="prompt every object, or none")
+    all_or_none(specs, where)
     return prompted
+
+
+def all_or_none(specs, where) -> None:
+    """InputError, naming the objects without one, unless every object or none has a prompt."""
+    missing = [s.name for s in specs if s.prompt is None]
+    if missing and len(missing) != len(specs):
+        raise InputError(
+            f"some objects have a prompt and some do not ({', '.join(repr(n) for n in missing)} not)",
+            path=where,
+            hint="prompt every object, or none",
+        )
 
 
 def _check_prompt_inside(spec, width: int, height: int, where) -> None:
