@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from rose_usd.case.config import ObjectSpec, load_case_config
+from rose_usd.core.cache import cache_dir
 from rose_usd.errors import InputError
 from rose_usd.io import images
 from rose_usd.usd.camera import check_K
@@ -29,15 +30,6 @@ MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
 MEGASAM_PATTERNS = ("*_sgd_cvd_hr.npz", "*_droid.npz")
 DEFAULT_FPS = 30.0
 _NUMBER = re.compile(r"(\d+)")
-
-
-def cache_dir() -> Path:
-    """Where rose_usd caches what it can make again (decoded video frames)."""
-    if os.environ.get("ROSE_USD_CACHE"):
-        return Path(os.environ["ROSE_USD_CACHE"])
-    if os.environ.get("XDG_CACHE_HOME"):
-        return Path(os.environ["XDG_CACHE_HOME"]) / "rose_usd"
-    return Path.home() / ".cache" / "rose_usd"
 
 
 def _publish(staging: Path, cache: Path) -> None:

@@ -7,7 +7,7 @@ Contact settings, and why (measured on this CPU, ``docs/architecture.md`` amendm
 - MuJoCo's own collision detection (the only kind its C backend has) treats a mesh geom as its
   convex hull, so the room-sized scene collider would be one convex blob around everything. It
   is cut to a box around the object's path and the robot base (a boolean intersection, so it
-  stays closed) and split into convex parts by CoACD, cached under ``~/.cache/rose_usd/coacd``.
+  stays closed) and split into convex parts by CoACD, cached (``core.cache``).
   A part thinner than 1 mm (CoACD leaves such slivers) becomes a 2 mm slab into the scene: MuJoCo's
   CPU backend refuses a flat one.
 - Finger pads and object: ``condim`` 6 (torsional and rolling friction), a stiff raw ``solref``
@@ -29,9 +29,7 @@ Contact settings, and why (measured on this CPU, ``docs/architecture.md`` amendm
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -46,12 +44,6 @@ SOLIMP_HARD = (0.95, 0.99, 0.001, 0.5, 2.0)
 MU_TORSIONAL_M = 0.01
 MU_ROLLING_M = 0.0001
 RIGID_GAP_M = 0.01
-
-
-def mesh_cache_dir() -> Path:
-    """Where convex decompositions of scene colliders are kept between runs."""
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "rose_usd" / "coacd"
 
 
 @dataclass
@@ -168,7 +160,6 @@ def _scene_collider(b, newton, workspace: tuple[np.ndarray, np.ndarray], cfg: Ne
             shape_indices=statics,
             raise_on_failure=False,
             threshold=cfg.coacd_threshold,
-            cache_dir=mesh_cache_dir(),
         )
     parts = statics + list(range(n_before, b.shape_count))
     thicken_flat_parts(b, newton, parts, 0.5 * (np.asarray(lo, dtype=float) + np.asarray(hi, dtype=float)))
@@ -304,7 +295,6 @@ def build_world(
     from rose_usd.sim.engine import newton as load_newton
 
     newton = load_newton()
-    newton.config.cache_dir_meshes = str(mesh_cache_dir())
     timings = {}
     t0 = time.perf_counter()
     b = newton.ModelBuilder()

