@@ -5,6 +5,11 @@ Mitsuba and Dr.Jit, so it runs where the rest of the pipeline's packages are not
 GPU machine). Three frames (first, middle, last) are saved to compare variants pixel by pixel.
 
     python benchmarks/gate_render_speed.py RUN_OUT [--variant cuda_ad_rgb] [--spp 8] -o result.json
+    python benchmarks/gate_render_speed.py RUN_OUT --fixed -o result.json
+
+With ``--fixed`` (a run whose camera does not move) each frame is rendered both ways, in turn:
+whole, then by ``render.fixed_view.FixedView`` (only the window the objects are in), with labels
+as the gate renders them; the result has both times and how far the two images differ.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variant", help="Mitsuba variant (default: rose_usd's automatic choice)")
     parser.add_argument("--spp", type=int, default=None, help="samples per pixel (default: the gate's)")
     parser.add_argument("--frames", type=int, default=None, help="render the first N frames (default all)")
+    parser.add_argument("--fixed", action="store_true", help="time whole renders against FixedView's, alternated")
     parser.add_argument("-o", "--output", type=Path, required=True, help="JSON result; frames go beside it (.npz)")
     args = parser.parse_args(argv)
     if args.variant:
@@ -49,6 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     renderer = StageRenderer(stage)
     build_s = time.perf_counter() - t_build
     frames = list(range(n if args.frames is None else min(n, args.frames)))
+    if args.fixed:
+        result = compare_fixed(renderer, camera, frames, spp)
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        args.output.write_text(json.dumps(result, indent=1) + "\n")
+        print(json.dumps(result))
+        return 0
     keep = {frames[0], frames[len(frames) // 2], frames[-1]}
     saved, times = {}, []
     for t in frames:
@@ -81,6 +93,46 @@ def main(argv: list[str] | None = None) -> int:
     args.output.write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result))
     return 0
+
+
+def compare_fixed(renderer, camera, frames: list[int], spp: int) -> dict:
+    """Every frame rendered whole and by FixedView in turn (sRGB and labels, as the gate does):
+    the seconds of each, and how the images and labels differ."""
+    import numpy as np
+
+    from rose_usd.render.fixed_view import FixedView, fixed_view_applies
+
+    if not fixed_view_applies(renderer.scene, camera.world_from_cv[frames], camera.K[frames]):
+        raise SystemExit("--fixed: the run's camera moves, or its scene has point lights")
+    args = (camera.world_from_cv[frames[0]], camera.K[frames[0]], camera.width, camera.height)
+    view = FixedView(renderer.scene, *args, spp=spp, moving=renderer.animated)
+    whole_s, fixed_s, differs, label_differs, shares = [], [], [], [], []
+    for t in frames:
+        renderer.pose_at(t)
+        t0 = time.perf_counter()
+        img, labels = renderer.scene.render_srgb8_and_labels(*args, spp=spp, seed=t)
+        t1 = time.perf_counter()
+        img_f, labels_f = view.render_srgb8_and_labels(seed=t)
+        t2 = time.perf_counter()
+        whole_s.append(t1 - t0)
+        fixed_s.append(t2 - t1)
+        shares.append(view.window_share())
+        differs.append(float((np.abs(img.astype(int) - img_f).max(axis=-1) > 2).mean()))
+        label_differs.append(float((labels != labels_f).mean()))
+    return {
+        "variant": renderer.scene.variant,
+        "frames": len(frames),
+        "size": [camera.width, camera.height],
+        "spp": spp,
+        "whole_s": round(sum(whole_s), 3),
+        "fixed_s": round(sum(fixed_s), 3),
+        "whole_over_fixed": round(sum(whole_s) / sum(fixed_s), 2),
+        "fixed_first_frame_s": round(fixed_s[0], 3),
+        "window_share_mean": round(float(np.mean(shares)), 4),
+        "pixels_over_2_levels_apart_mean": round(float(np.mean(differs)), 5),
+        "labels_apart_mean": round(float(np.mean(label_differs)), 5),
+        "cpus": os.cpu_count(),
+    }
 
 
 if __name__ == "__main__":

@@ -77,7 +77,7 @@ def run(ctx: StageContext) -> None:
     # on the other's timing
     with ThreadPoolExecutor(max_workers=1) as pool:
         resting = pool.submit(_rest, stage, objects, cfg, n, ctx.time_info.fps) if cfg.physics and objects else None
-        ssim, keep, track_iou = _render_and_compare(ctx, renderer, frames, report_dir, list(objects))
+        ssim, keep, track_iou, rendered_share = _render_and_compare(ctx, renderer, frames, report_dir, list(objects))
         rest, not_resting = resting.result() if resting else ([], [])
     worst = int(np.nanargmin(ssim))
     ssim_mean = float(np.nanmean(ssim))
@@ -101,6 +101,7 @@ def run(ctx: StageContext) -> None:
         "ssim_threshold": cfg.ssim_threshold,
         "render_variant": renderer.scene.variant,
         "frames_rendered": len(frames),
+        "rendered_share": round(rendered_share, 4),
         "physics": [{"frame": t, **r.__dict__} for t, r in rest],
         "physics_not_resting": not_resting,
         "physics_passed": physics_ok if cfg.physics else None,
@@ -149,11 +150,13 @@ def _rest(stage, objects: dict[str, str], cfg, n: int, fps: float) -> tuple[list
 
 def _render_and_compare(
     ctx: StageContext, renderer, frames: list[int], report_dir, names: list[str]
-) -> tuple[np.ndarray, dict, dict]:
+) -> tuple[np.ndarray, dict, dict, float]:
     """SSIM per frame of the re-render against the video (NaN where not rendered); the pictures
     of four frames spread over the video and of the worst: t -> (original, rendered, SSIM map,
-    excluded pixels); and per object (``names``, render labels 1, 2, ... in that order) the IoU
-    per rendered frame of its visible re-rendered pixels with its mask (``_track_iou``)."""
+    excluded pixels); per object (``names``, render labels 1, 2, ... in that order) the IoU
+    per rendered frame of its visible re-rendered pixels with its mask (``_track_iou``); and the
+    mean share of the image rendered a frame (a fixed camera's frames re-render only the window
+    its objects are in: ``render.fixed_view``)."""
     cfg, stage, case, n = ctx.config, ctx.stage, ctx.case, ctx.time_info.n_frames
     camera = read_cameras(stage, n)
     if (camera.width, camera.height) != (case.width, case.height):
@@ -162,9 +165,27 @@ def _render_and_compare(
     masks = read_masks(stage, n) if stage.GetPrimAtPath(paths.MASKS) else None
     track = {name: np.full(n, np.nan) for name in names} if cfg.track and masks is not None else {}
 
+    from rose_usd.render.fixed_view import FixedView, fixed_view_applies
+
+    fixed, shares = None, []
+    if fixed_view_applies(renderer.scene, camera.world_from_cv[frames], camera.K[frames]):
+        fixed = FixedView(
+            renderer.scene,
+            camera.world_from_cv[frames[0]],
+            camera.K[frames[0]],
+            case.width,
+            case.height,
+            spp=cfg.spp,
+            moving=renderer.animated,
+        )
+
     def render(t: int) -> tuple[np.ndarray, np.ndarray | None]:
         """The re-render at frame t and, for the track check, its labels from the same samples."""
         renderer.pose_at(t)
+        if fixed is not None:
+            rgb, labels = fixed.render_srgb8_and_labels(seed=t)
+            shares.append(fixed.window_share())
+            return rgb, labels if track else None
         args = (camera.world_from_cv[t], camera.K[t], case.width, case.height)
         if track:
             return renderer.scene.render_srgb8_and_labels(*args, spp=cfg.spp, seed=t)
@@ -190,7 +211,7 @@ def _render_and_compare(
     if worst not in keep:
         rendered, left_out = render(worst)[0], exclude(worst)
         keep[worst] = (case.rgb(worst), rendered, masked_ssim(case.rgb(worst), rendered, left_out)[1], left_out)
-    return ssim, keep, track
+    return ssim, keep, track, float(np.mean(shares[: len(frames)])) if shares else 1.0
 
 
 def _track_iou(masks: Masks, name: str, t: int, seen: np.ndarray, left_out, min_pixels: int) -> float:

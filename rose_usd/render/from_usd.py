@@ -81,6 +81,11 @@ class StageRenderer:
         self.lighting = read_lighting(stage)
         self.scene = RenderScene(items, self.lighting)
 
+    @property
+    def animated(self) -> list[str]:
+        """The render item names of the animated meshes."""
+        return list(self._animated)
+
     def animated_under(self, path: str) -> dict[str, Usd.Prim]:
         """The animated meshes at or below prim ``path``: render item name -> prim."""
         root = Sdf.Path(path)

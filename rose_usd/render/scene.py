@@ -13,6 +13,7 @@ rendered with ``Lighting.unlit()`` (ambient 1, no lights): radiance = its baked 
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -108,6 +109,7 @@ class RenderScene:
         self.scene = mi.load_dict(scene_dict)
         self.params = mi.traverse(self.scene)
         self.integrator = _make_integrator_class(mi, dr)()
+        self.lighting = lighting
         self.integrator.configure(lighting)
         self.shadow_params = None
         if not all(item.casts_shadow for item in items):
@@ -183,8 +185,19 @@ class RenderScene:
                 self.shadow_params.update()
 
     # ------------------------------------------------------------------ rendering
-    def _sensor(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int):
+    def _sensor(self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int, window=None):
+        """A square-pixel camera; ``window`` (x0, y0, x1, y1) crops its film to those pixels."""
         fx, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+        film = {
+            "type": "hdrfilm",
+            "width": int(width),
+            "height": int(height),
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgb",
+        }
+        if window is not None:
+            x0, y0, x1, y1 = (int(v) for v in window)
+            film.update(crop_offset_x=x0, crop_offset_y=y0, crop_width=x1 - x0, crop_height=y1 - y0)
         to_world = np.asarray(world_from_cv, dtype=float) @ _CV_TO_MITSUBA
         return self.mi.load_dict(
             {
@@ -196,13 +209,7 @@ class RenderScene:
                 "near_clip": 0.005,
                 "far_clip": 1000.0,
                 "to_world": self.mi.ScalarTransform4f(to_world.tolist()),
-                "film": {
-                    "type": "hdrfilm",
-                    "width": int(width),
-                    "height": int(height),
-                    "rfilter": {"type": "box"},
-                    "pixel_format": "rgb",
-                },
+                "film": film,
                 "sampler": {"type": "multijitter", "sample_count": int(spp)},
             }
         )
@@ -225,57 +232,84 @@ class RenderScene:
         """The 8-bit sRGB image and, from the same samples, item labels (H, W) uint8: per pixel the
         label whose items cover the most of its samples, where they cover at least half (else 0).
         One pass: no second ray per pixel."""
+        with self.covering() as labels:
+            img = self._render(world_from_cv, K, width, height, spp, seed)
+        return linear_to_srgb8(img[..., :3]), self.labels_of(img, labels)
+
+    @contextlib.contextmanager
+    def covering(self):
+        """While open, renders also hold one coverage channel per item label (after RGB); yields
+        the labels in channel order."""
         labels = sorted({item.label for item in self.items.values() if item.label})
         self.integrator.coverage = [
             (label, [self.mi.ShapePtr(self._shapes[n]) for n, item in self.items.items() if item.label == label])
             for label in labels
         ]
         try:
-            img = self._render(world_from_cv, K, width, height, spp, seed)
+            yield labels
         finally:
             self.integrator.coverage = []
-        out = np.zeros((height, width), np.uint8)
+
+    @staticmethod
+    def labels_of(img: np.ndarray, labels: list[int]) -> np.ndarray:
+        """Per pixel of a render made while ``covering``: the label covering most of its samples
+        where that is at least half of them, else 0."""
+        out = np.zeros(img.shape[:2], np.uint8)
         if labels:
             coverage = img[..., 3 : 3 + len(labels)]
             best = np.argmax(coverage, axis=-1)
             covered = np.take_along_axis(coverage, best[..., None], axis=-1)[..., 0] >= 0.5
             out[covered] = np.asarray(labels, np.uint8)[best[covered]]
-        return linear_to_srgb8(img[..., :3]), out
+        return out
+
+    @staticmethod
+    def square_pixels(K: np.ndarray, height: int) -> tuple[np.ndarray, int]:
+        """Mitsuba's perspective camera has square pixels: for fx != fy, the camera matrix and
+        height of a square-pixel image of the same field of view (resampled to ``height`` after)."""
+        K = np.asarray(K, dtype=float)
+        fx, fy = K[0, 0], K[1, 1]
+        if abs(fx - fy) <= 1e-4 * fx:
+            return K, height
+        render_h = max(1, int(round(height * fx / fy)))
+        K_render = K.copy()
+        K_render[1, 1] = fx
+        K_render[1, 2] = (K[1, 2] + 0.5) * render_h / height - 0.5
+        return K_render, render_h
+
+    def render_film(
+        self, world_from_cv: np.ndarray, K_render: np.ndarray, width: int, height: int, spp: int, seed: int, window=None
+    ) -> np.ndarray:
+        """Every channel of a square-pixel film (``square_pixels``), (H, W, C) float32, or of its
+        ``window`` (x0, y0, x1, y1) alone."""
+        sensor = self._sensor(world_from_cv, K_render, width, height, spp, window)
+        return np.asarray(
+            self.mi.render(self.scene, sensor=sensor, integrator=self.integrator, seed=seed, spp=spp), dtype=np.float32
+        )
+
+    @staticmethod
+    def resampled(img: np.ndarray, width: int, height: int) -> np.ndarray:
+        """A square-pixel film's channels at the requested size (unchanged when it has it)."""
+        if img.shape[:2] == (height, width):
+            return img
+        import cv2
+
+        interpolation = cv2.INTER_AREA if img.shape[0] > height else cv2.INTER_LINEAR
+        # OpenCV resizes at most 4 channels at once
+        return np.concatenate(
+            [
+                cv2.resize(img[..., i : i + 3], (width, height), interpolation=interpolation).reshape(height, width, -1)
+                for i in range(0, img.shape[-1], 3)
+            ],
+            axis=-1,
+        )
 
     def _render(
         self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int, spp: int, seed: int
     ) -> np.ndarray:
         """Every channel the film holds (H, W, C) float32: linear RGB, then the coverage AOVs the
-        integrator is asked for (``coverage``)."""
-        K = np.asarray(K, dtype=float)
-        fx, fy = K[0, 0], K[1, 1]
-        square = abs(fx - fy) <= 1e-4 * fx
-        # Mitsuba's perspective camera has square pixels: for fx != fy render a square-pixel image
-        # of the same field of view and resample it to the requested size
-        render_h = height if square else max(1, int(round(height * fx / fy)))
-        K_render = K.copy()
-        if not square:
-            K_render[1, 1] = fx
-            K_render[1, 2] = (K[1, 2] + 0.5) * render_h / height - 0.5
-        sensor = self._sensor(world_from_cv, K_render, width, render_h, spp)
-        img = np.asarray(
-            self.mi.render(self.scene, sensor=sensor, integrator=self.integrator, seed=seed, spp=spp), dtype=np.float32
-        )
-        if not square:
-            import cv2
-
-            interpolation = cv2.INTER_AREA if render_h > height else cv2.INTER_LINEAR
-            # OpenCV resizes at most 4 channels at once
-            img = np.concatenate(
-                [
-                    cv2.resize(img[..., i : i + 3], (width, height), interpolation=interpolation).reshape(
-                        height, width, -1
-                    )
-                    for i in range(0, img.shape[-1], 3)
-                ],
-                axis=-1,
-            )
-        return img
+        integrator is asked for (``covering``)."""
+        K_render, render_h = self.square_pixels(K, height)
+        return self.resampled(self.render_film(world_from_cv, K_render, width, render_h, spp, seed), width, height)
 
     def depth_and_labels(
         self, world_from_cv: np.ndarray, K: np.ndarray, width: int, height: int
