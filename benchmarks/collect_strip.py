@@ -48,7 +48,7 @@ def strip(stage_path, *, frames: int = 6, back_m: float = 0.8, spp: int = 8) -> 
             items.append(RenderItem(name, read_mesh(prim, world=False), pose=pose))
             animated[name] = prim
         else:
-            items.append(RenderItem(name, read_mesh(prim, world=True)))
+            items.append(RenderItem(name, read_mesh(prim, world=True), moves=False))
     scene = RenderScene(items, read_lighting(stage))
     camera = read_cameras(stage, n)
     rows = [[], []]

@@ -196,3 +196,50 @@ def test_view_counts_sort_points_in_front_on_and_behind_a_seen_wall():
         0,
         0,
     ]  # the hole takes its neighbours' depth
+
+
+@pytest.mark.parametrize("fixed_ground", [False, True])
+def test_moved_items_render_as_their_mesh(fixed_ground):
+    """An item's vertex colors and silhouette at a new pose are those of its mesh moved there: the
+    same image and labels as a scene made with the item at that pose, whether the items that stay
+    are kept in a scene of their own (``RenderItem.moves``) or not; colors interpolate within the
+    vertex colors' range."""
+    from rose_usd.render.lighting import Lighting
+    from rose_usd.render.scene import RenderItem, RenderScene
+    from rose_usd.synth.shapes import box, sphere
+    from rose_usd.usd.geom import MeshData
+
+    ball = sphere(0.05, (0.0, 0.0, 0.0), subdivisions=4)
+    colors = (np.asarray(ball.vertices) / 0.1 + 0.5).clip(0.0, 1.0)
+    ground = box((1.0, 1.0, 0.02), (0.0, 0.0, -0.08))
+    pose = se3.make_pose(se3.rotation_about(np.array([0.3, 0.2, 1.0]) / 1.08, 0.7), np.array([0.02, -0.01, 0.01]))
+    world_from_cv = se3.look_at([0.0, -0.4, 0.3], [0.0, 0.0, 0.0])
+
+    def scene(at):
+        return RenderScene(
+            [
+                RenderItem(
+                    "ground", MeshData(ground.vertices, ground.faces, color=(0.5, 0.5, 0.5)), moves=not fixed_ground
+                ),
+                RenderItem("ball", MeshData(ball.vertices, ball.faces, vertex_colors=colors), label=1, pose=at),
+            ],
+            Lighting.unlit(),
+        )
+
+    moved = scene(np.eye(4))
+    moved.set_poses({"ball": pose})
+    made = scene(pose)
+    a, b = (
+        moved.surface(world_from_cv, K_OFFCENTER, W, H, with_albedo=True),
+        made.surface(world_from_cv, K_OFFCENTER, W, H, with_albedo=True),
+    )
+    on = b.labels == 1
+    assert on.sum() > 500 and np.array_equal(a.labels, b.labels)
+    np.testing.assert_allclose(a.albedo[on], b.albedo[on], atol=1e-5)
+    assert a.albedo[on].min() >= colors.min() - 1e-4 and a.albedo[on].max() <= colors.max() + 1e-4
+    img_a = moved.render_srgb8(world_from_cv, K_OFFCENTER, W, H, spp=4, seed=2)
+    img_b = made.render_srgb8(world_from_cv, K_OFFCENTER, W, H, spp=4, seed=2)
+    assert (np.abs(img_a.astype(int) - img_b).max(axis=-1) > 2).mean() < 0.002
+    if fixed_ground:
+        with pytest.raises(ValueError, match="moves=False"):
+            moved.set_poses({"ground": pose})

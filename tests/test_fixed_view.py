@@ -24,7 +24,7 @@ def _scene(lighting=None) -> RenderScene:
     cube = box((0.05, 0.05, 0.05))
     return RenderScene(
         [
-            RenderItem("ground", MeshData(ground.vertices, ground.faces, color=(0.5, 0.45, 0.4))),
+            RenderItem("ground", MeshData(ground.vertices, ground.faces, color=(0.5, 0.45, 0.4)), moves=False),
             RenderItem("ball", MeshData(ball.vertices, ball.faces, color=(0.1, 0.3, 0.9)), label=2),
             RenderItem("cube", MeshData(cube.vertices, cube.faces, color=(0.9, 0.2, 0.1)), label=1),
         ],

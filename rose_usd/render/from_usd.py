@@ -71,7 +71,7 @@ class StageRenderer:
                 self._animated[name] = prim
                 items.append(RenderItem(name, mesh, label=label, pose=pose))
             else:
-                items.append(RenderItem(name, read_mesh(prim, world=True), label=label))
+                items.append(RenderItem(name, read_mesh(prim, world=True), label=label, moves=False))
         if not items:
             raise StageError(
                 "the stage has no renderable meshes",

@@ -41,6 +41,9 @@ class RenderItem:
     """world_from_local (4, 4)."""
     casts_shadow: bool = True
     """Whether the item blocks the point lights (the benchmark's interactor proxy does not)."""
+    moves: bool = True
+    """Whether ``set_poses`` may move it. Items that never move are kept in a scene of their own,
+    whose ray-tracing hierarchy re-posing the others does not rebuild."""
 
 
 def _make_integrator_class(mi, dr):
@@ -52,14 +55,30 @@ def _make_integrator_class(mi, dr):
             self.ambient = mi.Color3f(1.0)
             self.lights: list[tuple] = []
             self.shadow_scene = None  # the scene shadow rays test (items that cast shadows)
+            self.moving_scene = None  # the items that move, beside the scene rendered (``nearest``)
             self.coverage: list[tuple[int, list]] = []  # (label, its shapes): one AOV each while set
 
         def configure(self, lighting: Lighting) -> None:
             self.ambient = mi.Color3f(*lighting.ambient)
             self.lights = [(mi.Point3f(*p.position_m), mi.Color3f(*p.intensity)) for p in lighting.points]
 
-        def sample(self, scene, sampler, ray, medium=None, active=True):
+        def nearest(self, scene, ray, active=True):
+            """The nearest hit of the ray in ``scene`` or in the moving items' scene."""
             si = scene.ray_intersect(ray, active)
+            if self.moving_scene is None:
+                return si
+            si_moving = self.moving_scene.ray_intersect(ray, active)
+            nearer = si_moving.is_valid() & (~si.is_valid() | (si_moving.t < si.t))
+            return dr.select(nearer, si_moving, si)
+
+        def occluded(self, scene, ray, active):
+            if self.shadow_scene is not None:
+                return self.shadow_scene.ray_test(ray, active)
+            hit = scene.ray_test(ray, active)
+            return hit if self.moving_scene is None else hit | self.moving_scene.ray_test(ray, active)
+
+        def sample(self, scene, sampler, ray, medium=None, active=True):
+            si = self.nearest(scene, ray, active)
             valid = active & si.is_valid()
             bsdf = si.bsdf(ray)
             albedo = bsdf.eval_diffuse_reflectance(si, valid)
@@ -71,8 +90,7 @@ def _make_integrator_class(mi, dr):
                 dist2 = dr.squared_norm(to_light)
                 cos = dr.maximum(dr.dot(n, to_light * dr.rsqrt(dist2)), 0.0)
                 lit = valid & (cos > 0)
-                occluders = self.shadow_scene if self.shadow_scene is not None else scene
-                visible = lit & ~occluders.ray_test(si.spawn_ray_to(position), lit)
+                visible = lit & ~self.occluded(scene, si.spawn_ray_to(position), lit)
                 radiance += dr.select(visible, albedo * intensity * cos / dist2, 0.0)
             covered = []
             for _, shapes in self.coverage:
@@ -103,27 +121,30 @@ class RenderScene:
         self.items = {item.name: item for item in items}
         if len(self.items) != len(items):
             raise ValueError("RenderScene: item names must be unique")
-        scene_dict = {"type": "scene"}
-        for item in items:
-            scene_dict[item.name] = self._mesh(item)
-        self.scene = mi.load_dict(scene_dict)
-        self.params = mi.traverse(self.scene)
+        # the items that never move in one scene, those that may in another, so that re-posing
+        # them rebuilds only their own ray-tracing hierarchy; with only one kind, one scene
+        fixed = [item for item in items if not item.moves]
+        moving = [item for item in items if item.moves]
+        self.scene = mi.load_dict(self._scene_dict(fixed or moving))
+        self.moving_scene = mi.load_dict(self._scene_dict(moving)) if fixed and moving else None
+        self.params = mi.traverse(self.moving_scene if self.moving_scene is not None else self.scene)
         self.integrator = _make_integrator_class(mi, dr)()
+        self.integrator.moving_scene = self.moving_scene
         self.lighting = lighting
         self.integrator.configure(lighting)
         self.shadow_params = None
         if not all(item.casts_shadow for item in items):
-            # shadow rays test a second scene holding only the items that cast shadows
-            shadow_dict = {"type": "scene"}
-            for item in items:
-                if item.casts_shadow:
-                    shadow_dict[item.name] = self._mesh(item)
-            self.integrator.shadow_scene = mi.load_dict(shadow_dict)
+            # shadow rays test a third scene holding only the items that cast shadows
+            self.integrator.shadow_scene = mi.load_dict(self._scene_dict([it for it in items if it.casts_shadow]))
             self.shadow_params = mi.traverse(self.integrator.shadow_scene)
-        self._shapes = {shape.id(): shape for shape in self.scene.shapes()}
+        scenes = [self.scene] if self.moving_scene is None else [self.scene, self.moving_scene]
+        self._shapes = {shape.id(): shape for scene in scenes for shape in scene.shapes()}
         self._rays = None  # (camera model, pixel directions, z per unit length): see _pixel_rays
 
     # ------------------------------------------------------------------ building
+    def _scene_dict(self, items: list[RenderItem]) -> dict:
+        return {"type": "scene", **{item.name: self._mesh(item) for item in items}}
+
     def _mesh(self, item: RenderItem):
         mi, dr = self.mi, self.dr
         mesh = item.mesh
@@ -173,6 +194,8 @@ class RenderScene:
             item = self.items[name]
             if np.array_equal(item.pose, world_from_local):
                 continue
+            if not item.moves:
+                raise ValueError(f"RenderScene: item {name!r} was made with moves=False")
             item.pose = np.array(world_from_local, dtype=float)
             positions = self.dr.ravel(self.mi.Point3f(self._world_vertices(item.mesh.vertices, item.pose).T.copy()))
             self.params[f"{name}.vertex_positions"] = positions
@@ -338,7 +361,7 @@ class RenderScene:
         origin = np.empty((3, len(d_cam)), np.float32)
         origin[:] = pose[:3, 3, None]
         ray = mi.Ray3f(mi.Point3f(origin), mi.Vector3f(np.ascontiguousarray(d_world.T)))
-        si = self.scene.ray_intersect(ray)
+        si = self.integrator.nearest(self.scene, ray)
         valid = si.is_valid()
         depth = dr.select(valid, si.t * z_per_t, 0.0)
         labels = dr.zeros(mi.UInt32, width * height)

@@ -414,7 +414,7 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
         rel = f"meshes/{part.name}.obj"
         appearance, tex_path = _write_part(gt_dir, rel, part)
         part_entries.append(gtfmt.part_json(part.name, rel, appearance))
-        items.append(RenderItem(part.name, _mesh_data(part, tex_path)))
+        items.append(RenderItem(part.name, _mesh_data(part, tex_path), moves=False))
     timestamps = np.arange(n) / config.fps
     object_entries = []
     for obj in objects:
