@@ -112,7 +112,7 @@ class Pipeline:
         """Where the segment stage's prompts come from: the caller's (``--prompt``) or rose.toml."""
         if "prompts" in flatten(self.options.settings.get("segment", {})):
             return self.options.prompt_source
-        return str(self.case.config.path or self.case.folder / "rose.toml")
+        return str(self.case.settings_file)
 
     def _check_option_stages(self) -> None:
         sources = (("--backend", self.options.backends), (self.options.settings_source, self.options.settings))
@@ -141,7 +141,7 @@ class Pipeline:
             return choice, "--backend"
         choice = self.case.config.backends.get(stage_def.name)
         if choice is not None:
-            return choice, str(self.case.config.path or self.case.folder / "rose.toml")
+            return choice, str(self.case.settings_file)
         everyone = self.options.backends.get("all")
         if isinstance(everyone, str | enum.Enum):
             everyone = everyone.value if isinstance(everyone, enum.Enum) else everyone
@@ -160,7 +160,7 @@ class Pipeline:
         return self._configs[stage_def.name]
 
     def _build_config(self, stage_def: StageDef):
-        toml = str(self.case.config.path or self.case.folder / "rose.toml")
+        toml = str(self.case.settings_file)
         choice, where = self._backend_choice(stage_def)
         if isinstance(choice, stage_def.config):
             return check_config(stage_def.name, choice, source=where)

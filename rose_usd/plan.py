@@ -258,7 +258,7 @@ def check_prompts(case: Case, prompts, where: str) -> None:
     specs = parse_prompts(prompts, specs)
     from_cli = {p.name or specs[0].name for p in prompts} if prompts and specs else set()
     for spec in specs:
-        source = where if spec.name in from_cli else (case.config.path or case.folder / "rose.toml")
+        source = where if spec.name in from_cli else case.settings_file
         check_inside([spec], case.width, case.height, case.n_frames, source)
 
 
@@ -286,13 +286,14 @@ def check_all_or_none(case: Case, prompts, where: str) -> None:
 
 
 def _prompt_hint(case: Case) -> str:
-    """Where a missing prompt goes: rose.toml (the case folder's, or one in a folder of the user's
-    own when the case's is read-only, a dataset's), or ``--prompt``."""
+    """Where a missing prompt goes: the case's settings file (``Case.settings_file``: rose.toml, or
+    a video's <name>.toml beside it), one in a folder of the user's own when the case's folder is
+    read-only (a dataset's), or ``--prompt``."""
     toml = "prompt = { frame = 0, box = [x0, y0, x1, y1] }"
     if case.config.path:
-        where = f"add {toml} to each [[objects]] of rose.toml"
+        where = f"add {toml} to each [[objects]] of {case.config.path.name}"
     elif os.access(case.folder, os.W_OK) and case.folder.stat().st_mode & 0o222:  # no write bit: root too
-        where = f'write {case.folder / "rose.toml"} with [[objects]] name = "..." and {toml}'
+        where = f'write {case.settings_file} with [[objects]] name = "..." and {toml}'
     else:
         where = (
             f"{case.folder} is read-only: make a folder of your own with a link video.mp4 -> the video (or rgb ->"

@@ -224,6 +224,10 @@ def test_a_video_files_settings_are_the_toml_beside_it(capsys, tmp_path):
     video = tmp_path / "cups.avi"
     _video(video)
     assert [o.name for o in load_case(video).config.objects] == ["Object"]
+    # no depth and no prompt: the fix names the file that is read, cups.toml, not rose.toml
+    code, err = run_cli(capsys, "reconstruct", str(video), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, f"write {tmp_path / 'cups.toml'} with [[objects]]", "--prompt")
+    assert "rose.toml" not in err and not (tmp_path / "out").exists()
     toml = tmp_path / "cups.toml"
     toml.write_text('[[objects]]\nname = "Cup"\ncategory = "cup"\nsize_m = 0.095\n')
     loaded = load_case(video)

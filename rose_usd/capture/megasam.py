@@ -114,7 +114,7 @@ def _size_prior(ctx: StageContext, out: MegaSamOutput, K_case: np.ndarray) -> tu
     if spec is None:
         raise InputError(
             "no absolute depth source: no depth/, no perception/unidepth/, no object with size_m and a prompt box",
-            path=ctx.case.folder / "rose.toml",
+            path=ctx.case.settings_file,
             hint="add depth, UniDepth output, or size_m (the object's largest dimension in meters) and a prompt box",
         )
     x0, y0, x1, y1 = spec.prompt.box

@@ -154,7 +154,7 @@ def prompted_objects(ctx: StageContext) -> list:
         if name not in specs:
             raise InputError(
                 f"capture.prompts item {str(item)!r} names no object of rose.toml",
-                path=ctx.case.folder / "rose.toml",
+                path=ctx.case.settings_file,
                 hint=f"objects: {', '.join(specs) or 'none'}",
             )
         specs[name] = replace(specs[name], prompt=item.prompt)

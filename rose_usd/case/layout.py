@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rose_usd.case.config import ObjectSpec, load_case_config
+from rose_usd.case.config import CASE_CONFIG_FILE, ObjectSpec, load_case_config
 from rose_usd.core.cache import cache_dir
 from rose_usd.errors import InputError
 from rose_usd.io import images
@@ -134,10 +134,12 @@ class Case:
             self.video = self.root
             self.folder = self.root.parent
             # a video's own settings (objects, categories, sizes, fps): <video stem>.toml beside it
-            self.config = load_case_config(self.folder, stage_names, file=self.root.with_suffix(".toml"))
+            self.settings_file = self.root.with_suffix(".toml")
+            self.config = load_case_config(self.folder, stage_names, file=self.settings_file)
         else:
             self.folder = self.root
             _check_links(self.root)
+            self.settings_file = self.root / CASE_CONFIG_FILE
             self.config = load_case_config(self.root, stage_names)
             rgb_dir = self.root / "rgb"
             videos = [self.root / f"video{s}" for s in VIDEO_SUFFIXES if (self.root / f"video{s}").is_file()]
@@ -459,7 +461,7 @@ class Case:
                 there = f"; {named.parent} holds {close[0]!r}" if close else ""
                 raise InputError(
                     f"object {spec.name!r}: its mesh = {override!r} does not exist ({named}){there}",
-                    path=self.config.path or self.folder / "rose.toml",
+                    path=self.settings_file,
                     hint="fix mesh = ..." + ("" if Path(override).is_absolute() else " (relative to the case folder)"),
                 )
             return path

@@ -26,7 +26,7 @@ def parse_prompts(prompts, specs) -> list:
 def prompts_source(prompts, case):
     """What an error about a prompt names: the command line's prompts (``segment.prompts``, from
     ``--prompt`` or ``--set``) when there are any, else the case's rose.toml."""
-    return "segment.prompts (--prompt)" if prompts else case.folder / "rose.toml"
+    return "segment.prompts (--prompt)" if prompts else case.settings_file
 
 
 def check_prompts(specs, width: int, height: int, n: int, where) -> list:
