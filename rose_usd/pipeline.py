@@ -346,12 +346,32 @@ def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:
     if ok:
         return result
     if result is None:
-        raise StageError(
-            f"stage {stage_def.name!r}'s process ended (exit code {child.exitcode}) before it finished",
-            path=pipe.out_dir,
-            hint="its previous layer is kept; out of memory is the likely cause when the exit code is -9",
-        )
+        raise _ended_early(stage_def.name, child.exitcode, pipe.out_dir)
     raise result
+
+
+def _ended_early(stage: str, code: int | None, out_dir: Path) -> BaseException:
+    """What to raise for a stage's child process that ended before it sent its outcome:
+    KeyboardInterrupt where Ctrl-C stopped it (it reached the child, not this process, which
+    ignores SIGINT when a script started it in the background), else one line saying whether it
+    was stopped, killed (SIGKILL: most often the kernel's out-of-memory killer) or ended otherwise.
+    Its layer is written only when it finishes."""
+    import signal
+
+    if code in (-signal.SIGINT, 128 + signal.SIGINT):
+        return KeyboardInterrupt()
+    again = "its layer was not written (an earlier one is kept); the same command goes on from there"
+    if code in (-signal.SIGTERM, 128 + signal.SIGTERM):
+        return StageError(f"stage {stage!r} was stopped (SIGTERM)", path=out_dir, hint=again)
+    if code == -signal.SIGKILL:
+        return StageError(
+            f"stage {stage!r}'s process was killed (SIGKILL), most likely for lack of memory",
+            path=out_dir,
+            hint=f"{again}; free memory, or run fewer jobs side by side",
+        )
+    return StageError(
+        f"stage {stage!r}'s process ended (exit code {code}) before it finished", path=out_dir, hint=again
+    )
 
 
 @contextlib.contextmanager

@@ -33,6 +33,20 @@ def test_errors_cross_processes_whole():
     assert pickle.loads(pickle.dumps(MeshError("empty"))).one_line() == "empty."
 
 
+def test_a_stage_that_ended_early_says_how():
+    """A stage's process that ended without its outcome: Ctrl-C is an interrupt, SIGTERM a stop,
+    SIGKILL (the out-of-memory killer's) says memory; none speaks of memory otherwise."""
+    from rose_usd.pipeline import _ended_early
+
+    assert isinstance(_ended_early("gate", -signal.SIGINT, Path("/o")), KeyboardInterrupt)
+    assert isinstance(_ended_early("gate", 130, Path("/o")), KeyboardInterrupt)
+    assert "stopped (SIGTERM)" in _ended_early("gate", -signal.SIGTERM, Path("/o")).one_line()
+    killed = _ended_early("gate", -signal.SIGKILL, Path("/o")).one_line()
+    assert "killed" in killed and "memory" in killed and "the same command goes on" in killed
+    other = _ended_early("gate", 3, Path("/o")).one_line()
+    assert "exit code 3" in other and "memory" not in other
+
+
 def test_isolated_stage_writes_the_layer_the_caller_would(tmp_path, oracle_out, sample_case):
     layers = {}
     for isolate in (False, True):
@@ -115,15 +129,22 @@ def _processes_running(module: str, root: int) -> list[int]:
 
 @pytest.mark.parametrize(
     "stage, backend, target",
-    [("gate", "all=oracle", "group"), ("gate", "all=oracle", "parent"), ("capture", "capture=rgbd", "group")],
+    [
+        ("gate", "all=oracle", "group"),
+        ("gate", "all=oracle", "parent"),
+        ("gate", "all=oracle", "group, parent ignoring it"),
+        ("capture", "capture=rgbd", "group"),
+    ],
 )
 def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sample_case, stage, backend, target):
     """Ctrl-C during an isolated stage, from a terminal (SIGINT to the process group) or sent to
-    the parent alone: exit 130 with "interrupted" and no traceback, no process left running (the
-    capture's one-CPU tracker included), and the stage's previous layer as it was."""
+    the parent alone, or to the group of a parent that ignores it (a script's background job):
+    exit 130 with "interrupted" and no traceback, no process left running (the capture's one-CPU
+    tracker included), and the stage's previous layer as it was."""
     if not sys.platform.startswith("linux"):
         return
-    start = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    handler = "signal.SIG_IGN" if "ignoring" in target else "signal.default_int_handler"
+    start = f"import signal, sys; signal.signal(signal.SIGINT, {handler}); "
     start += "from rose_usd.cli import main; sys.exit(main(sys.argv[1:]))"
     out = tmp_path / "out"
     shutil.copytree(oracle_out, out)
@@ -143,7 +164,7 @@ def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sampl
         children += trackers
     else:
         time.sleep(3.0)  # into the stage's work
-    if target == "group":
+    if target.startswith("group"):
         os.killpg(proc.pid, signal.SIGINT)
     else:
         proc.send_signal(signal.SIGINT)
