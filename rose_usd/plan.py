@@ -28,6 +28,9 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import numpy as np
 
 from rose_usd.case.layout import Case
 from rose_usd.errors import InputError
@@ -302,6 +305,33 @@ def _prompt_hint(case: Case) -> str:
     return where + ", or pass --prompt NAME=FRAME:x0,y0,x1,y1"
 
 
+PLAUSIBLE_SIZE_M = (0.002, 10.0)
+"""The sizes [m] outside which an object's mesh, read in the ``mesh_units`` given, is refused: no
+tabletop video shows such an object, its file is in other units."""
+
+
+def _check_mesh_units(case: Case, spec, path: Path) -> None:
+    """Refuse a mesh whose largest side, in the ``mesh_units`` rose.toml gives, is no object's size
+    (``PLAUSIBLE_SIZE_M``), naming the units that would make it one."""
+    from rose_usd.io.meshfile import UNIT_NAMES, UNITS, read_mesh_file
+
+    v = np.asarray(read_mesh_file(path).vertices, float)
+    extent = float(np.max(v.max(axis=0) - v.min(axis=0))) if len(v) else 0.0
+    given = spec.overrides["mesh_units"]
+    per_unit = {key: 1.0 if name == "meters" else UNITS[name] for key, name in UNIT_NAMES.items()}
+    size = extent * per_unit[given]
+    low, high = PLAUSIBLE_SIZE_M
+    if low <= size <= high:
+        return
+    fits = [key for key in ("m", "mm", "cm", "in") if 0.01 <= extent * per_unit[key] <= 2.0]  # file_unit's order
+    raise InputError(
+        f"object {spec.name!r}: its mesh {path.name} is {size:.4g} m across in mesh_units = {given!r}",
+        path=case.settings_file,
+        hint=(f"is it in {fits[0]!r} ({extent * per_unit[fits[0]]:.3g} m)? " if fits else "")
+        + 'fix mesh_units, or write mesh_units = "auto"',
+    )
+
+
 def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[str, ...]]) -> None:
     """Check every requirement of the planned backends (stage -> backend), in run order, and
     every imported file they read, and that every mesh rose.toml names exists.
@@ -315,7 +345,9 @@ def preflight(case: Case, plan: Mapping[str, str], requires: Mapping[str, tuple[
         InputError: the first thing missing, naming its file and the fix.
     """
     for spec in case.config.objects:  # a mesh rose.toml names must exist, whichever stage reads it
-        case.mesh_file(spec)
+        path = case.mesh_file(spec)
+        if path is not None and spec.overrides.get("mesh_units", "auto") != "auto":
+            _check_mesh_units(case, spec, path)
     for stage, needs in requires.items():
         for need in needs:
             REQUIREMENTS[need](case, plan, stage)

@@ -5,6 +5,7 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+import trimesh
 
 from rose_usd.case import load_case
 from rose_usd.cli import main
@@ -272,7 +273,8 @@ def test_validate_names_the_layers_an_output_folder_lacks_and_takes_the_folder(
 
 def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):
     """FFmpeg's own complaints about a cut-off H.264/MPEG-4 file ("Invalid NAL unit size", "partial
-    file") went to the terminal before rose's one-line error; now the error line is all there is."""
+    file") went to the terminal before rose's one-line error; now the error line is all there is,
+    and the frames decoded before the refusal are not left in the cache."""
     import os
     import subprocess
     import sys
@@ -285,6 +287,7 @@ def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):
     writer.release()
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"}
+    env["ROSE_USD_CACHE"] = str(tmp_path / "cache")
     done = subprocess.run(
         [sys.executable, "-m", "rose_usd.cli", "reconstruct", str(path), "-o", str(tmp_path / "out")],
         capture_output=True,
@@ -294,6 +297,7 @@ def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):
     )
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert done.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+    assert not list((tmp_path / "cache").rglob("*.png"))  # a refused video's frames are not kept
 
 
 def test_a_missing_mesh_names_rose_toml_and_the_mesh_beside_it(capsys, case_copy, tmp_path):
@@ -305,6 +309,28 @@ def test_a_missing_mesh_names_rose_toml_and_the_mesh_beside_it(capsys, case_copy
     toml.write_text(toml.read_text().replace('category = "box"', 'category = "box"\nmesh = "mesh/Box.obj"', 1))
     code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(tmp_path / "out"))
     assert_one_line_error(code, err, "rose.toml", "mesh/Box.obj", "holds 'Box_m.obj'")
+    # a file that is there but no mesh (a new user's trial: capture ran 35 s before the object
+    # stage could not read it), refused before anything is written
+    toml.write_text(toml.read_text().replace('mesh = "mesh/Box.obj"', 'mesh = "rose.toml"', 1))
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "rose.toml", "mesh = 'rose.toml' is not a mesh file", ".obj")
+    assert not (tmp_path / "out").exists()
+
+
+def test_mesh_units_that_make_no_object_are_refused(capsys, case_copy, tmp_path):
+    """A millimetre mesh declared in meters (a new user's trial: a 12.8 cm cat read as 127.6 m,
+    2.3e8 kg, exit 0): one line naming rose.toml and the units that fit, nothing written."""
+    (case_copy / "mesh").mkdir()
+    box = trimesh.creation.box((127.6, 80.0, 60.0))
+    box.export(case_copy / "mesh" / "Box_mm.obj")
+    toml = case_copy / "rose.toml"
+    toml.write_text(
+        toml.read_text().replace('category = "box"', 'category = "box"\nmesh = "mesh/Box_mm.obj"\nmesh_units = "m"', 1)
+    )
+    out = tmp_path / "out"
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out))
+    assert_one_line_error(code, err, "rose.toml", "Box_mm.obj is 127.6 m across", "is it in 'mm' (0.128 m)?")
+    assert not out.exists()
 
 
 def test_a_link_to_nothing_in_the_case_folder_is_named(capsys, case_copy, tmp_path):

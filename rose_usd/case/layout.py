@@ -216,7 +216,6 @@ class Case:
         """Decode the video once into a cache folder of PNGs keyed by the video's content hash
         (under ``$ROSE_USD_CACHE``, else ``$XDG_CACHE_HOME/rose_usd``, else ``~/.cache/rose_usd``).
         A video that ends before the frame count its header announces is refused."""
-        import cv2
 
         h = hashlib.sha256()
         with open(self.video, "rb") as f:
@@ -228,21 +227,9 @@ class Case:
             staging = cache.with_name(f".{cache.name}-{os.getpid()}")
             try:
                 staging.mkdir(parents=True, exist_ok=True)
-                cap = cv2.VideoCapture(str(self.video))
-                i = 0
-                while True:
-                    ok, frame = cap.read()
-                    if not ok:
-                        break
-                    if not cv2.imwrite(str(staging / f"{i:06d}.png"), frame):
-                        raise OSError(f"cannot write {staging / f'{i:06d}.png'}")
-                    i += 1
-                cap.release()
-                if i == 0:
-                    raise InputError(
-                        "the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4"
-                    )
-                (staging / ".complete").write_text(str(i))
+                count = self._decode_into(staging)
+                self._check_whole(count)  # a refused video leaves nothing in the cache
+                (staging / ".complete").write_text(str(count))
                 _publish(staging, cache)
             except OSError as exc:
                 raise InputError(
@@ -253,13 +240,35 @@ class Case:
             finally:
                 shutil.rmtree(staging, ignore_errors=True)
         n = int(done.read_text())
+        self._check_whole(n)
+        return [cache / f"{i:06d}.png" for i in range(n)]
+
+    def _decode_into(self, folder: Path) -> int:
+        """Every frame of the video as PNGs in ``folder``; how many."""
+        import cv2
+
+        cap = cv2.VideoCapture(str(self.video))
+        i = 0
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            if not cv2.imwrite(str(folder / f"{i:06d}.png"), frame):
+                raise OSError(f"cannot write {folder / f'{i:06d}.png'}")
+            i += 1
+        cap.release()
+        if i == 0:
+            raise InputError("the video holds no decodable frames", path=self.video, hint="re-encode it as H.264 MP4")
+        return i
+
+    def _check_whole(self, n: int) -> None:
+        """Refuse a video that ends (``n`` frames) before the frame count its header announces."""
         if self._video_count is not None and n < self._video_count - max(1, self._video_count // 100):
             raise InputError(
                 f"the video ends after {n} of the {self._video_count} frames its header announces (truncated?)",
                 path=self.video,
                 hint="copy the whole file again, or re-encode it (ffmpeg -i in.mp4 -c:v libx264 video.mp4)",
             )
-        return [cache / f"{i:06d}.png" for i in range(n)]
 
     @property
     def frames(self) -> list[Path]:
@@ -450,7 +459,7 @@ class Case:
         """The mesh another tool made of object ``spec``: rose.toml's ``mesh``, else
         ``perception/<Name>.<glb|gltf|obj|ply|stl>``, else, for a case with one object, the only mesh
         in ``perception/`` or in ``mesh/`` (FoundationPose's demo layout). A ``mesh`` that rose.toml
-        names and that is missing is an error, not a fallback."""
+        names and that is missing, or is no mesh format's file, is an error, not a fallback."""
         override = spec.overrides.get("mesh")
         if override is not None:
             path = (self.folder / override).resolve()
@@ -463,6 +472,12 @@ class Case:
                     f"object {spec.name!r}: its mesh = {override!r} does not exist ({named}){there}",
                     path=self.settings_file,
                     hint="fix mesh = ..." + ("" if Path(override).is_absolute() else " (relative to the case folder)"),
+                )
+            if path.suffix.lower() not in MESH_SUFFIXES:
+                raise InputError(
+                    f"object {spec.name!r}: its mesh = {override!r} is not a mesh file",
+                    path=self.settings_file,
+                    hint=f"give a {', '.join(MESH_SUFFIXES)} file",
                 )
             return path
         for suffix in MESH_SUFFIXES:
