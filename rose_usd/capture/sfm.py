@@ -19,8 +19,8 @@ No depth, no imported tool: what a casual monocular video gives.
    the prompted object standing on the support (``sfm.level_by_object``, ``scale.level_by_object``).
 4. **Scale** (``capture.scale``): the prompted object's silhouette in its prompt frame fitted by its
    mesh or its category's primitive standing on the support plane; the scale from ``mesh``,
-   ``size-prior``, ``category-prior`` or ``camera-height``, the most certain; all of them and their
-   agreement recorded. The world layer says there is no metric depth (``rose:world:metricDepth``).
+   ``size-prior`` (``size_m``, else a metric mesh's largest side), ``category-prior`` or
+   ``camera-height``, the most certain; all of them and their agreement recorded. The world layer says there is no metric depth (``rose:world:metricDepth``).
 
 The world frame is the contract's: +Z up, the origin on the support plane under the prompted
 object, +X the first camera's image-right made horizontal.
@@ -501,6 +501,12 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
     if spec is None or mask is None or mask.sum() < 30:
         return cues, record
     view = crop_view(mask, hidden, K, world_from_cv_units, max_side=320)
+    path = ctx.case.mesh_file(spec)
+    mesh = _metric_mesh(path, spec) if path is not None else None
+    # the object's size: size_m, else a metric mesh's largest side (the same measurement)
+    size = {"size_m": float(spec.overrides["size_m"])} if "size_m" in spec.overrides else None
+    if size is None and mesh is not None:
+        size = {"size_m": round(float(np.ptp(mesh[0], axis=0).max()), 5), "from": "mesh"}
     prim = fit_primitive(spec, view, mask, K, world_from_cv_units)
     if prim is not None:
         record["primitive"] = {
@@ -509,13 +515,10 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
             "iou": round(prim["iou"], 4),
         }
         fit_sigma = 0.05 + max(0.0, 0.9 - prim["iou"])  # a poor fit widens the measurement's error
-        if "size_m" in spec.overrides:
+        if size is not None:
             cues.append(
                 ScaleCue(
-                    "size-prior",
-                    float(spec.overrides["size_m"]) / prim["size_units"],
-                    fit_sigma,
-                    {"size_m": float(spec.overrides["size_m"]), "iou": round(prim["iou"], 4)},
+                    "size-prior", size["size_m"] / prim["size_units"], fit_sigma, {**size, "iou": round(prim["iou"], 4)}
                 )
             )
         cues.append(
@@ -526,8 +529,6 @@ def _scale_cues(ctx: StageContext, spec, mask, K: np.ndarray, world_from_cv_unit
                 {"category": spec.category, "typical_size_m": prim["typical_size_m"], "source": prim["typical_source"]},
             )
         )
-    path = ctx.case.mesh_file(spec)
-    mesh = _metric_mesh(path, spec) if path is not None else None
     if mesh is not None:
         fit = fit_mesh(*mesh, view, mask, K, world_from_cv_units)
         if fit is not None:
