@@ -357,3 +357,15 @@ def test_objects_half_prompted_fail_before_capture_writes(capsys, case_copy, tmp
     )
     assert_one_line_error(code, err, "--prompt", "'Ball' not")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_wrong_list_is_shown_as_written(tmp_path):
+    """rose.toml's box = [1, 2, 3] is named with its value, as TOML (a new user's trial read only
+    "prompt box = a list is not a list of 4 numbers")."""
+    from rose_usd.case.config import load_case_config
+    from rose_usd.errors import ConfigError
+
+    (tmp_path / "rose.toml").write_text('[[objects]]\nname = "Cup"\nprompt = { frame = 0, box = [1, 2.5, "x"] }\n')
+    with pytest.raises(ConfigError) as err:
+        load_case_config(tmp_path, ("segment",))
+    assert 'box = [1, 2.5, "x"] is not a list of 4 numbers' in err.value.one_line()

@@ -301,3 +301,22 @@ def test_an_object_the_gripper_cannot_take_is_passed_over_for_the_next(monkeypat
     assert nb._planned(ctx, None, None, lambda name: None) is None
     assert finished[0].status == "not-resting" and finished[0].object_name == "Cube"
     assert finished[0].message == "held (nor any other object: 'Cube2': held)"
+
+
+def test_a_surface_with_no_opposing_points_is_not_called_too_large():
+    """A mesh no two points of which face each other (one triangle) has no antipodal grasp at any
+    width: the message says so, not that the object is too large for the gripper."""
+    from rose_usd.collect import grasping
+
+    vertices = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.05, 0.0]])
+    with pytest.raises(grasping.NoGrasp) as err:
+        grasping._antipodal_pairs(
+            vertices,
+            np.array([[0, 1, 2]]),
+            friction=0.5,
+            max_width_m=0.08,
+            surface_points=200,
+            max_pairs=100,
+            rng=np.random.default_rng(0),
+        )
+    assert "face each other" in str(err.value) and "too large" not in str(err.value)

@@ -20,7 +20,8 @@ No depth, no imported tool: what a casual monocular video gives.
 4. **Scale** (``capture.scale``): the prompted object's silhouette in its prompt frame fitted by its
    mesh or its category's primitive standing on the support plane; the scale from ``mesh``,
    ``size-prior`` (``size_m``, else a metric mesh's largest side), ``category-prior`` or
-   ``camera-height``, the most certain; all of them and their agreement recorded. The world layer says there is no metric depth (``rose:world:metricDepth``).
+   ``camera-height``, the most certain; all of them and their agreement recorded. The world layer
+   says there is no metric depth (``rose:world:metricDepth``).
 
 The world frame is the contract's: +Z up, the origin on the support plane under the prompted
 object, +X the first camera's image-right made horizontal.

@@ -158,7 +158,9 @@ def _show(value) -> str:
     if isinstance(value, dict):
         return "a table"
     if isinstance(value, list):
-        return "a list" if value else "[]"
+        if len(value) <= 8 and not any(isinstance(v, (list, dict)) for v in value):
+            return "[" + ", ".join(_show(v) for v in value) + "]"
+        return f"a list of {len(value)} items"
     return repr(value)
 
 

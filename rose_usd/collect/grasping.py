@@ -88,10 +88,14 @@ def _antipodal_pairs(
     pairs = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=max_width_m)
     if len(pairs) == 0:
         wide = antipodal.antipodal_pairs(points, normals, friction=friction, max_width_m=10.0)
-        narrowest = f"{100 * wide.width.min():.1f} cm" if len(wide) else "none found"
+        if not len(wide):
+            raise NoGrasp(
+                f"no two of the {len(points)} points sampled on the object's surface face each other within"
+                f" the friction cone (friction {friction:g}): nothing for two fingers to squeeze"
+            )
         raise NoGrasp(
-            f"the object is too large for the gripper: its narrowest antipodal grasp is {narrowest}, "
-            f"the Panda takes at most {100 * max_width_m:.1f} cm"
+            f"the object is too large for the gripper: its narrowest antipodal grasp is"
+            f" {100 * wide.width.min():.1f} cm, the Panda takes at most {100 * max_width_m:.1f} cm"
         )
     found = len(pairs)
     if len(pairs) > max_pairs:  # the best aligned, and a random share of the rest

@@ -53,8 +53,10 @@ class CollectResult:
                 f"; best rollout {b}: path error {100 * self.mean_error_m[b]:.1f} cm mean, "
                 f"{100 * self.final_error_m[b]:.1f} cm final, slip {100 * self.drift_m[b]:.1f} cm"
             )
+        # "ok" only says that rollouts ran: the count says how they went
+        head = "collect" if self.status == "ok" else f"collect {self.status}"
         return (
-            f"collect {self.status}: {self.successes}/{self.rollouts} rollouts of {self.robot} moving "
+            f"{head}: {self.successes}/{self.rollouts} rollouts of {self.robot} moving "
             f"{self.object_name} succeeded ({100 * self.success_rate:.0f} %){best}"
         )
 
