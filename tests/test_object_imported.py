@@ -327,13 +327,37 @@ def test_imported_trellis_box_gets_its_scale_and_pose(imported_out):
     case, out, info = imported_out
     facts = read_provenance(layer_file(out, "object"))["results"]["objects"]["Box"]
     assert facts["rho"] == pytest.approx(info["scale_m_per_unit"], rel=0.03)
-    assert facts["silhouette_iou"] > 0.87 and facts["colors"] == "file"
+    assert facts["silhouette_iou"] > 0.87 and facts["colors"] == "file texture"
+    _assert_textured_visual(out, "Box")
     score = evaluate(case, out)
     assert score.objects[0].chamfer_m < 0.0035
     assert abs(score.objects[0].size_error) < 0.03
     report = validate(out / "rose.usda")
     assert report.errors == []
     assert report.newton["bodies"] == 1
+
+
+def _assert_textured_visual(out, name: str) -> None:
+    """The object's visual mesh is its file's textured surface: st UVs, a texture the layer's
+    asset path finds, in the collision mesh's frame and bounds; the renderer reads it textured."""
+    from pxr import Usd, UsdGeom
+
+    from rose_usd.render.from_usd import StageRenderer
+    from rose_usd.usd import paths
+    from rose_usd.usd.geom import read_mesh
+
+    stage = Usd.Stage.Open(str(out / "rose.usda"))
+    visual = read_mesh(stage.GetPrimAtPath(paths.object_visual(name)), world=False)
+    collision = read_mesh(stage.GetPrimAtPath(paths.object_collision(name)), world=False)
+    assert visual.uv is not None and visual.texture is not None and visual.texture.is_file()
+    assert visual.texture.parent == (out / "object_textures").resolve()
+    lo, hi = collision.vertices.min(axis=0), collision.vertices.max(axis=0)
+    size = float(np.max(hi - lo))
+    assert np.allclose(visual.vertices.min(axis=0), lo, atol=0.02 * size)
+    assert np.allclose(visual.vertices.max(axis=0), hi, atol=0.02 * size)
+    items = [item for item in StageRenderer(stage).scene.items.values() if item.mesh.texture is not None]
+    assert any(item.mesh.uv is not None and len(item.mesh.vertices) == len(visual.vertices) for item in items)
+    assert UsdGeom.Mesh(stage.GetPrimAtPath(paths.object_visual(name))).GetPurposeAttr().Get() != "guide"
 
 
 def test_a_mesh_in_millimeters_is_scaled_with_a_warning(tmp_path, case_copy):

@@ -15,5 +15,6 @@ STAGE = StageDef(
         "oracle": "rose_usd.object.oracle:run",
     },
     summary="object meshes, mass priors, colliders, frame-0 poses -> layers/object.usda",
+    side_dirs=("object_textures",),
     requires={"fusion": ("metric-depth",), "imported": ("meshes", "metric-depth"), "oracle": ("gt",)},
 )

@@ -9,8 +9,11 @@ import numpy as np
 import trimesh
 from pxr import Gf, UsdGeom
 
+from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.inertia import MassProperties, mass_properties, shell_mass_properties
 from rose_usd.geometry.mesh import check_collider
+from rose_usd.io.images import write_rgb
+from rose_usd.object.meshes import Surface
 from rose_usd.object.priors import PhysicsPrior, lookup
 from rose_usd.sim.collider import coacd_parts
 from rose_usd.stage_api import StageContext
@@ -20,6 +23,7 @@ from rose_usd.usd.geom import (
     author_mesh,
     author_preview_material,
     bind_material,
+    relative_asset,
 )
 from rose_usd.usd.physics import (
     Approximation,
@@ -55,6 +59,9 @@ class ObjectModel:
     """Pose at frame 0 (4, 4): the prim's default xform."""
     mass: MassProperties
     physics: PhysicsValues
+    surface: Surface | None = None
+    """The visual's textured surface in the object frame [m] (a mesh file's own, ``Surface``);
+    None: the visual is ``mesh`` with its colors."""
 
 
 def collision_approximation(mesh: MeshData, convex_tolerance: float) -> tuple[Approximation, float]:
@@ -106,6 +113,30 @@ def decomposition_coverage(mesh: MeshData, parts: list[np.ndarray] | None = None
     }
 
 
+def _author_visual(ctx: StageContext, model: ObjectModel, looks) -> None:
+    """The object's visual mesh and its look: its file's textured surface (the texture copied to
+    ``object_textures/<name>.png``), else its mesh with the mesh's colors."""
+    stage = ctx.stage
+    if model.surface is None:
+        visual = author_mesh(stage, paths.object_visual(model.name), model.mesh)
+        look = author_preview_material(
+            stage,
+            looks.AppendChild("Visual"),
+            color=model.mesh.color,
+            use_vertex_color=model.mesh.vertex_colors is not None,
+        )
+    else:
+        surface = model.surface
+        name = f"{model.name}.png"
+        write_rgb(ctx.side_dir("object_textures") / name, surface.image)
+        mean = srgb8_to_linear(surface.image.reshape(-1, 3).mean(axis=0, keepdims=True).round())[0]
+        mesh = MeshData(surface.vertices, surface.faces, color=tuple(float(c) for c in mean), uv=surface.uv)
+        visual = author_mesh(stage, paths.object_visual(model.name), mesh)
+        texture = relative_asset(ctx.out_dir / "object_textures" / name, ctx.layer_dir)
+        look = author_preview_material(stage, looks.AppendChild("Visual"), texture_asset=texture)
+    bind_material(visual.GetPrim(), look)
+
+
 def author_object(ctx: StageContext, model: ObjectModel, collider: Collider) -> dict:
     """Write one object prim with its ``collider`` (``collider_of``). Returns facts for the layer's
     provenance."""
@@ -138,14 +169,7 @@ def author_object(ctx: StageContext, model: ObjectModel, collider: Collider) -> 
 
     looks = paths.object_looks(model.name)
     UsdGeom.Scope.Define(stage, looks)
-    visual = author_mesh(stage, paths.object_visual(model.name), model.mesh)
-    look = author_preview_material(
-        stage,
-        looks.AppendChild("Visual"),
-        color=model.mesh.color,
-        use_vertex_color=model.mesh.vertex_colors is not None,
-    )
-    bind_material(visual.GetPrim(), look)
+    _author_visual(ctx, model, looks)
     collision = author_mesh(
         stage,
         paths.object_collision(model.name),

@@ -25,7 +25,9 @@ GLB, a scan or CAD model as GLB/OBJ/PLY/STL), brought to metric scale and posed 
    FoundationPose's pose of that frame when ``perception/ob_in_cam`` has one) and are refined on
    the same cost by a pattern search.
 
-5. **Colors**: the file's texture or vertex colors; a file without them (an STL; an OBJ whose
+5. **Colors**: a file's texture stays a texture: the visual mesh is the file's own surface with
+   its UVs (where the repairs dropped or rebuilt nothing), the texture in ``object_textures/``;
+   else the file's vertex colors; a file without them (an STL; an OBJ whose
    materials have no color: trimesh's placeholder gray) is colored from the video, each vertex its median color
    over the rest frames where it faces the camera inside the mask, on the mesh subdivided to 8 mm
    edges within ``max_triangles`` (the object's ``colors`` fact says which).
@@ -521,7 +523,8 @@ VIDEO_COLOR_EDGE_M = 0.008
 
 def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud, cameras) -> tuple[ObjectModel, str]:
     """The imported mesh at the fitted scale, decimated, coloured, with its physics and pose; and
-    where its colors came from: the file's texture or vertex colors ("file"), else the video
+    where its colors came from: the file's texture, which the visual mesh shows on the file's own
+    surface ("file texture"), the file's vertex colors ("file"), else the video
     ("video": each vertex's median color over up to 12 rest frames, ``vertex_colors``, on the
     mesh subdivided to ``VIDEO_COLOR_EDGE_M`` within ``object.max_triangles``, so that a box's
     twelve triangles can show its print)."""
@@ -539,7 +542,8 @@ def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud,
         colors, source = vertex_colors(world, faces, picked, ctx.case.rgb, cloud.masks, cameras), "video"
     mesh = MeshData(vertices=vertices, faces=faces, vertex_colors=colors)
     physics, mass = physics_for(spec, vertices, faces, ctx)
-    return ObjectModel(spec.name, mesh, pose, mass, physics), source
+    surface = imp.surface.scaled(best.rho) if imp.surface is not None else None
+    return ObjectModel(spec.name, mesh, pose, mass, physics, surface), "file texture" if surface else source
 
 
 def run(ctx: StageContext) -> None:

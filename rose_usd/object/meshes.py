@@ -36,6 +36,23 @@ def find_mesh(case: Case, spec: ObjectSpec) -> Path:
 
 
 @dataclass
+class Surface:
+    """A mesh file's textured surface as the file has it (its vertices split along UV seams):
+    what an object's visual mesh shows when its file has a texture."""
+
+    vertices: np.ndarray
+    """(V, 3) in the file's frame and units (``ImportedMesh.vertices``'), or the object's [m]."""
+    faces: np.ndarray
+    uv: np.ndarray
+    """(V, 2) texture coordinates, origin bottom-left (USD st)."""
+    image: np.ndarray
+    """(H, W, 3) uint8 sRGB texture."""
+
+    def scaled(self, meters_per_unit: float) -> Surface:
+        return Surface(self.vertices * meters_per_unit, self.faces, self.uv, self.image)
+
+
+@dataclass
 class ImportedMesh:
     vertices: np.ndarray
     """In the file's own frame and units."""
@@ -49,6 +66,35 @@ class ImportedMesh:
     repairs: list[str]
     up_given: bool = False
     """Whether rose.toml gave ``mesh_up``; without it every axis is tried (``up_candidates``)."""
+    surface: Surface | None = None
+    """The file's textured surface (``_surface``), kept only where the repairs left the shape as
+    the file has it (nothing dropped or rebuilt); else None."""
+
+
+MAX_TEXTURE_PX = 2048
+"""A file's texture is kept at most this many pixels on its longer side."""
+
+
+def _surface(mesh: trimesh.Trimesh) -> Surface | None:
+    """The file's texture with its UVs (trimesh gives them origin bottom-left), None without one."""
+    visual = mesh.visual
+    if getattr(visual, "kind", None) != "texture" or getattr(visual, "uv", None) is None:
+        return None
+    material = visual.material
+    image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    uv = np.asarray(visual.uv, float)
+    if image is None or len(uv) != len(mesh.vertices) or not np.all(np.isfinite(uv)):
+        return None
+    rgb = np.asarray(image.convert("RGB"), np.uint8)
+    if rgb.ndim != 3 or min(rgb.shape[:2]) < 2:
+        return None
+    if max(rgb.shape[:2]) > MAX_TEXTURE_PX:  # a scan's 5k texture: a simulator's asset needs no more
+        import cv2
+
+        f = MAX_TEXTURE_PX / max(rgb.shape[:2])
+        size = (max(2, round(rgb.shape[1] * f)), max(2, round(rgb.shape[0] * f)))
+        rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+    return Surface(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64), uv, rgb)
 
 
 def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
@@ -80,11 +126,13 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
             f"the mesh has only {len(mesh.faces)} usable triangles", path=path, hint="export the object's surface"
         )
     repairs = []
+    surface = _surface(raw) if colors8 is not None else None  # not a placeholder material's gray
     parts = mesh.split(only_watertight=False)
     if len(parts) > 1:
         areas = np.array([p.area for p in parts])
         keep = areas >= 0.02 * areas.sum()
         if not keep.all():
+            surface = None  # the visual would keep what the collider dropped
             repairs.append(
                 f"dropped {int((~keep).sum())} loose part(s) holding "
                 f"{100 * areas[~keep].sum() / areas.sum():.1f} % of the surface"
@@ -105,6 +153,7 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
         ["self-intersecting"] if self_intersects(mesh.vertices, mesh.faces) else []
     )
     if problems:
+        surface = None
         mesh = _remesh(mesh)
         repairs.append(f"the mesh is {', '.join(problems)}: rebuilt from its signed distance at 1/96 of its size")
     colors = None
@@ -130,6 +179,7 @@ def read_imported(path: Path, up: str | None = None) -> ImportedMesh:
         axis_vector(conventional if up == "auto" else up),
         repairs,
         up_given=up != "auto",
+        surface=surface,
     )
 
 

@@ -452,7 +452,9 @@ def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
         "silhouette_iou": round(float(iou), 4),
         "repairs": imp.repairs,
     }
-    return ObjectModel(spec.name, mesh, pose, mass, physics), fact, ("imported", False, "", iou)
+    surface = imp.surface.scaled(rho * (unit.meters if metric else 1.0)) if imp.surface is not None else None
+    fact["visual"] = "file texture" if surface is not None else "vertex colors"
+    return ObjectModel(spec.name, mesh, pose, mass, physics, surface), fact, ("imported", False, "", iou)
 
 
 def _fit_mesh_standing(imp, sv, sf, metric: bool, width: float, views, xy, support_z: float):
