@@ -447,7 +447,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_pipeline_commands(sub) -> None:
     """reconstruct, run, demo."""
-    p = sub.add_parser("reconstruct", help="run every stage on a case (skips stages that are up to date)")
+    p = sub.add_parser(
+        "reconstruct",
+        help="run every stage on a case, collect's robot rollouts last (skips stages that are up to date;"
+        " `run gate` stops before collect)",
+    )
     p.add_argument("case", help="case folder, or video file (with its settings in <name>.toml beside it)")
     _add_pipeline_flags(p)
     p.add_argument("--no-validate", action="store_true", help="skip UsdValidation and the Newton load at the end")
