@@ -312,22 +312,22 @@ tabletop video shows such an object, its file is in other units."""
 
 def _check_mesh_units(case: Case, spec, path: Path) -> None:
     """Refuse a mesh whose largest side, in the ``mesh_units`` rose.toml gives, is no object's size
-    (``PLAUSIBLE_SIZE_M``), naming the units that would make it one."""
-    from rose_usd.io.meshfile import UNIT_NAMES, UNITS, read_mesh_file
+    (``PLAUSIBLE_SIZE_M``), naming the unit ``io.meshfile.file_unit`` would guess for it."""
+    from rose_usd.io.meshfile import UNIT_NAMES, file_unit, read_mesh_file
 
     v = np.asarray(read_mesh_file(path).vertices, float)
     extent = float(np.max(v.max(axis=0) - v.min(axis=0))) if len(v) else 0.0
     given = spec.overrides["mesh_units"]
-    per_unit = {key: 1.0 if name == "meters" else UNITS[name] for key, name in UNIT_NAMES.items()}
-    size = extent * per_unit[given]
+    size = extent * file_unit(extent, False, given).meters
     low, high = PLAUSIBLE_SIZE_M
     if low <= size <= high:
         return
-    fits = [key for key in ("m", "mm", "cm", "in") if 0.01 <= extent * per_unit[key] <= 2.0]  # file_unit's order
+    guess = file_unit(extent, False)
+    key = {name: key for key, name in UNIT_NAMES.items()}.get(guess.name)
     raise InputError(
         f"object {spec.name!r}: its mesh {path.name} is {size:.4g} m across in mesh_units = {given!r}",
         path=case.settings_file,
-        hint=(f"is it in {fits[0]!r} ({extent * per_unit[fits[0]]:.3g} m)? " if fits else "")
+        hint=(f"is it in {key!r} ({extent * guess.meters:.3g} m)? " if key else "")
         + 'fix mesh_units, or write mesh_units = "auto"',
     )
 

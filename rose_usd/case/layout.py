@@ -216,7 +216,6 @@ class Case:
         """Decode the video once into a cache folder of PNGs keyed by the video's content hash
         (under ``$ROSE_USD_CACHE``, else ``$XDG_CACHE_HOME/rose_usd``, else ``~/.cache/rose_usd``).
         A video that ends before the frame count its header announces is refused."""
-
         h = hashlib.sha256()
         with open(self.video, "rb") as f:
             for chunk in iter(lambda: f.read(1 << 20), b""):

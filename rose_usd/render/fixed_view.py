@@ -11,6 +11,7 @@ import numpy as np
 from rose_usd.core import se3
 from rose_usd.core.color import linear_to_srgb8
 from rose_usd.render.scene import RenderScene
+from rose_usd.sim.resting import box_corners
 
 HIDDEN_M = 1.0e5
 """How far below the world moving items are put while the rest is rendered: past the cameras'
@@ -51,7 +52,8 @@ class FixedView:
         self.cv_from_world = se3.invert(self.world_from_cv)
         self.width, self.height = int(width), int(height)
         self.K_render, self.render_h = scene.square_pixels(K, height)
-        self._corners = {name: _box_corners(scene.items[name].mesh.vertices) for name in self.moving}
+        vertices = {name: np.asarray(scene.items[name].mesh.vertices, float) for name in self.moving}
+        self._corners = {name: box_corners(v.min(axis=0), v.max(axis=0)) for name, v in vertices.items()}
         self._background: np.ndarray | None = None
         self.last_window: tuple[int, int, int, int] | None = None
         """The window the last render re-rendered (None: none of it)."""
@@ -60,7 +62,7 @@ class FixedView:
         """The 8-bit sRGB image and item labels (as ``RenderScene.render_srgb8_and_labels``)."""
         scene = self.scene
         with scene.covering() as labels:
-            img = self._background_film(labels).copy()
+            img = self._background_film().copy()
             window = self.window()
             if window is not None:
                 x0, y0, x1, y1 = window
@@ -99,7 +101,7 @@ class FixedView:
         y1 = min(h, int(np.floor(v.max() + 0.5)) + 1 + PAD_PX)
         return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None
 
-    def _background_film(self, labels: list[int]) -> np.ndarray:
+    def _background_film(self) -> np.ndarray:
         """The square-pixel film with the moving items out of sight, made on first use."""
         if self._background is None:
             scene = self.scene
@@ -113,9 +115,3 @@ class FixedView:
             finally:
                 scene.set_poses(poses)
         return self._background
-
-
-def _box_corners(vertices: np.ndarray) -> np.ndarray:
-    """The 8 corners (8, 3) of the vertices' axis-aligned bounds."""
-    lo, hi = np.min(vertices, axis=0), np.max(vertices, axis=0)
-    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], float)
