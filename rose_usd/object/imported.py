@@ -63,6 +63,7 @@ from rose_usd.object.meshes import (  # noqa: F401  (re-exported: the backend's 
     choose_unit,
     find_mesh,
     read_imported,
+    turned_by_colour,
     up_candidates,
     vertex_colors,
     world_from_up,
@@ -490,10 +491,11 @@ def _fit_object(ctx: StageContext, spec, path: Path, imp, clouds: dict, layer, c
             f"object {spec.name!r}: the fitted mesh overlaps its masks poorly (silhouette IoU {best.iou:.2f}); "
             f"check that {path.name} is this object and its masks are on it{unprompted}"
         )
-    model, colors = _scaled_model(ctx, spec, imp, best, up_rot, cloud, cameras)
+    model, colors, turn = _scaled_model(ctx, spec, imp, best, up_rot, cloud, cameras)
     facts = {
         "mesh_file": str(path),
         "colors": colors,
+        "colour_turn": turn,
         "scale": how,
         "rho0": round(float(rho0 if search else d_image / d_mesh), 6),
         "rho": round(float(best.rho), 6),
@@ -521,17 +523,23 @@ VIDEO_COLOR_EDGE_M = 0.008
 ``object.max_triangles``): the silhouette backend's primitives are colored at the same spacing."""
 
 
-def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud, cameras) -> tuple[ObjectModel, str]:
+def _scaled_model(
+    ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud, cameras
+) -> tuple[ObjectModel, str, dict | None]:
     """The imported mesh at the fitted scale, decimated, coloured, with its physics and pose; and
     where its colors came from: the file's texture, which the visual mesh shows on the file's own
     surface ("file texture"), the file's vertex colors ("file"), else the video
     ("video": each vertex's median color over up to 12 rest frames, ``vertex_colors``, on the
     mesh subdivided to ``VIDEO_COLOR_EDGE_M`` within ``object.max_triangles``, so that a box's
-    twelve triangles can show its print)."""
+    twelve triangles can show its print); the pose turned by its file colours (``turned_by_colour``)."""
     local = best.rho * imp.vertices
     tm = decimate(trimesh.Trimesh(local, imp.faces, process=False), ctx.config.max_triangles)
     vertices, faces = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
     pose = best.world_from_up_frame() @ se3.make_pose(up_rot, np.zeros(3))
+    surface = imp.surface.scaled(best.rho) if imp.surface is not None else None
+    pose, turn = turned_by_colour(
+        local, imp.faces, surface, imp.colors, pose, spread_frames(cloud.frames, 6), ctx.case.rgb, cloud.masks, cameras
+    )
     if imp.colors is not None:
         colors, source = transfer_colors(vertices, local, imp.colors), "file"
     else:
@@ -542,8 +550,8 @@ def _scaled_model(ctx: StageContext, spec, imp, best, up_rot: np.ndarray, cloud,
         colors, source = vertex_colors(world, faces, picked, ctx.case.rgb, cloud.masks, cameras), "video"
     mesh = MeshData(vertices=vertices, faces=faces, vertex_colors=colors)
     physics, mass = physics_for(spec, vertices, faces, ctx)
-    surface = imp.surface.scaled(best.rho) if imp.surface is not None else None
-    return ObjectModel(spec.name, mesh, pose, mass, physics, surface), "file texture" if surface else source
+    model = ObjectModel(spec.name, mesh, pose, mass, physics, surface)
+    return model, "file texture" if surface else source, turn
 
 
 def run(ctx: StageContext) -> None:

@@ -18,6 +18,7 @@ from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.geometry.mesh import self_intersects
+from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetry_scores
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import trellis
 from rose_usd.io.meshfile import UNITS, read_mesh_file, unless_placeholder
@@ -320,3 +321,50 @@ def vertex_colors(vertices_world, faces, frames, rgb_of, masks, cameras) -> np.n
             nearest = cKDTree(vertices_world[seen]).query(vertices_world[~seen])[1]
             colors[~seen] = colors[seen][nearest]
     return colors
+
+
+def turned_by_colour(
+    local: np.ndarray,
+    faces: np.ndarray,
+    surface: Surface | None,
+    colors: np.ndarray | None,
+    pose: np.ndarray,
+    frames,
+    rgb_of,
+    masks,
+    cameras,
+) -> tuple[np.ndarray, dict | None]:
+    """The fitted ``pose`` (world from the mesh's frame, where its vertices are ``local``, its
+    textured ``surface`` too, or its linear vertex ``colors`` are per ``local`` vertex) turned by
+    the shape symmetry (``geometry.symmetry``: a cube's 24 turns, a box's 4) under which the file's
+    own colours (its texture, else its vertex colours) best match ``frames`` of the video inside the
+    object's ``masks``: a silhouette or a depth fit cannot tell those turns apart, the print can.
+    Kept only when its correlation is at least 0.3 and 0.05 above the pose as fitted. Returns the
+    pose and what was measured, None for a file without colours or a shape without symmetry."""
+    if surface is None and colors is None:
+        return pose, None
+    symmetries = shape_symmetries(local, faces)
+    if len(symmetries) < 2:
+        return pose, None
+    if surface is not None:
+        samples = coloured_samples(surface.vertices, surface.faces, uv=surface.uv, image=surface.image)
+    else:
+        samples = coloured_samples(local, faces, linear_colours=colors)
+    total, used = np.zeros(len(symmetries)), 0
+    for t in frames[:6]:
+        scores = symmetry_scores(samples, symmetries, pose, cameras.world_from_cv[t], cameras.K[t], rgb_of(t), masks[t])
+        if scores is not None:
+            total, used = total + scores, used + 1
+    if not used:
+        return pose, None
+    total /= used
+    best = int(np.argmax(total))
+    kept = best != 0 and total[best] >= 0.3 and total[best] >= total[0] + 0.05
+    fact = {
+        "symmetries": len(symmetries),
+        "frames": used,
+        "as_fitted": round(float(total[0]), 3),
+        "best": round(float(total[best]), 3),
+        "turned_deg": round(float(se3.rotation_angle_deg(symmetries[best][:3, :3])), 1) if kept else 0.0,
+    }
+    return (pose @ symmetries[best] if kept else pose), fact

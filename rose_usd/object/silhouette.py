@@ -74,7 +74,14 @@ from rose_usd.layers.masks import read_masks
 from rose_usd.layers.scene import support_heights
 from rose_usd.layers.world import read_cameras, read_scale
 from rose_usd.object.author import ObjectModel, author_objects, physics_for
-from rose_usd.object.meshes import axis_name, read_imported, up_candidates, vertex_colors, world_from_up
+from rose_usd.object.meshes import (
+    axis_name,
+    read_imported,
+    turned_by_colour,
+    up_candidates,
+    vertex_colors,
+    world_from_up,
+)
 from rose_usd.object.rest import level_rotation, spread_frames
 from rose_usd.progress import say
 from rose_usd.stage_api import StageContext
@@ -421,6 +428,8 @@ def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
             pose = free_pose
     iou = free_iou if held else fit.iou
     vertices = rho * imp.vertices
+    surface = imp.surface.scaled(rho * (unit.meters if metric else 1.0)) if imp.surface is not None else None
+    pose, turn = turned_by_colour(vertices, imp.faces, surface, imp.colors, pose, picked, ctx.case.rgb, masks, cameras)
     tm = decimate(trimesh.Trimesh(vertices, imp.faces, process=False), ctx.config.max_triangles)
     v, f = np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
     if imp.colors is not None:
@@ -451,8 +460,8 @@ def _fit_mesh(ctx, spec, path, views, masks, picked, xy, support_z, cameras):
         "held": held,
         "silhouette_iou": round(float(iou), 4),
         "repairs": imp.repairs,
+        "colour_turn": turn,
     }
-    surface = imp.surface.scaled(rho * (unit.meters if metric else 1.0)) if imp.surface is not None else None
     fact["visual"] = "file texture" if surface is not None else "vertex colors"
     return ObjectModel(spec.name, mesh, pose, mass, physics, surface), fact, ("imported", False, "", iou)
 

@@ -66,6 +66,7 @@ from rose_usd.layers.world import read_cameras
 from rose_usd.progress import progress
 from rose_usd.stage_api import StageContext
 from rose_usd.trajectory.author import author_trajectory, fill_gaps
+from rose_usd.trajectory.colour_turns import colour_consistent
 from rose_usd.trajectory.rests import rest_poses, stable_down
 
 
@@ -100,6 +101,9 @@ def run(ctx: StageContext) -> None:
         others = [m.vertices for other, m in meshes.items() if other != spec.name]
         air = not _resting(mesh.vertices, others, support_z, cfg.settle_m)
         poses, conf, record = _track(ctx, spec.name, v, f, default, layer, cameras, support_z, own, convex, in_air=air)
+        poses, record["colour_turns"] = colour_consistent(
+            ctx.stage, spec.name, poses, layer.track(spec.name), cameras, case.rgb
+        )
         record.update(convex=convex, edge_weight=own.edge_weight)
         tracks[spec.name] = (poses, conf)
         facts[spec.name] = record

@@ -91,6 +91,7 @@ from rose_usd.progress import progress
 from rose_usd.stage_api import StageContext
 from rose_usd.trajectory import flow
 from rose_usd.trajectory.author import author_trajectory, fill_gaps, from_default_pose
+from rose_usd.trajectory.colour_turns import colour_consistent
 from rose_usd.trajectory.rests import rest_poses
 
 SCHEDULE = ((0.03, 6), (0.015, 6), (0.008, 8))
@@ -629,6 +630,11 @@ def run(ctx: StageContext) -> None:
         results[spec.name] = (np.einsum("nij,jk->nik", motions, world0), confidence)
         facts[spec.name] = fact
     final = {name: from_default_pose(ctx, name, poses) for name, (poses, _) in results.items()}
+    masks = read_masks(ctx.stage, n, (ctx.case.height, ctx.case.width))
+    for name in final:
+        final[name], facts[name]["colour_turns"] = colour_consistent(
+            ctx.stage, name, final[name], masks.track(name), cameras, ctx.case.rgb
+        )
     for name, rests in rest_poses(ctx, final).items():
         facts[name]["rests"] = rests
     for name, (_, confidence) in results.items():
