@@ -33,6 +33,25 @@ def test_writer_failure_changes_nothing(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "staging or temp files left behind"
 
 
+def test_a_side_folder_the_new_layer_does_not_write_goes_with_the_old(tmp_path):
+    """A stage re-run that writes no side folder it wrote before (an object stage that had a mesh
+    file's texture, now without it) leaves none of the old folder behind; folders the layer never
+    wrote stay."""
+    ti = TimeInfo(fps=30.0, n_frames=3)
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "mine.txt").write_text("the user's")
+    with LayerWriter(tmp_path, "world", ti, {"stage": "capture"}) as w:
+        UsdGeom.Xform.Define(w.stage, paths.WORLD)
+    with LayerWriter(tmp_path, "object", ti, {"stage": "object"}) as w:
+        UsdGeom.Scope.Define(w.stage, paths.OBJECTS)
+        (w.side_dir("object_textures") / "Cube.png").write_bytes(b"texture")
+    assert (tmp_path / "object_textures" / "Cube.png").is_file()
+    with LayerWriter(tmp_path, "object", ti, {"stage": "object"}) as w:
+        UsdGeom.Scope.Define(w.stage, paths.OBJECTS)
+    assert not (tmp_path / "object_textures").exists()
+    assert (tmp_path / "notes" / "mine.txt").read_text() == "the user's"
+
+
 def test_writer_rejects_foreign_specs(tmp_path):
     """A layer that authored outside its claim is not committed."""
     ti = TimeInfo(fps=30.0, n_frames=3)

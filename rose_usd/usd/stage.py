@@ -627,6 +627,13 @@ class LayerWriter:
                 )
                 if side not in self._side
             }
+            # the folders this layer's earlier version wrote and this one does not (an object
+            # stage re-run on a mesh file without a texture): they would show what no layer says
+            | {
+                side
+                for side in (read_provenance(layer_file(self.out_dir, self.layer_name)) or {}).get("outputs") or {}
+                if side not in self._side
+            }
         )
         journal = {
             "layer": self.layer_name,
