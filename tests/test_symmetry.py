@@ -9,7 +9,7 @@ import trimesh
 
 from rose_usd.core import se3
 from rose_usd.core.color import linear_to_srgb8, srgb8_to_linear
-from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetry_scores
+from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetric_look, symmetry_scores
 from rose_usd.trajectory.colour_turns import symmetry_path
 
 FACE_COLOURS = np.array(
@@ -98,7 +98,7 @@ def test_colours_pick_the_turn_the_video_shows(true_index):
     truth = fitted @ syms[true_index]  # the same outline, another side towards the camera
     image = _painted(vertices, faces, side, truth, K, (240, 320))
     mask = np.any(image != 128, axis=-1)
-    scores = symmetry_scores(samples, syms, fitted, np.eye(4), K, image, mask)
+    scores = symmetry_scores(symmetric_look(samples, syms), fitted, np.eye(4), K, image, mask)
     assert scores is not None and int(np.argmax(scores)) == true_index
     assert scores[true_index] > 0.95
     assert np.sort(scores)[-2] < scores[true_index] - 0.2

@@ -134,9 +134,29 @@ def visible_samples(
     return seen, np.stack([u[seen], v[seen]], axis=1)
 
 
+@dataclass(frozen=True)
+class SymmetricLook:
+    """A mesh's coloured samples and its symmetries, with the sample whose colour each sample's
+    place shows under each symmetry (``symmetric_look``)."""
+
+    samples: ColouredSamples
+    symmetries: np.ndarray
+    """(K, 4, 4), identity first (``shape_symmetries``)."""
+    sources: np.ndarray
+    """(K, N): under the pose P T_k, the point of sample i shows the colour of sample sources[k, i]
+    (the nearest to T_k^-1 of it)."""
+
+
+def symmetric_look(samples: ColouredSamples, symmetries: np.ndarray) -> SymmetricLook:
+    tree = cKDTree(samples.points)
+    sources = np.stack(
+        [tree.query(se3.transform_points(np.linalg.inv(sym), samples.points), k=1)[1] for sym in symmetries]
+    )
+    return SymmetricLook(samples, np.asarray(symmetries), sources)
+
+
 def symmetry_scores(
-    samples: ColouredSamples,
-    symmetries: np.ndarray,
+    look: SymmetricLook,
     world_from_object: np.ndarray,
     world_from_cv: np.ndarray,
     K: np.ndarray,
@@ -145,21 +165,17 @@ def symmetry_scores(
     *,
     min_points: int = 200,
 ) -> np.ndarray | None:
-    """How well the object's colours under each of ``symmetries`` (``shape_symmetries``) at the pose
-    match ``image`` (uint8 (H, W, 3)) where ``mask`` shows it: the Pearson correlation of the shown
-    and the seen colours, per channel, averaged (a gain and an offset, the light's and the camera's,
-    change nothing); (K,), or None when fewer than ``min_points`` samples are seen."""
+    """How well the object's colours under each of its symmetries at the pose match ``image``
+    (uint8 (H, W, 3)) where ``mask`` shows it: the Pearson correlation of the shown and the seen
+    colours, per channel, averaged (a gain and an offset, the light's and the camera's, change
+    nothing); (K,), or None when fewer than ``min_points`` samples are seen."""
+    samples = look.samples
     size = float(np.ptp(samples.points, axis=0).max())
     seen, px = visible_samples(samples, world_from_object, world_from_cv, K, mask, depth_slack=0.05 * size)
     if len(seen) < min_points:
         return None
     observed = image[px[:, 1], px[:, 0], :3].astype(float)
-    tree = cKDTree(samples.points)
-    scores = []
-    for sym in symmetries:
-        _, src = tree.query(se3.transform_points(np.linalg.inv(sym), samples.points[seen]), k=1)
-        scores.append(_correlation(samples.colours[src], observed))
-    return np.asarray(scores)
+    return np.array([_correlation(samples.colours[src], observed) for src in look.sources[:, seen]])
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float:

@@ -18,7 +18,7 @@ from rose_usd.core.color import srgb8_to_linear
 from rose_usd.core.watertight import collider_problems
 from rose_usd.errors import InputError, MeshError
 from rose_usd.geometry.mesh import self_intersects
-from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetry_scores
+from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetric_look, symmetry_scores
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import trellis
 from rose_usd.io.meshfile import UNITS, read_mesh_file, unless_placeholder
@@ -350,9 +350,10 @@ def turned_by_colour(
         samples = coloured_samples(surface.vertices, surface.faces, uv=surface.uv, image=surface.image)
     else:
         samples = coloured_samples(local, faces, linear_colours=colors)
+    look = symmetric_look(samples, symmetries)
     total, used = np.zeros(len(symmetries)), 0
     for t in frames[:6]:
-        scores = symmetry_scores(samples, symmetries, pose, cameras.world_from_cv[t], cameras.K[t], rgb_of(t), masks[t])
+        scores = symmetry_scores(look, pose, cameras.world_from_cv[t], cameras.K[t], rgb_of(t), masks[t])
         if scores is not None:
             total, used = total + scores, used + 1
     if not used:

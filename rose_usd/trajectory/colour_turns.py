@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from rose_usd.core import se3
-from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetry_scores
+from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetric_look, symmetry_scores
 from rose_usd.io.images import read_rgb
 from rose_usd.layers.objects import default_pose, visual_mesh
 
@@ -58,14 +58,14 @@ def colour_consistent(
     symmetries = shape_symmetries(local, mesh.faces)
     if len(symmetries) < 2:
         return poses, None
-    samples = coloured_samples(local, mesh.faces, uv=mesh.uv, image=read_rgb(mesh.texture))
+    look = symmetric_look(coloured_samples(local, mesh.faces, uv=mesh.uv, image=read_rgb(mesh.texture)), symmetries)
     n = len(poses)
     scores = np.zeros((n, len(symmetries)))
     scored = []
     for t in range(0, n, stride):
         if masks[t] is None or not masks[t].any():
             continue
-        s = symmetry_scores(samples, symmetries, poses[t], cameras.world_from_cv[t], cameras.K[t], rgb_of(t), masks[t])
+        s = symmetry_scores(look, poses[t], cameras.world_from_cv[t], cameras.K[t], rgb_of(t), masks[t])
         if s is not None:
             scores[t] = s
             scored.append(t)
