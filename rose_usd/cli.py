@@ -510,7 +510,9 @@ def _add_stage_commands(sub) -> None:
     p.add_argument("--normalized", action="store_true", help="with --json: the stable form used by stages/ and diff")
     p.set_defaults(func=cmd_inspect)
 
-    p = sub.add_parser("diff", help="compare two stages (or --json dumps) with tolerances; exit 1 if they differ")
+    p = sub.add_parser(
+        "diff", help="compare two stages (or --json dumps) with tolerances, timings left out; exit 1 if they differ"
+    )
     p.add_argument("a")
     p.add_argument("b")
     p.add_argument("--rtol", type=float, default=1e-4, help="relative tolerance (default 1e-4)")

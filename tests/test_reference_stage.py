@@ -37,3 +37,13 @@ def test_diff_notices_a_change(oracle_out, out_copy):
     layer.Save()
     differences = compare(load_dump(oracle_out / "rose.usda"), load_dump(out_copy / "rose.usda"))
     assert any("physics/mass_kg" in d for d in differences), differences
+
+
+def test_timings_are_no_difference():
+    """Two runs of one case differ by the stages' timings of their parts (the tracker's frames per
+    second, collect's plan and build seconds): diff does not count them, but it counts the rest."""
+    a = {"layers": [{"results": {"objects": {"Cup": {"frames_per_s": 35.4, "lost": 0}}, "plan_s": 3.1}}]}
+    b = {"layers": [{"results": {"objects": {"Cup": {"frames_per_s": 51.3, "lost": 0}}, "plan_s": 2.2}}]}
+    assert compare(normalize(a), normalize(b)) == []
+    b["layers"][0]["results"]["objects"]["Cup"]["lost"] = 2
+    assert compare(normalize(a), normalize(b)) == ["~ layers[0]/results/objects/Cup/lost: 0 -> 2"]

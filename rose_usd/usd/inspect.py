@@ -246,7 +246,20 @@ def dump(path: str | os.PathLike) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------- normalize / text
-_VOLATILE = {"wall_time_s", "versions", "file", "case"}
+_VOLATILE = {
+    "wall_time_s",
+    "versions",
+    "file",
+    "case",
+    # the stages' own timings of their parts (two runs of one case differ by them alone)
+    "frames_per_s",
+    "sfm_seconds",
+    "plan_s",
+    "build_s",
+    "build_timings",
+    "rollout_wall_s",
+    "rollouts_per_minute",
+}
 
 
 def normalize(data: Any, digits: int = 6) -> Any:
