@@ -281,9 +281,14 @@ class Pipeline:
 
         Every config and the plan's preflight are checked before any stage runs. A stage that
         fails leaves its previous layer as it was; with ``check`` its error propagates, otherwise
-        it is recorded in its outcome and the stages after it are ``not run``."""
+        it is recorded in its outcome and the stages after it are ``not run``. While it runs, no
+        other run may write the output folder (``usd.stage.output_lock``)."""
         stages = self.plan(target)
         self.check_output()
+        with usd_stage.output_lock(self.out_dir):
+            return self._run(stages, target, check)
+
+    def _run(self, stages: list[StageDef], target: str | None, check: bool) -> list[StageOutcome]:
         say(self.plan_line(stages))
         for line in usd_stage.recover(self.out_dir):
             say(f"[{self.out_dir}] {line}")

@@ -369,3 +369,26 @@ def test_a_wrong_list_is_shown_as_written(tmp_path):
     with pytest.raises(ConfigError) as err:
         load_case_config(tmp_path, ("segment",))
     assert 'box = [1, 2.5, "x"] is not a list of 4 numbers' in err.value.one_line()
+
+
+def test_a_second_run_into_one_output_folder_is_refused(capsys, case_copy, out_copy):
+    """While one run writes an output folder, another run into it (a batch re-run while the killed
+    batch's worker still ran) is refused with one line and touches nothing; the lock goes with the
+    process that held it, even killed (SIGKILL), and the folder is usable again at once."""
+    import subprocess
+    import sys
+
+    hold = "import sys, time\nfrom rose_usd.usd.stage import output_lock\n"
+    hold += "with output_lock(sys.argv[1]):\n    print('held', flush=True)\n    time.sleep(120)\n"
+    holder = subprocess.Popen([sys.executable, "-c", hold, str(out_copy)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        before = sorted((p.relative_to(out_copy), p.stat().st_mtime_ns) for p in out_copy.rglob("*"))
+        code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(out_copy), "--backend", "all=oracle")
+        assert_one_line_error(code, err, str(out_copy), "another rose-usd run is writing this output folder")
+        assert sorted((p.relative_to(out_copy), p.stat().st_mtime_ns) for p in out_copy.rglob("*")) == before
+    finally:
+        holder.kill()
+        holder.wait()
+    code, err = run_cli(capsys, "run", "capture", str(case_copy), "-o", str(out_copy), "--backend", "all=oracle")
+    assert code == 0, err

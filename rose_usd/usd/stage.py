@@ -9,6 +9,7 @@ will compose it, and the file on disk is replaced only when the stage finished (
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -288,6 +289,34 @@ def check_out_dir(out_dir: str | os.PathLike) -> Path:
                 hint="remove it or give -o another folder",
             )
     return path
+
+
+@contextlib.contextmanager
+def output_lock(out_dir: Path):
+    """This process alone writes ``out_dir`` meanwhile (created if missing): an exclusive lock on
+    the folder itself (``flock``), which the kernel drops when the process ends, however it ends.
+    While another run holds it, a StageError naming the folder: two runs into one folder (a batch
+    re-run while the killed one's worker still ran) removed each other's layers as stale."""
+    try:
+        import fcntl
+    except ImportError:  # no flock here (Windows): unguarded, as before
+        yield
+        return
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out_dir, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise StageError(
+                "another rose-usd run is writing this output folder",
+                path=out_dir,
+                hint="wait for it to end (or stop it), or give another output folder (-o)",
+            ) from None
+        yield
+    finally:
+        os.close(fd)
 
 
 def check_out_case(out_dir: Path, case_root: Path, case_hash: Callable[[], str]) -> None:
