@@ -336,14 +336,39 @@ def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:
 
 
 def _run_local(jobs: list[tuple], workers: int, finished) -> None:
+    """The jobs in ``workers`` processes, each tied to this one (``die_with_parent``: a batch killed
+    with SIGKILL leaves no worker writing on). Ctrl-C stops the batch: the cases not started are
+    dropped, the running ones are interrupted (their stage rolls its layer back) and waited for,
+    then KeyboardInterrupt goes on; the summary holds the cases finished before."""
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    import signal
+    from concurrent.futures import ProcessPoolExecutor, as_completed, wait
+
+    from rose_usd.core.lifetime import die_with_parent
 
     context = multiprocessing.get_context("spawn")  # no fork of a process that holds USD, Warp or Open3D
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=context,
+        max_tasks_per_child=1,
+        initializer=die_with_parent,
+        initargs=(os.getpid(),),
+    )
+    try:
         futures = {pool.submit(run_case, *job): job for job in jobs}
         for future in progress(as_completed(futures), "batch", total=len(futures), unit="case"):
             finished(future.result())
+    except KeyboardInterrupt:
+        # the cases not started are dropped; a terminal's Ctrl-C reached the running ones too
+        # (their stage rolls back and they end), a script's may not have: they are asked again
+        running = [f for f in futures if not f.cancel() and not f.done()]
+        if wait(running, timeout=3.0).not_done:
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                with contextlib.suppress(OSError):
+                    os.kill(proc.pid, signal.SIGINT)
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 def _run_ray(jobs: list[tuple], address: str, cpus: float, gpus: float, finished) -> None:

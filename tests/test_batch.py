@@ -150,6 +150,77 @@ def test_kill_9_halfway_then_the_same_command_finishes_what_was_not(tmp_path, sa
     assert len(list(csv.DictReader((out / "summary.csv").open()))) == 3
 
 
+def _children(pid: int) -> list[int]:
+    """The pids whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _started_batch(tmp_path: Path, sample_case: Path):
+    """A batch of three copies of the sample (capture and segment from the oracle), its command,
+    output folder and process once the first case is recorded."""
+    cases = _cases(tmp_path, sample_case, 3)[:3]
+    out = tmp_path / "batch"
+    cmd = [sys.executable, "-m", "rose_usd.cli", "batch", *map(str, cases), "-o", str(out)]
+    cmd += ["--until", "segment", "--backend", "capture=oracle", "--backend", "segment=oracle"]
+    env = dict(os.environ, ROSE_USD_QUIET="1")
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 600
+    while not (out / "push-0" / RECORD).exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert (out / "push-0" / RECORD).exists(), "the first case never finished"
+    return cases, out, proc
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_kill_9_of_the_batch_alone_leaves_no_worker_writing_on(tmp_path, sample_case):
+    """SIGKILL to the batch's own process (not its group: a scheduler's kill) ends its worker and
+    the worker's stage process too (a worker left running went on writing the folder a re-run
+    then wrote as well)."""
+    cases, out, proc = _started_batch(tmp_path, sample_case)
+    workers = _children(proc.pid)
+    below = [pid for w in workers for pid in _children(w)]
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    deadline = time.time() + 1.0  # a case takes seconds more: only a worker tied to the batch is gone by then
+    while any(_alive(pid) for pid in workers + below) and time.time() < deadline:
+        time.sleep(0.1)
+    assert workers and not [pid for pid in workers + below if _alive(pid)]
+
+
+def test_ctrl_c_stops_the_batch_at_once(tmp_path, sample_case):
+    """A terminal's Ctrl-C (SIGINT to the process group) stops the whole batch: exit 130,
+    "interrupted", the cases not started are not run (the first Ctrl-C used to end only the
+    running case's stage, and the batch went on to the next case)."""
+    cases, out, proc = _started_batch(tmp_path, sample_case)
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        code = proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    err = proc.stderr.read().decode()
+    assert code == 130 and "interrupted" in err, err
+    recorded = [c.name for c in cases if (out / c.name / RECORD).exists()]
+    assert len(recorded) < 3, "every case ran"
+    assert [row["name"] for row in csv.DictReader((out / "summary.csv").open())] == recorded
+
+
 def test_ray_runs_the_same_cases_with_the_same_results(tmp_path, sample_case):
     pytest.importorskip("ray")
     cases = _cases(tmp_path, sample_case, 2)
