@@ -172,8 +172,7 @@ class Pipeline:
                 raise ConfigError(
                     f"stage {stage_def.name!r} has no backend {given}",
                     path=where,
-                    hint=f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}"
-                    + ("" if str(where).startswith("--") else f" (or a {stage_def.config.__name__})"),
+                    hint=f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}",
                 )
         names = setting_names(stage_def.config)
         from_toml = flatten(self.case.config.stage_overrides.get(stage_def.name, {}), names)

@@ -128,6 +128,12 @@ def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
     )
     assert_one_line_error(code, err, "no backend 'colmap'", "auto, rgbd, megasam, sfm, oracle")
     assert "Config" not in err  # a Python class means nothing on the command line
+    case = tmp_path / "case"
+    shutil.copytree(sample_case, case)
+    (case / "rose.toml").write_text((case / "rose.toml").read_text() + '\n[backends]\nsegment = "sam3"\n')
+    code, err = run_cli(capsys, "run", "capture", str(case), "-o", str(tmp_path / "o2"))
+    assert_one_line_error(code, err, "rose.toml", "no backend 'sam3'", "auto, classical, sam2, flow, oracle")
+    assert "Config" not in err  # nor to someone editing rose.toml
 
 
 def test_an_output_folder_of_another_case_or_the_case_folder_is_refused(capsys, case_copy, out_copy):
