@@ -122,34 +122,6 @@ def test_a_setting_typo_stops_the_batch_before_anything_and_a_case_typo_is_refus
     assert "categroy" in next(c.error for c in result.cases if c.name == "typo")
 
 
-def test_kill_9_halfway_then_the_same_command_finishes_what_was_not(tmp_path, sample_case):
-    """The whole batch (its process group) is killed with SIGKILL once the first case is
-    recorded; the same command then finishes every case, and the first one is not touched."""
-    cases = _cases(tmp_path, sample_case, 3)[:3]
-    out = tmp_path / "batch"
-    cmd = [sys.executable, "-m", "rose_usd.cli", "batch", *map(str, cases), "-o", str(out)]
-    cmd += ["--until", "segment", "--backend", "capture=oracle", "--backend", "segment=oracle"]
-    env = dict(os.environ, ROSE_USD_QUIET="1")
-    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 600
-    while not (out / "push-0" / RECORD).exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-    assert (out / "push-0" / RECORD).exists(), "the first case never finished"
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    finished = {c.name for c in cases if (out / c.name / RECORD).exists()}
-    assert len(finished) < 3, "killed too late: every case had finished"
-    before = {name: _mtimes(out / name) for name in finished}
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stdout + done.stderr
-    for c in cases:
-        assert (out / c.name / RECORD).exists()
-        assert (out / c.name / "layers" / "masks.usda").is_file()
-    for name in finished:
-        assert _mtimes(out / name) == before[name]
-    assert len(list(csv.DictReader((out / "summary.csv").open()))) == 3
-
-
 def _children(pid: int) -> list[int]:
     """The pids whose parent is ``pid`` (Linux /proc)."""
     out = []
@@ -172,8 +144,8 @@ def _alive(pid: int) -> bool:
 
 
 def _started_batch(tmp_path: Path, sample_case: Path):
-    """A batch of three copies of the sample (capture and segment from the oracle), its command,
-    output folder and process once the first case is recorded."""
+    """A batch of three copies of the sample (capture and segment from the oracle) once its first
+    case is recorded: the cases, the output folder, the process, its command and environment."""
     cases = _cases(tmp_path, sample_case, 3)[:3]
     out = tmp_path / "batch"
     cmd = [sys.executable, "-m", "rose_usd.cli", "batch", *map(str, cases), "-o", str(out)]
@@ -184,7 +156,26 @@ def _started_batch(tmp_path: Path, sample_case: Path):
     while not (out / "push-0" / RECORD).exists() and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)
     assert (out / "push-0" / RECORD).exists(), "the first case never finished"
-    return cases, out, proc
+    return cases, out, proc, cmd, env
+
+
+def test_kill_9_halfway_then_the_same_command_finishes_what_was_not(tmp_path, sample_case):
+    """The whole batch (its process group) is killed with SIGKILL once the first case is
+    recorded; the same command then finishes every case, and the first one is not touched."""
+    cases, out, proc, cmd, env = _started_batch(tmp_path, sample_case)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    finished = {c.name for c in cases if (out / c.name / RECORD).exists()}
+    assert len(finished) < 3, "killed too late: every case had finished"
+    before = {name: _mtimes(out / name) for name in finished}
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout + done.stderr
+    for c in cases:
+        assert (out / c.name / RECORD).exists()
+        assert (out / c.name / "layers" / "masks.usda").is_file()
+    for name in finished:
+        assert _mtimes(out / name) == before[name]
+    assert len(list(csv.DictReader((out / "summary.csv").open()))) == 3
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -192,7 +183,7 @@ def test_kill_9_of_the_batch_alone_leaves_no_worker_writing_on(tmp_path, sample_
     """SIGKILL to the batch's own process (not its group: a scheduler's kill) ends its worker and
     the worker's stage process too (a worker left running went on writing the folder a re-run
     then wrote as well)."""
-    cases, out, proc = _started_batch(tmp_path, sample_case)
+    cases, out, proc, _, _ = _started_batch(tmp_path, sample_case)
     workers = _children(proc.pid)
     below = [pid for w in workers for pid in _children(w)]
     os.kill(proc.pid, signal.SIGKILL)
@@ -207,7 +198,7 @@ def test_ctrl_c_stops_the_batch_at_once(tmp_path, sample_case):
     """A terminal's Ctrl-C (SIGINT to the process group) stops the whole batch: exit 130,
     "interrupted", the cases not started are not run (the first Ctrl-C used to end only the
     running case's stage, and the batch went on to the next case)."""
-    cases, out, proc = _started_batch(tmp_path, sample_case)
+    cases, out, proc, _, _ = _started_batch(tmp_path, sample_case)
     os.killpg(proc.pid, signal.SIGINT)
     try:
         code = proc.wait(timeout=60)
