@@ -151,7 +151,15 @@ def _started_batch(tmp_path: Path, sample_case: Path):
     cmd = [sys.executable, "-m", "rose_usd.cli", "batch", *map(str, cases), "-o", str(out)]
     cmd += ["--until", "segment", "--backend", "capture=oracle", "--backend", "segment=oracle"]
     env = dict(os.environ, ROSE_USD_QUIET="1")
-    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        cmd,
+        env=env,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        # as from a terminal: a test runner's worker may ignore SIGINT, and its children inherit that
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.time() + 600
     while not (out / "push-0" / RECORD).exists() and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)
