@@ -226,17 +226,28 @@ class Pipeline:
 
     def is_current(self, stage_def: StageDef) -> bool:
         """Whether the stage's layer exists and was made from the same config, inputs and code."""
+        return self.why_stale(stage_def) is None
+
+    def why_stale(self, stage_def: StageDef) -> str | None:
+        """Why the stage must run again (its layer missing; made by other code, with other
+        settings, from other inputs, or at another frame count or rate), None when it is current."""
         prov = usd_stage.read_provenance(usd_stage.layer_file(self.out_dir, stage_def.layer))
         if prov is None:
-            return False
+            return "its layer is missing"
         config = self.config(stage_def)
-        time_info = usd_stage.read_time_info(self.out_dir)
-        return (
-            prov.get("config_hash") == config_hash(config)
-            and prov.get("code") == code_version(stage_def, config.backend.value)
-            and prov.get("inputs") == self.input_hashes(stage_def, config)
-            and time_info == self.time_info
-        )
+        if prov.get("code") != code_version(stage_def, config.backend.value):
+            return "rose_usd's code changed since its layer was made"
+        if prov.get("config_hash") != config_hash(config):
+            return "its settings changed"
+        made_from, now = prov.get("inputs") or {}, self.input_hashes(stage_def, config)
+        changed = [
+            k.removeprefix("layer:") for k in sorted(set(made_from) | set(now)) if made_from.get(k) != now.get(k)
+        ]
+        if changed:
+            return f"what it was made from changed ({', '.join(changed)})"
+        if usd_stage.read_time_info(self.out_dir) != self.time_info:
+            return "the frame count or rate changed"
+        return None
 
     # ------------------------------------------------------------------ running
     def run_stage(self, stage_def: StageDef) -> StageOutcome:
@@ -299,9 +310,12 @@ class Pipeline:
                 outcomes.append(StageOutcome(stage_def.name, "not run", 0.0, backend))
                 continue
             must = self.options.force and (target is None or stage_def.name == target)
-            # is_current compares the upstream layers' hashes, so a re-run upstream stage makes
+            # why_stale compares the upstream layers' hashes, so a re-run upstream stage makes
             # exactly its dependents stale
-            if must or not self.is_current(stage_def):
+            why = self.why_stale(stage_def) or ("--force" if must else None)
+            if why is not None:
+                if why != "its layer is missing":
+                    say(f"[{stage_def.name}] runs again: {why}")
                 t0 = time.perf_counter()
                 try:
                     outcomes.append(self.run_stage(stage_def))

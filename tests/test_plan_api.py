@@ -210,3 +210,23 @@ def test_deferred_warnings_are_given_only_when_replayed(capsys):
     assert "warnings" not in writer.provenance and "not kept" not in said.out + said.err
     ctx.warn(kept[0])
     assert writer.provenance["warnings"] == ["a fit that is not kept"]
+
+
+def test_a_stage_run_again_says_why(tmp_path, case_copy, capsys, monkeypatch):
+    """A stage whose layer exists but is stale says why it runs again: other settings, other
+    inputs; a current one is up to date (a new user saw only "[scene] backend tsdf" after a code
+    change)."""
+    from rose_usd.cli import main
+
+    monkeypatch.setenv("ROSE_USD_QUIET", "0")
+    base = ["run", "segment", str(case_copy), "-o", str(tmp_path / "out"), "--backend", "all=oracle"]
+    assert main(base) == 0
+    assert "runs again" not in capsys.readouterr().err  # a new folder: nothing to say
+    assert main(base) == 0
+    assert "[segment] up to date" in capsys.readouterr().err
+    assert main([*base, "--set", "segment.min_height_m=0.005"]) == 0
+    assert "[segment] runs again: its settings changed" in capsys.readouterr().err
+    (case_copy / "rose.toml").write_text((case_copy / "rose.toml").read_text() + "\n# edited\n")
+    assert main([*base, "--set", "segment.min_height_m=0.005"]) == 0
+    err = capsys.readouterr().err
+    assert "[capture] runs again: what it was made from changed (case)" in err, err
