@@ -134,6 +134,25 @@ def inputs_key(case: str | os.PathLike) -> str:
     return h.hexdigest()[:16]
 
 
+def _other_cases(out: Path, names: list[str]) -> list[CaseResult]:
+    """The cases an earlier batch finished in ``out`` that this one does not name, as recorded
+    (their layers still the ones the record vouches for): the summary keeps them (a batch of some
+    of the cases rewrote it with those alone)."""
+    others = []
+    for folder in sorted(p for p in out.iterdir() if p.is_dir() and p.name not in names) if out.is_dir() else []:
+        try:
+            data = json.loads((folder / RECORD).read_text())
+            data.pop("options", None)
+            data.pop("inputs", None)
+            result = CaseResult(**data)
+        except (OSError, ValueError, TypeError, KeyError):
+            continue
+        if result.status == "done" and result.layers == _layer_hashes(folder):
+            result.reused = True
+            others.append(result)
+    return others
+
+
 def _record(out_dir: Path, options_key: str, case_key: str) -> CaseResult | None:
     """The finished case recorded in ``out_dir``, when it was made with the same options from the
     same inputs and code (``case_key``: ``inputs_key``) and its layers are the ones it vouches for
@@ -258,10 +277,11 @@ def batch(
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     results: dict[str, CaseResult] = {}
+    others = _other_cases(out, names)
 
     def finished(data: dict) -> None:
         result = results[data["name"]] = CaseResult(**data)
-        write_summary(out, [results[n] for n in names if n in results])
+        write_summary(out, [results[n] for n in names if n in results] + others)
         say(_line(result))
 
     for name, case in zip(names, cases):

@@ -92,6 +92,15 @@ def test_each_case_runs_and_a_broken_one_is_recorded_not_fatal(tmp_path, sample_
     assert {c.name: c.reused for c in third.cases}["push-1"] is False
     assert {c.name: c.status for c in third.cases}["push-1"] == "done"
 
+    # a batch of one of the cases keeps the others finished in OUT in the summary (it listed
+    # that case alone), as recorded; one whose layers no longer match its record is left out
+    one = batch(cases[1:2], out, workers=1, **FAST)
+    assert [c.name for c in one.cases] == ["push-1"]
+    assert [r["name"] for r in csv.DictReader((out / "summary.csv").open())] == ["push-1", "push-0"]
+    (out / "push-0" / "layers" / "world.usda").write_text("#usda 1.0\n")
+    batch(cases[1:2], out, workers=1, **FAST)
+    assert [r["name"] for r in csv.DictReader((out / "summary.csv").open())] == ["push-1"]
+
 
 def test_bad_batch_arguments_are_one_line_errors(tmp_path, sample_case):
     with pytest.raises(ConfigError, match="does not exist"):
