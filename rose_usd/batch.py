@@ -134,45 +134,40 @@ def inputs_key(case: str | os.PathLike) -> str:
     return h.hexdigest()[:16]
 
 
-def _other_cases(out: Path, names: list[str]) -> list[CaseResult]:
-    """The cases an earlier batch finished in ``out`` that this one does not name, as recorded
-    (their layers still the ones the record vouches for): the summary keeps them (a batch of some
-    of the cases rewrote it with those alone)."""
-    others = []
-    for folder in sorted(p for p in out.iterdir() if p.is_dir() and p.name not in names) if out.is_dir() else []:
-        try:
-            data = json.loads((folder / RECORD).read_text())
-            data.pop("options", None)
-            data.pop("inputs", None)
-            result = CaseResult(**data)
-        except (OSError, ValueError, TypeError, KeyError):
-            continue
-        if result.status == "done" and result.layers == _layer_hashes(folder):
-            result.reused = True
-            others.append(result)
-    return others
-
-
-def _record(out_dir: Path, options_key: str, case_key: str) -> CaseResult | None:
-    """The finished case recorded in ``out_dir``, when it was made with the same options from the
-    same inputs and code (``case_key``: ``inputs_key``) and its layers are the ones it vouches for
-    (after what an interrupted later run left is cleared away or its commit finished:
-    ``usd.stage.recover``)."""
-    from rose_usd.usd.stage import recover
-
-    recover(out_dir)
-    path = out_dir / RECORD
+def _recorded(out_dir: Path) -> tuple[CaseResult, dict[str, str]] | None:
+    """The finished case recorded in ``out_dir`` whose layers are still the ones the record vouches
+    for, with the options and inputs keys it was made under; None otherwise."""
     try:
-        data = json.loads(path.read_text())
-        if data.pop("options") != options_key or data.pop("inputs") != case_key or not case_key:
-            return None
+        data = json.loads((out_dir / RECORD).read_text())
+        keys = {"options": data.pop("options"), "inputs": data.pop("inputs")}
         result = CaseResult(**data)
     except (OSError, ValueError, TypeError, KeyError):
         return None
     if result.status != "done" or result.layers != _layer_hashes(out_dir):
         return None
     result.reused = True
-    return result
+    return result, keys
+
+
+def _other_cases(out: Path, names: list[str]) -> list[CaseResult]:
+    """The cases an earlier batch finished in ``out`` that this one does not name, as recorded
+    (``_recorded``): the summary keeps them (a batch of some of the cases rewrote it with those
+    alone)."""
+    folders = sorted(p for p in out.iterdir() if p.is_dir() and p.name not in names) if out.is_dir() else []
+    return [got[0] for folder in folders if (got := _recorded(folder)) is not None]
+
+
+def _record(out_dir: Path, options_key: str, case_key: str) -> CaseResult | None:
+    """The finished case recorded in ``out_dir`` (``_recorded``), when it was made with the same
+    options from the same inputs and code (``case_key``: ``inputs_key``), after what an interrupted
+    later run left is cleared away or its commit finished (``usd.stage.recover``)."""
+    from rose_usd.usd.stage import recover
+
+    recover(out_dir)
+    got = _recorded(out_dir)
+    if got is None or not case_key or got[1] != {"options": options_key, "inputs": case_key}:
+        return None
+    return got[0]
 
 
 def run_case(

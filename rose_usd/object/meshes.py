@@ -21,7 +21,7 @@ from rose_usd.geometry.mesh import self_intersects
 from rose_usd.geometry.symmetry import coloured_samples, shape_symmetries, symmetric_look, symmetry_scores
 from rose_usd.geometry.texture import transfer_colors
 from rose_usd.io import trellis
-from rose_usd.io.meshfile import UNITS, read_mesh_file, unless_placeholder
+from rose_usd.io.meshfile import UNITS, read_mesh_file, texture_image, unless_placeholder
 
 
 def find_mesh(case: Case, spec: ObjectSpec) -> Path:
@@ -81,8 +81,7 @@ def _surface(mesh: trimesh.Trimesh) -> Surface | None:
     visual = mesh.visual
     if getattr(visual, "kind", None) != "texture" or getattr(visual, "uv", None) is None:
         return None
-    material = visual.material
-    image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    image = texture_image(mesh)
     uv = np.asarray(visual.uv, float)
     if image is None or len(uv) != len(mesh.vertices) or not np.all(np.isfinite(uv)):
         return None
