@@ -9,8 +9,10 @@ import pytest
 
 from rose_usd.bench.evaluate import evaluate
 from rose_usd.bench.modes import PerceptionMode, make_mode_case
+from rose_usd.capture.anchor import NothingStands, anchor_from_prompt, object_anchor
 from rose_usd.capture.gravity import gravity_from_imu, gravity_from_planes
 from rose_usd.capture.megasam import fit_alpha_beta
+from rose_usd.case.config import Prompt
 from rose_usd.cli import main
 from rose_usd.core import se3
 from rose_usd.pipeline import Options, Pipeline
@@ -168,6 +170,53 @@ def test_alpha_beta_fit_is_robust():
     alpha, beta, residual, n = fit_alpha_beta(d, metric)
     assert alpha == pytest.approx(2.5, rel=0.005) and beta == pytest.approx(0.04, abs=0.003)
     assert residual < 0.01 and n == 5000
+
+
+def _table_view(stands: dict[tuple[int, int, int, int], float]) -> tuple[np.ndarray, np.ndarray]:
+    """Depth of a camera looking straight down at a table 0.6 m below it, with ``stands``:
+    {(x0, y0, x1, y1): height [m]} boxes of pixels standing that high on it; and its K."""
+    depth = np.full((240, 320), 0.6, np.float32)
+    for (x0, y0, x1, y1), height in stands.items():
+        depth[y0 : y1 + 1, x0 : x1 + 1] = 0.6 - height
+    return depth, np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
+
+
+def test_a_prompt_box_on_a_bare_table_holds_nothing():
+    depth, K = _table_view({(200, 100, 240, 140): 0.05})
+    with pytest.raises(NothingStands, match="0 of"):
+        object_anchor(Prompt(frame=0, box=(60, 100, 100, 140)), depth, K, np.eye(4))
+
+
+def test_a_prompt_box_filled_by_an_object_keeps_its_middle():
+    """A box's top face filling the prompt box lies above the table the ring around it shows."""
+    depth, K = _table_view({(200, 100, 240, 140): 0.05})
+    prompt = Prompt(frame=0, box=(200, 100, 240, 140))
+    anchor = object_anchor(prompt, depth, K, np.eye(4))
+    np.testing.assert_allclose(anchor, anchor_from_prompt(prompt, depth, K, np.eye(4)))
+    assert abs(anchor[2] - 0.55) < 1e-6
+
+
+def test_a_thin_object_off_its_prompt_box_s_middle_is_found():
+    """A ladle's 1 cm handle along the edge of a wide box: the box's middle is table, the anchor
+    goes onto the handle."""
+    depth, K = _table_view({(60, 100, 66, 160): 0.01})
+    anchor = object_anchor(Prompt(frame=0, box=(58, 98, 120, 162)), depth, K, np.eye(4))
+    assert abs(anchor[2] - 0.59) < 1e-6
+    u = anchor[0] / anchor[2] * K[0, 0] + K[0, 2]
+    assert 60 <= u <= 66
+
+
+def test_a_prompt_box_on_the_bare_table_stops_capture_with_one_line(capsys, case_copy, tmp_path):
+    """The sample's Box prompt moved onto bare table: capture stops naming rose.toml and writes
+    nothing (the empty box's anchor lay on the table, and the world turned upside down)."""
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text().replace("box = [174, 90, 208, 127]", "box = [60, 140, 100, 175]"))
+    out = tmp_path / "out"
+    argv = ["run", "capture", str(case_copy), "-o", str(out), "--in-process", "--backend", "capture=rgbd"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rose.toml: nothing stands on the surface inside the prompt box of 'Box'" in err[0]
+    assert not layer_file(out, "world").exists()
 
 
 def test_plane_gravity_prefers_the_support_under_the_object():

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 from pxr import Gf, UsdGeom, Vt
 
-from rose_usd.capture.anchor import anchor_from_prompt, anchor_from_view_center
+from rose_usd.capture.anchor import NothingStands, anchor_from_prompt, anchor_from_view_center, object_anchor
 from rose_usd.capture.gravity import (
     gravity_from_geocalib,
     gravity_from_imu,
@@ -166,10 +166,18 @@ def locate(
 ):
     """Gravity, the support plane and the world frame (tracking -> world), and how the origin was found."""
     case = ctx.case
-    prompt = next((o.prompt for o in prompted_objects(ctx)), None)
+    spec = next(iter(prompted_objects(ctx)), None)
     anchor = None
-    if prompt is not None and 0 <= prompt.frame < len(poses):
-        anchor = anchor_from_prompt(prompt, depth_of(prompt.frame), K, poses[prompt.frame])
+    if spec is not None and 0 <= spec.prompt.frame < len(poses):
+        prompt = spec.prompt
+        try:
+            anchor = object_anchor(prompt, depth_of(prompt.frame), K, poses[prompt.frame])
+        except NothingStands as e:
+            raise InputError(
+                f"nothing stands on the surface inside the prompt box of {spec.name!r} on frame {prompt.frame} ({e})",
+                path="capture.prompts (--prompt)" if ctx.config.prompts else case.settings_file,
+                hint="draw the box around the object on a frame where it is visible",
+            ) from None
     if anchor is not None:
         gravity, support = choose_gravity(
             ctx, poses, points, anchor, plane_floor_deg=plane_floor_deg, upside_down_check=True
