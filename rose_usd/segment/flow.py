@@ -22,12 +22,13 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
    neighbor; where shapes overlap, the one standing lower in the image is in front. A track at
    rest stays with the static background (the camera's homography of the flow) unless its pixels
    match the next frame clearly better moved by the flow (an arm sweeping over it drags the flow
-   of what it covers), and a hidden one that was at rest stays there. A track
-   that moved since the last frame takes no pixel of the static background (a still camera's
-   temporal median): what is carried is not what it leaves behind. A track resting while its
-   color model is broad (a mesh's texture) takes no pixel that moved relative to it (backward
-   flow): the mug carried past the resting cube. Confidence is the visible
-   fraction of the shape.
+   of what it covers), and a hidden one that was at rest stays there; one mostly hidden in the
+   last frame moves to where its colors are clearly seen again near it, off the hands and the
+   other tracks (``segment.refind``: the flow over it was its occluder's). A track that moved
+   since the last frame takes no pixel of the static background (a still camera's temporal
+   median): what is carried is not what it leaves behind. A track resting while its color model
+   is broad (a mesh's texture) takes no pixel that moved relative to it (backward flow): the mug
+   carried past the resting cube. Confidence is the visible fraction of the shape.
 3. **Hands** (``segment.flow.hands``): MediaPipe's hand landmarks (``segment.hands``), found in
    every frame before propagating, are no track's pixels but where a track's color model claims
    them over the hands' skin (fingers guessed behind the object); the arm (the motion foreground
@@ -58,6 +59,7 @@ from rose_usd.segment.hands import found_hands as find_hands
 from rose_usd.segment.hands import skin_histogram
 from rose_usd.segment.moving import MotionForeground, camera_shift
 from rose_usd.segment.prompts import check_prompts, parse_prompts, prompts_source
+from rose_usd.segment.refind import find_hidden
 from rose_usd.segment.regions import components, fill_holes, touching
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
@@ -180,10 +182,12 @@ def _grown(mask: np.ndarray, radius_px: float) -> np.ndarray:
 class FlowTracker:
     """Masks of prompted objects (and their look-alikes) through a video, in 2D."""
 
-    def __init__(self, frame_of, size: tuple[int, int]):
+    def __init__(self, frame_of, size: tuple[int, int], skin: np.ndarray | None = None):
         self.frame_of = frame_of
         """t -> RGB frame (H, W, 3) uint8 at the working resolution."""
         self.w, self.h = size
+        self.skin = skin
+        """Color histogram of the hands' skin, or None."""
         self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         self._pool: ThreadPoolExecutor | None = None
         self._ahead: dict[tuple[int, int], Future] = {}
@@ -396,7 +400,7 @@ class FlowTracker:
             # judged on half a view or more: the flow of a sliver beside its occluder is the occluder's
             if still is not None and tr.last_visible is not None and tr.last_visible.sum() >= 0.5 * tr.typical_px:
                 tr.carried = bool(np.hypot(*(d - still)) > MOVING_PX)
-        moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
+        moved = self._all_moved(tracks, shifts, idx, bg, hand)
         carried = [static is not None and np.hypot(*d) > MOVING_PX for d in shifts]
         resting = [tr.broad and np.hypot(*d) <= MOVING_PX for tr, d in zip(tracks, shifts)]
         # how each pixel of frame t moved since frame prev: for a resting track with a broad color
@@ -449,6 +453,16 @@ class FlowTracker:
                 tr.mask = moved[k]
             tr.last_visible = m if frac >= 0.05 else np.zeros_like(m)
         return visible
+
+    def _all_moved(self, tracks, shifts, idx, bg, hand: HandPixels | None) -> list[np.ndarray]:
+        """Each track's shape moved by its shift, or where ``segment.refind`` finds a hidden one
+        again (its entry of ``shifts`` updated in place)."""
+        moved = [self._moved(tr, d) for tr, d in zip(tracks, shifts)]
+        blocked = hand.hand | hand.arm if hand is not None else None
+        for k, offset in find_hidden(tracks, moved, idx, bg, self.skin, blocked).items():
+            shifts[k] = shifts[k] + offset
+            moved[k] = self._moved(tracks[k], shifts[k])
+        return moved
 
     def _refine(
         self, bgr: np.ndarray, claimed: np.ndarray, mine: np.ndarray, moved: np.ndarray, others: list[np.ndarray]
@@ -506,7 +520,7 @@ def segment_video(
     GrabCut's color models start from OpenCV's random generator (per thread, shared with anything
     else that ran before): it is reset here, so the masks depend on the video alone."""
     cv2.setRNGSeed(0)  # the generator's initial state (0 selects OpenCV's default seed)
-    tracker = FlowTracker(frame_of, size)
+    tracker = FlowTracker(frame_of, size, skin)
     starts = _starts(tracker, frame_of, prompts, looks)
     t0 = min(t for t, _, _ in starts)
     bg = np.mean([b for _, _, b in starts], axis=0)
