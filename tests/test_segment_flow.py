@@ -97,6 +97,21 @@ def test_bad_prompt_strings_name_the_format(text, case_copy, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("stage, backend", [("segment", "flow"), ("capture", "sfm")])
+def test_a_prompt_box_on_bare_table_stops_the_rgb_stages_with_one_line(stage, backend, sample_case, tmp_path, capsys):
+    """Without depth, GrabCut finds nothing in a box on the sample's bare table: the RGB-only
+    stages that cut the prompt stop with one line naming --prompt (the capture before its
+    structure from motion; it went on to warn of an unusable prompt and size), writing nothing."""
+    from rose_usd.cli import main
+
+    out = tmp_path / "out"
+    argv = ["run", stage, str(sample_case), "-o", str(out), "--in-process", "--backend", f"{stage}={backend}"]
+    assert main([*argv, "--prompt", "Box=0:60,140,100,175"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {stage}.prompts (--prompt): GrabCut found"), err
+    assert not any(layer_file(out, name).exists() for name in ("world", "masks"))
+
+
 def test_prompt_for_an_unknown_object_is_refused(sample_case):
     specs = list(load_case_config(sample_case, registry.STAGE_NAMES).objects)
     with pytest.raises(ConfigError, match="names no object"):

@@ -146,6 +146,7 @@ def run(ctx: StageContext) -> None:
     spec = _prompted(ctx)
     ref = spec.prompt.frame if spec is not None else 0
     record: dict = {}
+    mask, hidden = _prompt_mask(ctx, spec)  # before the cameras: a box holding nothing stops here
 
     # ---------------------------------------------------------------- cameras (reference frame = tracking frame)
     motion, poses, points, K, k_source = _cameras(ctx, K, k_source, ref, record)
@@ -169,7 +170,6 @@ def run(ctx: StageContext) -> None:
     up = gravity.up / np.linalg.norm(gravity.up)
 
     # ---------------------------------------------------------------- world frame (units) and scale
-    mask, hidden = _prompt_mask(ctx, spec)
     anchor_pt = _anchor_on_plane(ctx, mask, poses[ref], K, support)
     world_from_track = world_from_tracking(up, support, anchor_pt, poses[0])
     world_units = np.einsum("ij,njk->nik", world_from_track, poses)
@@ -455,10 +455,16 @@ def _plane_along(up: np.ndarray, points: np.ndarray, anchor: np.ndarray | None) 
 # ---------------------------------------------------------------------------- origin and scale
 
 
+MIN_PROMPT_PX = 30
+"""A prompted object's GrabCut silhouette holds at least this many pixels, else the capture stops
+with one line (a box on bare table: nothing in it to set the world's origin and scale by)."""
+
+
 def _prompt_mask(ctx: StageContext, spec) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The prompted object's silhouette in its prompt frame (GrabCut in the box, less what the
     other objects prompted on that frame take: ``core.grabcut.split_shared``), None without a
-    usable one; and those other objects' pixels (None without any), where they may hide it."""
+    prompt; and those other objects' pixels (None without any), where they may hide it. Raises
+    ``InputError`` when the silhouette has under ``MIN_PROMPT_PX`` pixels."""
     if spec is None:
         return None, None
     case = ctx.case
@@ -470,8 +476,15 @@ def _prompt_mask(ctx: StageContext, spec) -> tuple[np.ndarray | None, np.ndarray
         boxes[other.name] = other.prompt.box
     split = split_shared(masks, boxes)
     mask = split.pop(spec.name)
+    if mask.sum() < MIN_PROMPT_PX:
+        raise InputError(
+            f"GrabCut found {int(mask.sum())} px of {spec.name!r} inside its prompt on frame {spec.prompt.frame}:"
+            " nothing to measure it by",
+            path="capture.prompts (--prompt)" if ctx.config.prompts else case.settings_file,
+            hint="draw the box tightly around the object on a frame where it is visible",
+        )
     hidden = np.any(list(split.values()), axis=0) if split else None
-    return (mask if mask.sum() >= 30 else None), hidden
+    return mask, hidden
 
 
 def _anchor_on_plane(ctx: StageContext, mask, ref_pose: np.ndarray, K: np.ndarray, support: Plane) -> np.ndarray:

@@ -675,9 +675,12 @@ def run(ctx: StageContext) -> None:
     found = find_hands(ctx, frame_of) if cfg.flow.hands else None
     if specs:
         skin = skin_histogram(frame_of, found) if found else None
-        masks, hands, visible = segment_video(
-            frame_of, n, (w, h), prompts, looks=_looks(case, specs), found=found, skin=skin
-        )
+        try:
+            masks, hands, visible = segment_video(
+                frame_of, n, (w, h), prompts, looks=_looks(case, specs), found=found, skin=skin
+            )
+        except InputError as e:  # a prompt's cut found nothing: it names the prompts' source
+            raise InputError(e.message, path=e.path or where, hint=e.hint) from None
     else:  # a static scene (objects = []): nothing to track, the interactor is the hands found
         masks, visible = {}, {}
         hands = [hand_mask(f, (h, w)) if f else np.zeros((h, w), bool) for f in (found or [[]] * n)]
