@@ -446,16 +446,16 @@ def test_a_point_prompt_on_a_large_object_cuts_all_of_it():
     assert box[2] - box[0] > 110  # not the first box, which lies inside the block
 
 
-def _swept_block(n: int = 50):
-    """A red block rests on the patchwork while a mottled skin-colored bar, 100 px wide and 5 px a
-    frame, sweeps over it from the left and hides it whole for 13 frames. Returns frames and the
-    block's true visible masks."""
+def _swept_block(n: int = 50, x_of=lambda t: 64):
+    """A red block rests on the patchwork (its left side at x_of(t)) while a mottled skin-colored
+    bar, 100 px wide and 5 px a frame, sweeps over it from the left and hides it whole for 13
+    frames. Returns frames and the block's true visible masks."""
     rng = np.random.default_rng(1)
     mottle = rng.uniform(0.7, 1.0, (15, 50)).repeat(4, 0).repeat(4, 1)[..., None]  # 60 x 200 px
     frames, truth = [], []
     for t in range(n):
         image, mask = _patchwork(), np.zeros((120, 160), bool)
-        mask[44:76, 64:96] = True
+        mask[44:76, x_of(t) : x_of(t) + 32] = True
         image[mask] = RED
         x0 = 5 * t - 100
         lo, hi = max(0, x0), min(160, max(0, x0 + 100))
@@ -480,28 +480,6 @@ def test_a_resting_object_is_not_dragged_off_by_an_arm_sweeping_over_it():
     assert after and min(ious) >= 0.9, ious
 
 
-def _pushed_behind_block(n: int = 50):
-    """As ``_swept_block``, but the block, hidden whole from frame 13 on, is pushed 50 px right at
-    frame 23 (still hidden), and is seen again as the bar moves on. Returns frames and the block's
-    true visible masks."""
-    rng = np.random.default_rng(1)
-    mottle = rng.uniform(0.7, 1.0, (15, 50)).repeat(4, 0).repeat(4, 1)[..., None]  # 60 x 200 px
-    frames, truth = [], []
-    for t in range(n):
-        image, mask = _patchwork(), np.zeros((120, 160), bool)
-        x = 30 if t < 23 else 80
-        mask[44:76, x : x + 32] = True
-        image[mask] = RED
-        x0 = 5 * t - 100
-        lo, hi = max(0, x0), min(160, max(0, x0 + 100))
-        if hi > lo:
-            image[30:90, lo:hi] = (SKIN * mottle[:, lo - x0 : hi - x0]).astype(np.uint8)
-            mask[30:90, lo:hi] = False
-        frames.append(image)
-        truth.append(mask)
-    return frames, truth
-
-
 def test_an_object_moved_while_hidden_is_found_again_near_where_it_was():
     """The flow over a hidden block is the bar's; the block comes out of hiding 18 px from its
     shape's edge, beyond the 11 px a pixel may join it from: found again where its color is seen
@@ -509,7 +487,7 @@ def test_an_object_moved_while_hidden_is_found_again_near_where_it_was():
     track had nothing: IoU 0)."""
     from rose_usd.segment.flow import segment_video
 
-    frames, truth = _pushed_behind_block()
+    frames, truth = _swept_block(x_of=lambda t: 30 if t < 23 else 80)  # pushed while hidden (13-26)
     masks, _, _ = segment_video(lambda t: frames[t], len(frames), (160, 120), [("Block", 0, (26, 40, 66, 80), None)])
     after = [t for t in range(len(frames)) if 5 * t - 100 > 112]  # the bar has left the block
     ious = [(masks["Block"][t] & truth[t]).sum() / (masks["Block"][t] | truth[t]).sum() for t in after]
