@@ -347,7 +347,7 @@ def run(ctx: StageContext) -> None:
     world, rollouts, t_build, checker = _roll_out_at(
         ctx, name, target, path, outcome.base_pose, ranked, rng, device, batched
     )
-    bases_tried = 1
+    bases_tried, earlier = 1, 0
     for base in other_bases:
         if any(r.success for r in rollouts) or bases_tried >= cfg.base_tries:
             break
@@ -358,10 +358,15 @@ def run(ctx: StageContext) -> None:
         bases_tried += 1
         x, y = outcome.base_pose[:2, 3]
         say(f"collect: no rollout succeeded from the base at ({x:.3f}, {y:.3f}) m; trying the next")
-        outcome.base_pose, ranked = base, ranked_here
+        outcome.base_pose, ranked, earlier = base, ranked_here, earlier + len(rollouts)
         world, rollouts, t_build, checker = _roll_out_at(ctx, name, target, path, base, ranked, rng, device, batched)
     outcome.rollouts = rollouts
     successes = _judge_all(ctx, outcome, name, path)
+    if not successes and earlier:
+        outcome.message += (
+            f"; these are the {len(rollouts)} rollouts from the last of {bases_tried} robot bases tried,"
+            f" the {earlier} from the others failed too"
+        )
     if batched and outcome.best >= 0:
         rollouts[outcome.best].links = batch.link_poses(rollouts[outcome.best], outcome.base_pose)
     _finish(ctx, outcome)
@@ -389,6 +394,7 @@ def run(ctx: StageContext) -> None:
         video_frames=int(ctx.time_info.n_frames),
         approach_checks=checker.checks,
         bases_tried=bases_tried,
+        rollouts_at_other_bases=earlier,
         device=device,
         worlds=world.worlds,
     )
