@@ -1035,3 +1035,42 @@ def test_a_mesh_in_millimeters_makes_the_same_object_as_in_meters(tmp_path, samp
     assert fact["mesh_units"] == "millimeters" and fact["units_guessed"] and fact["rho"] == pytest.approx(1e-3)
     assert fact["size_m"] == pytest.approx(float(np.ptp(box.vertices, axis=0).max()), abs=1e-5)
     assert any("read as millimeters" in w for w in provenance["warnings"])
+
+
+def _sfm_result(f: float, reprojection_px: float, registered: int):
+    from rose_usd.capture.colmap import SfmResult
+
+    K = np.array([[f, 0, 239.5], [0, f, 179.5], [0, 0, 1.0]])
+    poses = {i: np.eye(4) for i in range(registered)}
+    return SfmResult(poses, K, 0.0, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {}, reprojection_px, 1.0, 1)
+
+
+@pytest.mark.parametrize(
+    "self_calibrated, guess_map, kept_guess",
+    [
+        ((244.0, 0.82, 33), (0.59, 33), True),  # unstack-can-s300's: 41 % off, no better: the guess
+        ((244.0, 0.40, 33), (0.59, 33), False),  # clearly better: kept
+        ((244.0, 0.82, 33), (0.59, 20), False),  # the guess registers fewer keyframes
+        ((400.0, 0.82, 33), (0.59, 33), False),  # within 20 % of the guess: not checked
+    ],
+)
+def test_a_self_calibrated_focal_far_off_the_guess_must_explain_the_map_better(
+    monkeypatch, self_calibrated, guess_map, kept_guess
+):
+    """The decision of ``capture.sfm._checked_focal`` on given maps (COLMAP's own runs are in the
+    realistic benchmark: unstack-can-s300 self-calibrated 244 px against a true 413)."""
+    from types import SimpleNamespace
+
+    from rose_usd.capture import sfm
+
+    guess = np.array([[416.0, 0, 239.5], [0, 416.0, 179.5], [0, 0, 1.0]])
+    runs = []
+    monkeypatch.setattr(sfm, "run_sfm", lambda *a, **k: runs.append(k) or _sfm_result(416.0, *guess_map))
+    warnings = []
+    ctx = SimpleNamespace(config=SimpleNamespace(sfm=SimpleNamespace(max_side=640)), warn=warnings.append)
+    record = {}
+    result, guessed = sfm._checked_focal(ctx, _sfm_result(*self_calibrated), [], guess, record)
+    assert guessed == kept_guess
+    assert result.K[0, 0] == (416.0 if kept_guess else self_calibrated[0])
+    assert len(runs) == (0 if self_calibrated[0] == 400.0 else 1) and all(k["fix_K"] for k in runs)
+    assert bool(warnings) == kept_guess
