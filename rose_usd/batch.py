@@ -369,10 +369,12 @@ def _run_local(jobs: list[tuple], workers: int, finished) -> None:
         initializer=die_with_parent,
         initargs=(os.getpid(),),
     )
+    reported = set()
     try:
         futures = {pool.submit(run_case, *job): job for job in jobs}
         for future in progress(as_completed(futures), "batch", total=len(futures), unit="case"):
             finished(future.result())
+            reported.add(future)
     except KeyboardInterrupt:
         # the cases not started are dropped; a terminal's Ctrl-C reached the running ones too
         # (their stage rolls back and they end), a script's may not have: they are asked again
@@ -382,6 +384,10 @@ def _run_local(jobs: list[tuple], workers: int, finished) -> None:
                 with contextlib.suppress(OSError):
                     os.kill(proc.pid, signal.SIGINT)
         pool.shutdown(wait=True, cancel_futures=True)
+        # a case that finished before the Ctrl-C reached this loop is in the summary too
+        for future in futures:
+            if future not in reported and future.done() and not future.cancelled() and future.exception() is None:
+                finished(future.result())
         raise
     pool.shutdown(wait=True)
 
