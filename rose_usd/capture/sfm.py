@@ -54,7 +54,7 @@ from rose_usd.capture.scale import (
     prompt_silhouette,
 )
 from rose_usd.capture.static import still_fraction
-from rose_usd.capture.world import author_world, prompted_objects
+from rose_usd.capture.world import author_world, prompted_objects, prompts_source
 from rose_usd.case.config import Prompt
 from rose_usd.core import se3
 from rose_usd.core.grabcut import SEEDS, split_shared
@@ -524,7 +524,7 @@ def _prompt_mask(ctx: StageContext, spec) -> tuple[np.ndarray | None, np.ndarray
         raise InputError(
             f"GrabCut found {int(mask.sum())} px of {spec.name!r} inside its prompt on frame {spec.prompt.frame}:"
             " nothing to measure it by",
-            path="capture.prompts (--prompt)" if ctx.config.prompts else case.settings_file,
+            path=prompts_source(ctx),
             hint="draw the box tightly around the object on a frame where it is visible",
         )
     hidden = np.any(list(split.values()), axis=0) if split else None

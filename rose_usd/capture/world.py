@@ -161,6 +161,12 @@ def prompted_objects(ctx: StageContext) -> list:
     return [s for s in specs.values() if s.prompt is not None and 0 <= s.prompt.frame < ctx.case.n_frames]
 
 
+def prompts_source(ctx: StageContext):
+    """What an error about a prompt names: the command line's (``capture.prompts``) when there are
+    any, else the case's rose.toml."""
+    return "capture.prompts (--prompt)" if ctx.config.prompts else ctx.case.settings_file
+
+
 def locate(
     ctx: StageContext, poses: np.ndarray, points: np.ndarray, depth_of, K: np.ndarray, *, plane_floor_deg: float = 0.1
 ):
@@ -175,7 +181,7 @@ def locate(
         except NothingStands as e:
             raise InputError(
                 f"nothing stands on the surface inside the prompt box of {spec.name!r} on frame {prompt.frame} ({e})",
-                path="capture.prompts (--prompt)" if ctx.config.prompts else case.settings_file,
+                path=prompts_source(ctx),
                 hint="draw the box around the object on a frame where it is visible",
             ) from None
     if anchor is not None:

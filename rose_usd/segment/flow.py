@@ -55,8 +55,8 @@ from rose_usd.geometry.hands import Hand, hand_mask
 from rose_usd.io.meshfile import read_mesh_file, surface_colors
 from rose_usd.progress import progress
 from rose_usd.segment.colors import color_index, histogram, surface_histogram
+from rose_usd.segment.hands import SKIN_RATIO, skin_histogram
 from rose_usd.segment.hands import found_hands as find_hands
-from rose_usd.segment.hands import skin_histogram
 from rose_usd.segment.moving import MotionForeground, camera_shift
 from rose_usd.segment.prompts import check_prompts, parse_prompts, prompts_source
 from rose_usd.segment.refind import find_hidden
@@ -101,10 +101,6 @@ POINT_BOXES = (0.1, 0.2, 0.4)
 
 FLOW_AHEAD = 3
 """Flows made ahead of the propagation on a second thread (``FlowTracker.plan``)."""
-
-SKIN_RATIO = 1.0
-"""Inside a found hand's landmark mask, a pixel stays a track's only where its color model is this
-many times likelier than the hands' skin."""
 
 _REACH = 0.35
 """A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""

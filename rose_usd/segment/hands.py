@@ -13,6 +13,12 @@ from rose_usd.segment.colors import color_index, histogram
 from rose_usd.segment.segmenter import MIN_REGION_PX
 from rose_usd.stage_api import StageContext
 
+SKIN_RATIO = 1.0
+"""A pixel is an object's rather than a hand's only where the object's color model is this many
+times likelier than the hands' skin (``skin_histogram``): inside a found hand's landmark mask
+(``segment.flow``), and where a hidden track is looked for again (``segment.refind``: without it,
+a pen's gray and a cup's red took the hand holding them, openreal2sim-marker-rgb and sam2-cups)."""
+
 
 def found_hands(ctx: StageContext, rgb_of) -> list[list[Hand]] | None:
     """The hands in every frame ``rgb_of(t)`` shows (a forward pass: the detector tracks them from

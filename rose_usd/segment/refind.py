@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from rose_usd.segment.colors import histogram
+from rose_usd.segment.hands import SKIN_RATIO
 
 REACH = 2.0
 """A mostly hidden track is looked for within this many times its size (sqrt of its area) of its
@@ -33,11 +34,6 @@ ALIKE = 0.5
 """A track is not looked for by its color while another track's color model overlaps its own by
 this much (histogram intersection): sam2-cups' red cup and its two look-alikes 0.83-0.94 (a hidden
 cup went to another cup), realistic unstack-can-s300's base and can 0.14."""
-
-SKIN_RATIO = 1.0
-"""A pixel is claimed only where the track's color model is this many times likelier than the
-hands' skin: without it, a pen's gray and a cup's red took the hand holding them (real
-openreal2sim-marker-rgb, sam2-cups)."""
 
 
 def find_hidden(
