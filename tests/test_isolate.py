@@ -74,6 +74,16 @@ def _alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
+def _catches_sigint(pid: int) -> bool:
+    """Whether process ``pid`` has a handler for SIGINT (``SigCgt`` in its /proc status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    caught = next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:"))
+    return bool(int(caught, 16) >> (signal.SIGINT - 1) & 1)
+
+
 def _stage_children(proc: subprocess.Popen, wait_s: float = 120.0) -> list[int]:
     """The spawned stage process(es) of ``proc``, once there is one."""
     deadline = time.monotonic() + wait_s
@@ -162,8 +172,10 @@ def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sampl
             time.sleep(0.1)
         assert trackers, "the capture's tracker never ran"
         children += trackers
-    else:
-        time.sleep(3.0)  # into the stage's work
+    else:  # into the stage's work: its child catches SIGINT (it starts ignoring it, as the parent does meanwhile)
+        while time.monotonic() < deadline + 60 and not all(_catches_sigint(c) for c in children):
+            time.sleep(0.1)
+        time.sleep(1.0)
     if target.startswith("group"):
         os.killpg(proc.pid, signal.SIGINT)
     else:
