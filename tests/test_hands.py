@@ -110,3 +110,36 @@ def test_a_hand_lost_for_a_few_frames_is_bridged():
     assert [len(h) for h in bridge_gaps(far)] == [1, 0, 0, 1]
     long_gap = [[moving[0]]] + [[] for _ in range(16)] + [[moving[1]]]
     assert sum(len(h) for h in bridge_gaps(long_gap)) == 2
+
+
+def test_the_bare_arm_is_the_skin_joined_to_the_hand_across_a_watch():
+    from rose_usd.segment.colors import color_index, histogram
+    from rose_usd.segment.hands import skin_arm
+
+    hand = _open_hand()
+    skin_rgb, table = (222, 172, 140), (90, 104, 122)
+    img = np.full((300, 300, 3), table, np.uint8)
+    img[hand_mask([hand], img.shape[:2])] = skin_rgb
+    img[200:, 80:121] = skin_rgb  # the forearm, from the wrist down to the image's edge
+    img[204:214, 80:121] = (40, 30, 20)  # a watch across it
+    yy, xx = np.mgrid[0:300, 0:300]
+    img[(yy - 40) ** 2 + (xx - 250) ** 2 < 15**2] = skin_rgb  # a skin-colored thing far from the hand
+    skin = histogram(color_index(img[hand_mask([hand], img.shape[:2])]))
+    arm = skin_arm(img, [hand], skin)
+    assert arm[230:290, 90:111].all()  # beyond the watch
+    assert not arm[hand_mask([hand], img.shape[:2])].any()  # the hand itself is the hand's
+    assert not arm[25:55, 235:265].any()  # out of the hand's reach
+    assert not arm[:, 200:230].any() and not arm[250:, :60].any()  # the table
+
+
+def test_a_still_background_is_what_the_hands_and_arms_leave_uncovered():
+    from rose_usd.segment.moving import _uncovered_median
+
+    stack = np.full((8, 20, 20, 3), 50, np.uint8)
+    stack[3:, :, :10] = 200  # an arm resting on the left half in 5 of 8 frames
+    covers = [None] * 3 + [np.pad(np.ones((20, 10), bool), ((0, 0), (0, 10)))] * 5
+    median, known = _uncovered_median(stack, covers)
+    assert np.allclose(median, 50) and known.all()
+    assert np.allclose(_uncovered_median(stack, [None] * 8)[0][:, :5], 200)  # without the hands: the arm
+    median, known = _uncovered_median(stack, [None] * 2 + [covers[-1]] * 6)  # left half seen uncovered twice
+    assert np.allclose(median[:, :5], 200) and not known[:, :5].any() and known[:, 15:].all()

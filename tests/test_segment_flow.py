@@ -419,7 +419,10 @@ def test_found_hands_are_no_objects_pixels(monkeypatch):
 
     alone, _ = run(None, None)
     assert alone[12:].min() < 0.8
-    monkeypatch.setattr(flow, "hand_mask", lambda found, shape: found[0])
+    from rose_usd.segment import hands as segment_hands
+
+    for module in (flow, segment_hands):
+        monkeypatch.setattr(module, "hand_mask", lambda found, shape, **_: found[0])
     found = [[m] if m.any() else [] for m in hands]
     skin = histogram(color_index(frames[20])[hands[20]])
     kept, inter = run(found, skin)

@@ -32,12 +32,14 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
 3. **Hands** (``segment.flow.hands``): MediaPipe's hand landmarks (``segment.hands``), found in
    every frame before propagating, are no track's pixels but where a track's color model claims
    them over the hands' skin (fingers guessed behind the object); the arm (the motion foreground
-   joined to a hand) is no track's beyond its reach.
+   joined to a hand and, with a still camera, the bare arm the skin's colors find off the static
+   background, ``segment.hands.skin_arm``) is no track's beyond its reach.
 4. **Interactor** (a 2D motion cue, no depth). What differs from the static background:
-   the per-pixel temporal median of the video when the camera stands still (chroma weighted over
-   lightness, so shadows count less), else the pixels whose flow departs from the camera's (a
+   the per-pixel temporal median of the video when the camera stands still (of the frames where
+   no found hand or bare arm covers the pixel; chroma weighted over lightness, so shadows count
+   less), else the pixels whose flow departs from the camera's (a
    RANSAC homography of the flow); minus the tracks and what the objects' color models claim
-   within a track's reach; plus the found hands' pixels that no track took.
+   within a track's reach; plus the found hands' and bare arms' pixels that no track took.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ from rose_usd.geometry.hands import Hand, hand_mask
 from rose_usd.io.meshfile import read_mesh_file, surface_colors
 from rose_usd.progress import progress
 from rose_usd.segment.colors import color_index, histogram, surface_histogram
-from rose_usd.segment.hands import SKIN_RATIO, skin_histogram
+from rose_usd.segment.hands import SKIN_RATIO, BareArms, skin_histogram
 from rose_usd.segment.hands import found_hands as find_hands
 from rose_usd.segment.moving import MotionForeground, camera_shift
 from rose_usd.segment.prompts import check_prompts, parse_prompts, prompts_source
@@ -523,7 +525,8 @@ def segment_video(
     names = [tr.name for _, tr, _ in starts]
     masks = {k: [None] * n for k in names}
     visible = {k: np.zeros(n) for k in names}
-    motion = MotionForeground(tracker, n) if interactor else None
+    arms = BareArms(frame_of, found, skin, (tracker.h, tracker.w))
+    motion = MotionForeground(tracker, n, cover=arms.cover) if interactor else None
     hands: list[np.ndarray | None] = [None] * n
 
     def fresh():
@@ -546,7 +549,12 @@ def segment_video(
                 flow = tracker.flow(prev, t)
             camera = motion.camera(flow) if motion is not None else None
             moving = motion(t, flow, camera) if motion is not None else None
-            hand = _hand_pixels(found[t], moving, skin, (tracker.h, tracker.w)) if found and found[t] else None
+            hand = bare = None
+            if found and found[t]:
+                if motion is not None and motion.static_camera:  # the bare arm where it is not the background
+                    bare = arms(t)
+                    bare = bare & ~motion.shows_background(t) if bare is not None else None
+                hand = _hand_pixels(found[t], moving, bare, skin, (tracker.h, tracker.w))
             if prev is None:  # the prompt frame itself
                 fracs = [1.0] * len(tracks)
             else:
@@ -568,8 +576,8 @@ def segment_video(
                 hands[t] = moving & ~cv2.dilate(
                     (everything | (claimed & _within_reach(tracks))).astype(np.uint8), np.ones((5, 5), np.uint8)
                 ).astype(bool)
-            if hand is not None:  # the found hands' pixels that no track took
-                untaken = hand.hand & ~everything
+            if hand is not None:  # the found hands' and bare arms' pixels that no track took
+                untaken = (hand.hand if bare is None else hand.hand | bare) & ~everything
                 hands[t] = untaken if hands[t] is None else hands[t] | untaken
     finally:
         tracker.close()
@@ -613,12 +621,12 @@ def _reaches_sides(mask: np.ndarray, box: tuple[int, int, int, int], size: tuple
     )
 
 
-def _hand_pixels(found: list[Hand], moving: np.ndarray | None, skin, shape) -> HandPixels:
+def _hand_pixels(found: list[Hand], moving: np.ndarray | None, bare: np.ndarray | None, skin, shape) -> HandPixels:
     """Frame t's found hands as pixels: their landmark masks, and the arm (the motion foreground
-    ``moving`` that touches them, none without it)."""
+    ``moving`` that touches them, and the ``bare`` arm their skin's colors find)."""
     hand = hand_mask(found, shape)
     arm = touching(moving | hand, hand, grow_px=2) & ~hand if moving is not None else np.zeros_like(hand)
-    return HandPixels(hand, arm, skin)
+    return HandPixels(hand, arm | bare if bare is not None else arm, skin)
 
 
 def _within_reach(tracks: list[Track2D]) -> np.ndarray:

@@ -9,7 +9,8 @@ import numpy as np
 from rose_usd.errors import EnvironmentProblem
 from rose_usd.geometry.hands import Hand, HandDetector, bridge_gaps, hand_mask
 from rose_usd.progress import progress
-from rose_usd.segment.colors import color_index, histogram
+from rose_usd.segment.colors import SHADES, color_index, histogram
+from rose_usd.segment.regions import touching
 from rose_usd.segment.segmenter import MIN_REGION_PX
 from rose_usd.stage_api import StageContext
 
@@ -18,6 +19,40 @@ SKIN_RATIO = 1.0
 times likelier than the hands' skin (``skin_histogram``): inside a found hand's landmark mask
 (``segment.flow``), and where a hidden track is looked for again (``segment.refind``: without it,
 a pen's gray and a cup's red took the hand holding them, openreal2sim-marker-rgb and sam2-cups)."""
+
+
+ARM_SKIN = 2.0
+"""The forearm (``skin_arm``) is the pixels the hands' skin model claims this many times over the
+rest of the frame's colors, joined to a found hand."""
+
+
+def skin_arm(rgb: np.ndarray, hands: list[Hand], skin: np.ndarray) -> np.ndarray:
+    """The bare arm of the found ``hands`` in ``rgb`` (bool, the hands' landmark masks left out):
+    the regions ``skin`` claims (``ARM_SKIN``; specks and wood-grain stripes opened away, the
+    highlights between them closed) that come within 0.3 hand sizes of a hand, so that a watch or a
+    sleeve's edge at the wrist does not cut the forearm off. A sleeve is not skin: it is not found."""
+    hand = hand_mask(hands, rgb.shape[:2])
+    if not hand.any():
+        return np.zeros_like(hand)
+    idx = color_index(rgb)
+    rest = histogram(idx[~hand])
+    size = max(_extent(hand_mask([h], hand.shape)) for h in hands)
+
+    def disk(d: float) -> np.ndarray:
+        r = max(1, int(round(d / 2)))
+        return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+    claimed = (skin[idx] > ARM_SKIN * rest[idx]).astype(np.uint8)
+    claimed = cv2.morphologyEx(claimed, cv2.MORPH_OPEN, disk(0.03 * size))
+    claimed = cv2.morphologyEx(claimed, cv2.MORPH_CLOSE, disk(0.1 * size)).astype(bool)
+    near = cv2.dilate(hand.astype(np.uint8), disk(0.6 * size)).astype(bool)
+    return touching(claimed | hand, near, grow_px=1) & ~hand
+
+
+def _extent(mask: np.ndarray) -> float:
+    """The diagonal of ``mask``'s bounding box [px], 0 when it is empty."""
+    ys, xs = np.nonzero(mask)
+    return float(np.hypot(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
 
 
 def found_hands(ctx: StageContext, rgb_of) -> list[list[Hand]] | None:
@@ -50,3 +85,30 @@ def skin_histogram(rgb_of, found: list[list[Hand]], *, frames: int = 40) -> np.n
         parts.append(color_index(rgb)[cv2.erode(thin, kernel) > 0])
     idx = np.concatenate(parts)
     return histogram(idx) if len(idx) >= MIN_REGION_PX else None
+
+
+class BareArms:
+    """The bare arm of each frame's found hands (``segment.hands.skin_arm``)."""
+
+    def __init__(self, frame_of, found: list[list[Hand]] | None, skin: np.ndarray | None, shape: tuple[int, int]):
+        """``skin``: the found hands' skin (``skin_histogram``); the arm's is that seen at each of
+        ``SHADES`` (its underside, turned from the light, is darker than the hand's back)."""
+        self.frame_of, self.found, self.shape = frame_of, found, shape
+        self.skin = None
+        if skin is not None and found:
+            shaded = [skin_histogram(lambda t, f=f: (frame_of(t) * f).astype(np.uint8), found) for f in SHADES[1:]]
+            self.skin = np.mean([skin] + [h for h in shaded if h is not None], axis=0)
+
+    def __call__(self, t: int) -> np.ndarray | None:
+        """Frame t's bare arms, None without a found hand or a skin model."""
+        if self.skin is None or not self.found or not self.found[t]:
+            return None
+        return skin_arm(self.frame_of(t), self.found[t], self.skin)
+
+    def cover(self, t: int) -> np.ndarray | None:
+        """What frame t's found hands and their bare arms cover, None without a found hand."""
+        if not self.found or not self.found[t]:
+            return None
+        hand = hand_mask(self.found[t], self.shape)
+        bare = self(t)
+        return hand if bare is None else hand | bare

@@ -1,5 +1,6 @@
 """What moves in an RGB video, for the flow segment backend's interactor and its tracks: against
-a still camera's static background (the per-pixel temporal median, chroma weighted over lightness),
+a still camera's static background (the per-pixel temporal median of the frames no found hand or
+its bare arm covers there, chroma weighted over lightness),
 else the pixels whose flow departs from the camera's (a RANSAC homography of the flow)."""
 
 from __future__ import annotations
@@ -17,12 +18,20 @@ if TYPE_CHECKING:
 FOREGROUND_LAB = 20.0
 """A still camera's pixel is foreground this far from the temporal median (weighted Lab)."""
 
+UNCOVERED = 0.25
+"""A still camera's background at a pixel is the median of the sampled frames where no found hand
+or its bare arm covers it (``segment.hands.skin_arm``), where at least this share of them leave it
+uncovered; elsewhere of all of them. Of all of them, the forearm resting on the left of
+r2r2r-mug-rgb in 36 of its 65 frames was the background: the interactor had only the hand, and
+the scene's texture a ghost of the arm."""
+
 
 class MotionForeground:
     """What is not the static background: a temporal median when the camera stands still, else
     flow that departs from the camera's homography."""
 
-    def __init__(self, tracker: FlowTracker, n: int, *, samples: int = 40):
+    def __init__(self, tracker: FlowTracker, n: int, *, cover=None, samples: int = 40):
+        """``cover``: t -> the pixels of frame t a found hand or its arm covers, or None (no hand)."""
         self.tracker = tracker
         picks = np.linspace(0, n - 1, min(n, samples)).round().astype(int)
         shifts = []
@@ -31,10 +40,13 @@ class MotionForeground:
             shifts.append(float(np.median(np.linalg.norm(f, axis=2))))
         self.static_camera = bool(np.median(shifts) < 1.0) if shifts else True
         self.median = None
+        self.known = None
+        """Pixels whose background was seen uncovered in ``UNCOVERED`` of the samples (still camera)."""
         self._labs: dict[int, np.ndarray] = {}
         if self.static_camera:
             stack = np.stack([cv2.cvtColor(tracker.frame_of(int(t)), cv2.COLOR_RGB2LAB) for t in picks])
-            self.median = np.median(stack, axis=0).astype(np.float32)
+            covers = [cover(int(t)) if cover is not None else None for t in picks]
+            self.median, self.known = _uncovered_median(stack, covers)
 
     def _lab(self, t: int) -> np.ndarray:
         """Frame t in Lab (float32); the last two asked are kept (a frame is asked as the current
@@ -66,6 +78,13 @@ class MotionForeground:
             self._apart(lab, self._lab(prev)) < 0.5 * FOREGROUND_LAB
         )
 
+    def shows_background(self, t: int) -> np.ndarray | None:
+        """Pixels of frame t within half the foreground's threshold of a background that was seen
+        uncovered (``known``); None when the camera moves."""
+        if not self.static_camera:
+            return None
+        return self.known & (self._apart(self._lab(t), self.median) < 0.5 * FOREGROUND_LAB)
+
     def camera(self, flow: np.ndarray | None) -> np.ndarray | None:
         """The camera's homography along ``flow``: the identity for a still camera, None without a flow."""
         if self.static_camera:
@@ -91,6 +110,27 @@ class MotionForeground:
         keep = np.zeros(n, bool)
         keep[1:] = areas[1:] >= 0.002 * fg.size
         return keep[labels]
+
+
+def _uncovered_median(stack: np.ndarray, covers: list[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
+    """The per-pixel median (float32) of ``stack`` (samples, h, w, 3) over the samples whose
+    ``covers`` (each sample's hands and arms, or None) leave the pixel uncovered, where
+    ``UNCOVERED`` of them do, else over all; and where they do (bool (h, w))."""
+    median = np.median(stack, axis=0).astype(np.float32)
+    shape = stack.shape[1:3]
+    if all(c is None or not c.any() for c in covers):
+        return median, np.ones(shape, bool)
+    grow = np.ones((9, 9), np.uint8)
+    free = ~np.stack(
+        [np.zeros(shape, bool) if c is None else cv2.dilate(c.astype(np.uint8), grow).astype(bool) for c in covers]
+    )
+    known = free.sum(axis=0) >= max(3, UNCOVERED * len(covers))
+    ys, xs = np.nonzero(known & ~free.all(axis=0))
+    if len(ys):
+        values = stack[:, ys, xs].astype(np.float32)
+        values[~free[:, ys, xs]] = np.nan
+        median[ys, xs] = np.nanmedian(values, axis=0)
+    return median, known
 
 
 def camera_homography(flow: np.ndarray) -> np.ndarray:
