@@ -428,7 +428,7 @@ def _interrupt(child, *, settle_s: float = 2.0, rollback_s: float = 10.0) -> Non
 def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, parent: int) -> None:
     import signal
 
-    from rose_usd.core.lifetime import die_with_parent
+    from rose_usd.core.lifetime import die_with_parent, note_interrupt
 
     die_with_parent(parent)
     interrupted = []
@@ -436,6 +436,7 @@ def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, p
     def on_sigint(signum, frame):
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # one interrupt: the rollback runs to its end
         interrupted.append(signum)
+        note_interrupt()  # no layer commits from now on, should the KeyboardInterrupt be lost
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, on_sigint)  # it started ignoring SIGINT (_sigint_ignored)
@@ -451,6 +452,8 @@ def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, p
 
             traceback.print_exc()
         result = (False, exc)
+    if interrupted:  # after the layer's commit: it is kept, and the run stops here
+        os._exit(130)
     try:
         payload = pickle.dumps(result)
         pickle.loads(payload)  # what the parent will rebuild

@@ -33,6 +33,24 @@ def test_writer_failure_changes_nothing(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "staging or temp files left behind"
 
 
+def test_no_layer_commits_after_an_interrupt_was_lost(tmp_path, monkeypatch):
+    """Ctrl-C whose KeyboardInterrupt a callback from C swallowed: the stage then runs to its
+    end, but its layer does not commit (the interrupt was noted) and the old one stays."""
+    from rose_usd.core import lifetime
+
+    ti = TimeInfo(fps=30.0, n_frames=3)
+    with LayerWriter(tmp_path, "world", ti, {"stage": "capture"}) as w:
+        UsdGeom.Xform.Define(w.stage, paths.WORLD)
+    before = _tree(tmp_path)
+    monkeypatch.setattr(lifetime, "_interrupted", False)
+    lifetime.note_interrupt()
+    with pytest.raises(KeyboardInterrupt):
+        with LayerWriter(tmp_path, "world", ti, {"stage": "capture"}) as w:
+            UsdGeom.Scope.Define(w.stage, paths.WORLD.AppendChild("Other"))
+    assert _tree(tmp_path) == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "staging or temp files left behind"
+
+
 def test_a_side_folder_the_new_layer_does_not_write_goes_with_the_old(tmp_path):
     """A stage re-run that writes no side folder it wrote before (an object stage that had a mesh
     file's texture, now without it) leaves none of the old folder behind; folders the layer never

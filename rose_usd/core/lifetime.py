@@ -20,3 +20,20 @@ def die_with_parent(parent: int) -> None:
             pass
     if os.getppid() != parent:
         os._exit(1)
+
+
+_interrupted = False
+
+
+def note_interrupt() -> None:
+    """Record that Ctrl-C reached this process (a SIGINT handler calls it before it raises
+    KeyboardInterrupt): a layer does not commit afterwards (``usd.stage.LayerWriter``), even where
+    the KeyboardInterrupt was lost on its way out (raised inside a callback from C code, which
+    prints it and goes on)."""
+    global _interrupted
+    _interrupted = True
+
+
+def interrupt_noted() -> bool:
+    """Whether ``note_interrupt`` was called in this process."""
+    return _interrupted

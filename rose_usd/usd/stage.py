@@ -25,6 +25,7 @@ from typing import Any
 
 from pxr import Sdf, Tf, Usd, UsdGeom, UsdPhysics
 
+from rose_usd.core.lifetime import interrupt_noted
 from rose_usd.errors import ConfigError, InputError, StageError
 from rose_usd.usd import paths
 
@@ -627,6 +628,8 @@ class LayerWriter:
         return [name for name, _ in stale_layers(self.out_dir, provs, hashes, case)]
 
     def _commit(self) -> None:
+        if interrupt_noted():  # Ctrl-C came, and what it raised was lost on the way: no commit
+            raise KeyboardInterrupt
         violations = paths.ownership_violations(self.layer, self.layer_name)
         if violations:
             raise StageError(
