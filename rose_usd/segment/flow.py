@@ -567,21 +567,28 @@ def segment_video(
                 if tr.is_object:
                     masks[tr.name][t] = tr.last_visible.copy()
                     visible[tr.name][t] = frac
-            if motion is not None:
-                # not the hand: the tracks, and what their color models claim within their reach (a
-                # look-alike the tracks lost is still not the hand; a dark sleeve far from a mug with
-                # dark speckles is)
-                idx = color_index(tracker.frame_of(t))
-                claimed = np.any([tr.fg[idx] > 2.0 * bg[idx] for tr in tracks if tr.is_object], axis=0)
-                hands[t] = moving & ~cv2.dilate(
-                    (everything | (claimed & _within_reach(tracks))).astype(np.uint8), np.ones((5, 5), np.uint8)
-                ).astype(bool)
-            if hand is not None:  # the found hands' and bare arms' pixels that no track took
-                untaken = (hand.hand if bare is None else hand.hand | bare) & ~everything
-                hands[t] = untaken if hands[t] is None else hands[t] | untaken
+            hands[t] = _interactor(tracker.frame_of(t), tracks, bg, everything, moving, hand, bare)
     finally:
         tracker.close()
     return masks, hands, visible
+
+
+def _interactor(rgb, tracks, bg, everything, moving, hand: HandPixels | None, bare) -> np.ndarray | None:
+    """A frame's interactor: what moves (``moving``, None without the motion cue) but the tracks'
+    pixels (``everything``) and what their color models claim within their reach (a look-alike
+    the tracks lost is still not the hand; a dark sleeve far from a mug with dark speckles is);
+    with the found hands' and their bare arms' pixels (``hand``, ``bare``) that no track took."""
+    out = None
+    if moving is not None:
+        idx = color_index(rgb)
+        claimed = np.any([tr.fg[idx] > 2.0 * bg[idx] for tr in tracks if tr.is_object], axis=0)
+        out = moving & ~cv2.dilate(
+            (everything | (claimed & _within_reach(tracks))).astype(np.uint8), np.ones((5, 5), np.uint8)
+        ).astype(bool)
+    if hand is not None:
+        untaken = (hand.hand if bare is None else hand.hand | bare) & ~everything
+        out = untaken if out is None else out | untaken
+    return out
 
 
 def _starts(tracker: FlowTracker, frame_of, prompts, looks) -> list[tuple[int, Track2D, np.ndarray]]:
