@@ -33,7 +33,7 @@ a working resolution whose long side is at most ``segment.flow.max_side_px``.
    every frame before propagating, are no track's pixels but where a track's color model claims
    them over the hands' skin (fingers guessed behind the object); the arm (the motion foreground
    joined to a hand and, with a still camera, the bare arm the skin's colors find off the static
-   background, ``segment.hands.skin_arm``) is no track's beyond its reach.
+   background and the tracks' colors, ``segment.hands.skin_arm``) is no track's beyond its reach.
 4. **Interactor** (a 2D motion cue, no depth). What differs from the static background:
    the per-pixel temporal median of the video when the camera stands still (of the frames where
    no found hand or bare arm covers the pixel; chroma weighted over lightness, so shadows count
@@ -551,9 +551,7 @@ def segment_video(
             moving = motion(t, flow, camera) if motion is not None else None
             hand = bare = None
             if found and found[t]:
-                if motion is not None and motion.static_camera:  # the bare arm where it is not the background
-                    bare = arms(t)
-                    bare = bare & ~motion.shows_background(t) if bare is not None else None
+                bare = _bare_arm(arms, motion, t, tracks, skin)
                 hand = _hand_pixels(found[t], moving, bare, skin, (tracker.h, tracker.w))
             if prev is None:  # the prompt frame itself
                 fracs = [1.0] * len(tracks)
@@ -571,6 +569,20 @@ def segment_video(
     finally:
         tracker.close()
     return masks, hands, visible
+
+
+def _bare_arm(arms: BareArms, motion: MotionForeground | None, t: int, tracks, skin) -> np.ndarray | None:
+    """Frame t's bare arm (``segment.hands.skin_arm``) with a still camera, off its known background
+    and off what a track's color model claims over the skin's within its reach (a cube's peach face
+    joined to the hand turning it); None where the camera moves or no hand is found."""
+    if motion is None or not motion.static_camera:
+        return None
+    bare = arms(t)
+    if bare is None:
+        return None
+    idx = color_index(arms.frame_of(t))
+    claimed = np.any([tr.fg[idx] > SKIN_RATIO * skin[idx] for tr in tracks if tr.is_object], axis=0)
+    return bare & ~motion.shows_background(t) & ~(claimed & _within_reach(tracks))
 
 
 def _interactor(rgb, tracks, bg, everything, moving, hand: HandPixels | None, bare) -> np.ndarray | None:
