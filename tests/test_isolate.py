@@ -173,8 +173,11 @@ def test_ctrl_c_says_interrupted_and_keeps_the_layer(tmp_path, oracle_out, sampl
         assert trackers, "the capture's tracker never ran"
         children += trackers
     else:  # into the stage's work: its child catches SIGINT (it starts ignoring it, as the parent does meanwhile)
-        while time.monotonic() < deadline + 60 and not all(_catches_sigint(c) for c in children):
+        while time.monotonic() < deadline + 60 and all(_alive(c) for c in children):
+            if all(_catches_sigint(c) for c in children):
+                break
             time.sleep(0.1)
+        assert all(_catches_sigint(c) for c in children), "the stage's child never caught SIGINT"
         time.sleep(1.0)
     if target.startswith("group"):
         os.killpg(proc.pid, signal.SIGINT)

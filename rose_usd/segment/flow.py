@@ -144,7 +144,7 @@ def _work_size(width: int, height: int, max_side: int) -> tuple[int, int, float]
 @dataclass(frozen=True)
 class HandPixels:
     """The found hands of one frame (working resolution): their landmark masks (``hand``) and
-    the arm (what the motion foreground joins to them, ``arm``)."""
+    the arm (what the motion foreground joins to them, and the bare arm ``_bare_arm`` finds: ``arm``)."""
 
     hand: np.ndarray
     arm: np.ndarray

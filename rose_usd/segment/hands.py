@@ -23,7 +23,7 @@ a pen's gray and a cup's red took the hand holding them, openreal2sim-marker-rgb
 
 ARM_SKIN = 2.0
 """The forearm (``skin_arm``) is the pixels the hands' skin model claims this many times over the
-rest of the frame's colors, joined to a found hand."""
+rest of the frame's colors, in regions that come within 0.3 hand sizes of a found hand."""
 
 
 def skin_arm(rgb: np.ndarray, hands: list[Hand], skin: np.ndarray) -> np.ndarray:
