@@ -3,6 +3,8 @@ hands, and the colors of their skin."""
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -93,15 +95,21 @@ class BareArms:
     def __init__(self, frame_of, found: list[list[Hand]] | None, skin: np.ndarray | None, shape: tuple[int, int]):
         """``skin``: the found hands' skin (``skin_histogram``); the arm's is that seen at each of
         ``SHADES`` (its underside, turned from the light, is darker than the hand's back)."""
-        self.frame_of, self.found, self.shape = frame_of, found, shape
-        self.skin = None
-        if skin is not None and found:
-            shaded = [skin_histogram(lambda t, f=f: (frame_of(t) * f).astype(np.uint8), found) for f in SHADES[1:]]
-            self.skin = np.mean([skin] + [h for h in shaded if h is not None], axis=0)
+        self.frame_of, self.found, self.shape, self._skin = frame_of, found, shape, skin
+
+    @functools.cached_property
+    def skin(self) -> np.ndarray | None:
+        """The arm's skin model, made when first asked (a moving camera never asks)."""
+        if self._skin is None or not self.found:
+            return None
+        shaded = [
+            skin_histogram(lambda t, f=f: (self.frame_of(t) * f).astype(np.uint8), self.found) for f in SHADES[1:]
+        ]
+        return np.mean([self._skin] + [h for h in shaded if h is not None], axis=0)
 
     def __call__(self, t: int) -> np.ndarray | None:
         """Frame t's bare arms, None without a found hand or a skin model."""
-        if self.skin is None or not self.found or not self.found[t]:
+        if not self.found or not self.found[t] or self.skin is None:
             return None
         return skin_arm(self.frame_of(t), self.found[t], self.skin)
 

@@ -43,6 +43,7 @@ class MotionForeground:
         self.known = None
         """Pixels whose background was seen uncovered in ``UNCOVERED`` of the samples (still camera)."""
         self._labs: dict[int, np.ndarray] = {}
+        self._near: tuple[int, np.ndarray] | None = None
         if self.static_camera:
             stack = np.stack([cv2.cvtColor(tracker.frame_of(int(t)), cv2.COLOR_RGB2LAB) for t in picks])
             covers = [cover(int(t)) if cover is not None else None for t in picks]
@@ -73,17 +74,21 @@ class MotionForeground:
         changes); None when the camera moves."""
         if not self.static_camera:
             return None
-        lab = self._lab(t)
-        return (self._apart(lab, self.median) < 0.5 * FOREGROUND_LAB) & (
-            self._apart(lab, self._lab(prev)) < 0.5 * FOREGROUND_LAB
-        )
+        return self._near_median(t) & (self._apart(self._lab(t), self._lab(prev)) < 0.5 * FOREGROUND_LAB)
+
+    def _near_median(self, t: int) -> np.ndarray:
+        """Pixels of frame t within half the foreground's threshold of the temporal median (the
+        last frame's kept: ``background`` and ``shows_background`` ask for the same frame)."""
+        if self._near is None or self._near[0] != t:
+            self._near = (t, self._apart(self._lab(t), self.median) < 0.5 * FOREGROUND_LAB)
+        return self._near[1]
 
     def shows_background(self, t: int) -> np.ndarray | None:
         """Pixels of frame t within half the foreground's threshold of a background that was seen
         uncovered (``known``); None when the camera moves."""
         if not self.static_camera:
             return None
-        return self.known & (self._apart(self._lab(t), self.median) < 0.5 * FOREGROUND_LAB)
+        return self.known & self._near_median(t)
 
     def camera(self, flow: np.ndarray | None) -> np.ndarray | None:
         """The camera's homography along ``flow``: the identity for a still camera, None without a flow."""
