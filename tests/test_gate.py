@@ -40,6 +40,33 @@ def test_object_rests_in_newton(oracle_out):
     assert gate.GetAttribute("rose:gate:passed").Get()
 
 
+def test_the_rest_check_stops_once_settled_and_not_while_an_object_tips(oracle_out):
+    """The resting box settles within 0.35 s of the 1 s asked for and stops there; tipped onto its
+    edge 0.5 deg short of balance it falls back onto its face (12 cm measured) before any stop."""
+    import cv2
+
+    from rose_usd.core import se3
+    from rose_usd.layers.objects import object_paths
+    from rose_usd.layers.trajectory import object_poses
+    from rose_usd.sim.rest import simulate_rest
+
+    stage = open_stage(oracle_out / "rose.usda")
+    objects = object_paths(stage)
+    [rest] = simulate_rest(stage, objects, iterations=30)
+    assert rest.simulated_s < 0.4 and rest.max_displacement_m < 0.001, rest
+    from rose_usd.usd.geom import read_mesh
+
+    v = read_mesh(stage.GetPrimAtPath(paths.object_visual("Box")), world=False).vertices  # base at z = 0
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    angle = np.arctan2(hi[0] - centre[0], centre[2] - lo[2]) - np.radians(0.5)
+    turn = cv2.Rodrigues(np.array([0.0, angle, 0.0]))[0]
+    edge = np.array([hi[0], 0.0, lo[2]])
+    tipped = object_poses(stage, "Box", 1)[0] @ se3.make_pose(turn, edge - turn @ edge)
+    [fell] = simulate_rest(stage, objects, iterations=30, poses={"Box": tipped})
+    assert fell.max_displacement_m > 0.05 and fell.max_rotation_deg > 30.0, fell
+
+
 def test_stage_validates_and_loads_in_newton(oracle_out):
     """The composed stage has no composition errors, zero UsdValidation errors, and Newton builds
     one body for the object."""
