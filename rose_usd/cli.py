@@ -299,6 +299,8 @@ def cmd_bench_run(args) -> int:
         tag += "-intrinsics"
     if args.until:
         tag += f"-until-{args.until}"
+    if args.case:
+        tag += "-" + "+".join(args.case)
     out = Path(args.output) if args.output else _bench_dir(f"{args.suite}-{mode.value}-{tag}")
     command = (
         "rose-usd " + " ".join(sys.argv[1:])
@@ -317,6 +319,7 @@ def cmd_bench_run(args) -> int:
         options=ModeOptions(prompts=not args.no_prompts, size_prior=args.size_prior, intrinsics=args.intrinsics),
         start_from=Path(args.start_from) if args.start_from else None,
         rerun=tuple(args.rerun or ()),
+        only=tuple(args.case or ()),
     )
     report = build_report(out)
     failed = [c["case"] for c in summary["cases"] if "error" in c]
@@ -569,6 +572,12 @@ def _add_bench_run(bsub) -> None:
     )
     p.add_argument(
         "--mode", default="rgbd", choices=["rgbd", "mono-imported", "rgb"], help="what the cases give the pipeline"
+    )
+    p.add_argument(
+        "--case",
+        action="append",
+        metavar="NAME",
+        help="run only this case (push-box-s13) or task's cases (push); repeatable (default: every case)",
     )
     p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default all=oracle)")
     p.add_argument("--set", action="append", metavar="STAGE.FIELD=VALUE", help="stage settings")

@@ -160,7 +160,8 @@ def test_default_suite_meets_oracle_targets(tmp_path):
 
 def test_start_from_an_earlier_run_reruns_only_what_changed(small_results, tmp_path):
     """``--start-from``: a kept run's current layers are kept with their recorded times; a changed
-    setting re-runs its stage (and what depends on it), ``--rerun`` a stage named, and the scores match."""
+    setting re-runs its stage (and what depends on it), ``--rerun`` a stage named, and the scores
+    match. ``--case``: one case of the suite (by task name) is run alone."""
     earlier_dir, earlier = small_results
     summary = run_suite(
         "small",
@@ -170,21 +171,35 @@ def test_start_from_an_earlier_run_reruns_only_what_changed(small_results, tmp_p
         settings={"gate": {"frame_stride": 3}},
         start_from=earlier_dir,
         rerun=("trajectory",),
+        only=("rotate",),
     )
-    assert summary["started_from"]["folder"] == str(earlier_dir)
-    for before, after in zip(earlier["cases"], summary["cases"], strict=True):
-        assert "error" not in after, after
-        for name in ("capture", "segment", "scene", "object"):
-            assert after["stages"][name]["reused"] and after["stages"][name]["wall_time_s"] == pytest.approx(
-                before["stages"][name]["wall_time_s"], abs=1e-3
-            )
-            assert after["stages"][name]["peak_rss_mb"] == before["stages"][name]["peak_rss_mb"]
-        assert "reused" not in after["stages"]["gate"] and "reused" not in after["stages"]["trajectory"]
-        assert [o["ape_translation_m"] for o in after["score"]["objects"]] == [
-            o["ape_translation_m"] for o in before["score"]["objects"]
-        ]
-    gate = json.loads((tmp_path / "again" / "runs" / earlier["cases"][0]["case"] / "report" / "gate.json").read_text())
-    assert gate["frames_rendered"] < earlier["cases"][0]["n_frames"]
+    assert summary["started_from"]["folder"] == str(earlier_dir) and summary["only"] == ["rotate"]
+    before = next(c for c in earlier["cases"] if c["task"] == "rotate")
+    [after] = summary["cases"]
+    assert after["case"] == before["case"] and "error" not in after, after
+    for name in ("capture", "segment", "scene", "object"):
+        assert after["stages"][name]["reused"] and after["stages"][name]["wall_time_s"] == pytest.approx(
+            before["stages"][name]["wall_time_s"], abs=1e-3
+        )
+        assert after["stages"][name]["peak_rss_mb"] == before["stages"][name]["peak_rss_mb"]
+    assert "reused" not in after["stages"]["gate"] and "reused" not in after["stages"]["trajectory"]
+    assert [o["ape_translation_m"] for o in after["score"]["objects"]] == [
+        o["ape_translation_m"] for o in before["score"]["objects"]
+    ]
+    gate = json.loads((tmp_path / "again" / "runs" / before["case"] / "report" / "gate.json").read_text())
+    assert gate["frames_rendered"] < before["n_frames"]
+
+
+def test_cases_are_chosen_by_name_or_task_and_an_unknown_one_is_refused():
+    from rose_usd.bench.suites import select_cases
+    from rose_usd.errors import ConfigError
+
+    small = SUITES["small"]
+    assert select_cases(small, ()) == small
+    assert [s.name for s in select_cases(small, ("push", small[0].name))] == [small[0].name, small[3].name]
+    with pytest.raises(ConfigError, match="no case or task 'pull'.*") as err:
+        select_cases(small, ("pull",))
+    assert small[0].name in err.value.hint
 
 
 def test_start_from_refuses_another_mode(small_results, tmp_path):

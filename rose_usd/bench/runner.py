@@ -15,7 +15,7 @@ from importlib import metadata
 from pathlib import Path
 
 from rose_usd.bench.modes import ModeOptions, PerceptionMode, make_mode_case, mode_stamp
-from rose_usd.bench.suites import CaseSpec, get_suite
+from rose_usd.bench.suites import CaseSpec, get_suite, select_cases
 from rose_usd.bench.worker import run_worker
 from rose_usd.case.gt import GroundTruth
 from rose_usd.errors import InputError
@@ -105,13 +105,15 @@ def run_suite(
     options: ModeOptions = ModeOptions(),
     start_from: Path | None = None,
     rerun: tuple[str, ...] = (),
+    only: tuple[str, ...] = (),
 ) -> dict:
     """Run every case of ``suite`` in ``mode`` into ``out_dir``/runs and write the results. With
     ``start_from`` (an earlier results folder of the same suite, mode and options), each case starts
     from a copy of that folder's kept run: its layers that are still current are not run again
     (their recorded wall times and peak memory are carried over), so later stages can be added to
-    a kept benchmark. Stages in ``rerun`` run even when current."""
-    specs = get_suite(suite)
+    a kept benchmark. Stages in ``rerun`` run even when current. ``only``: the cases to run, by
+    case or task name (default every case)."""
+    specs = select_cases(get_suite(suite), only)
     source = _start_from(start_from, suite, mode, options) if start_from else None
     commit = _git_commit()  # at the start: the code that runs
     out_dir = Path(out_dir)
@@ -173,6 +175,7 @@ def run_suite(
         "prompts": options.prompts,
         "size_prior": options.size_prior,
         "intrinsics": options.intrinsics,
+        "only": list(only),
         "started_from": {"folder": str(start_from), "commit": source["commit"], "rerun": list(rerun)}
         if source
         else None,

@@ -111,3 +111,15 @@ def get_suite(name: str) -> tuple[CaseSpec, ...]:
     if name not in SUITES:
         raise ConfigError(f"unknown suite {name!r}", hint=f"suites: {', '.join(SUITES)}")
     return SUITES[name]
+
+
+def select_cases(specs: tuple[CaseSpec, ...], only: tuple[str, ...]) -> tuple[CaseSpec, ...]:
+    """The cases of ``specs`` named in ``only`` by case name (``push-box-s13``) or task (``push``);
+    all of them when ``only`` is empty."""
+    unknown = [n for n in only if not any(n in (s.name, s.task.value) for s in specs)]
+    if unknown:
+        raise ConfigError(
+            f"no case or task {', '.join(map(repr, unknown))} in this suite",
+            hint=f"its cases: {', '.join(s.name for s in specs)}",
+        )
+    return tuple(s for s in specs if not only or s.name in only or s.task.value in only)
