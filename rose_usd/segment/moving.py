@@ -117,12 +117,20 @@ class MotionForeground:
         return keep[labels]
 
 
+MEDIAN_CHUNK_PX = 1 << 17
+"""Pixels whose medians are taken at once: the samples' values of 131k pixels are 63 MB as float32
+(a still 1920x1080 view's 40 samples at once: 3.3 GB peak)."""
+
+
 def _uncovered_median(stack: np.ndarray, covers: list[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
     """The per-pixel median (float32) of ``stack`` (samples, h, w, 3) over the samples whose
     ``covers`` (each sample's hands and arms, or None) leave the pixel uncovered, where
     ``UNCOVERED`` of them do, else over all; and where they do (bool (h, w))."""
-    median = np.median(stack, axis=0).astype(np.float32)
     shape = stack.shape[1:3]
+    rows = max(1, MEDIAN_CHUNK_PX // shape[1])
+    median = np.concatenate(
+        [np.median(stack[:, y : y + rows], axis=0).astype(np.float32) for y in range(0, shape[0], rows)]
+    )
     if all(c is None or not c.any() for c in covers):
         return median, np.ones(shape, bool)
     grow = np.ones((9, 9), np.uint8)
@@ -131,11 +139,21 @@ def _uncovered_median(stack: np.ndarray, covers: list[np.ndarray | None]) -> tup
     )
     known = free.sum(axis=0) >= max(3, UNCOVERED * len(covers))
     ys, xs = np.nonzero(known & ~free.all(axis=0))
-    if len(ys):
-        values = stack[:, ys, xs].astype(np.float32)
-        values[~free[:, ys, xs]] = np.nan
-        median[ys, xs] = np.nanmedian(values, axis=0)
+    for i in range(0, len(ys), MEDIAN_CHUNK_PX):
+        y, x = ys[i : i + MEDIAN_CHUNK_PX], xs[i : i + MEDIAN_CHUNK_PX]
+        median[y, x] = _median_where(stack[:, y, x], free[:, y, x])
     return median, known
+
+
+def _median_where(values: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The median over axis 0 of ``values`` (samples, p, 3) where ``keep`` (samples, p) holds (at
+    least one sample each), as float32: the mean of the two middle values for an even count."""
+    v = np.where(keep[..., None], values.astype(np.float32), np.float32(np.inf))
+    v.sort(axis=0)
+    k = np.broadcast_to(keep.sum(axis=0)[:, None], v.shape[1:])
+    lo = np.take_along_axis(v, ((k - 1) // 2)[None], axis=0)[0]
+    hi = np.take_along_axis(v, (k // 2)[None], axis=0)[0]
+    return (lo + hi) / np.float32(2.0)
 
 
 def camera_homography(flow: np.ndarray) -> np.ndarray:
