@@ -431,6 +431,41 @@ def test_found_hands_are_no_objects_pixels(monkeypatch):
     assert min(covered) >= 0.95, np.round(covered, 2)
 
 
+def test_a_still_cameras_bare_forearm_is_the_interactors(monkeypatch):
+    """A still camera: a skin-colored hand (found: its landmark mask given) with its bare forearm
+    up to the frame's edge (not found: only the skin model can tell it) lies still beside a resting
+    block for 18 of 30 frames, then sweeps right. The temporal median of every frame takes the
+    still forearm for background (without the skin model the interactor covers 8 % of it in those
+    frames); the median of the frames that leave it uncovered does not: the interactor covers the
+    forearm (>= 90 % of it in every frame), and the block's mask takes none of it."""
+    from rose_usd.segment import flow
+    from rose_usd.segment import hands as segment_hands
+    from rose_usd.segment.colors import color_index, histogram
+
+    h, w, n = 120, 200, 30
+    frames, hands, arms = [], [], []
+    for t in range(n):
+        image = _patchwork(h, w)
+        image[80:105, 10:40] = (220, 130, 40)  # the block
+        x0 = 60 + 8 * max(0, t - 17)
+        hand, arm = np.zeros((h, w), bool), np.zeros((h, w), bool)
+        hand[50:70, x0 : x0 + 24] = True
+        arm[0:50, x0 + 4 : x0 + 20] = True
+        image[hand | arm] = SKIN
+        frames.append(image)
+        hands.append(hand)
+        arms.append(arm)
+    for module in (flow, segment_hands):
+        monkeypatch.setattr(module, "hand_mask", lambda found, shape, **_: found[0])
+    skin = histogram(color_index(frames[0])[hands[0]])
+    masks, inter, _ = flow.segment_video(
+        lambda t: frames[t], n, (w, h), [("Block", 0, (6, 76, 44, 109), None)], found=[[m] for m in hands], skin=skin
+    )
+    covered = [(inter[t] & arms[t]).sum() / arms[t].sum() for t in range(n)]
+    assert min(covered) >= 0.9, np.round(covered, 2)
+    assert not any((masks["Block"][t] & arms[t]).any() for t in range(n))
+
+
 def test_a_point_prompt_on_a_large_object_cuts_all_of_it():
     """A point prompt in the middle of a block filling a third of the image's width: the first box
     cut around it (a tenth of the image wide) lies inside the block and leaves GrabCut nothing to
