@@ -536,7 +536,7 @@ def test_an_object_moved_while_hidden_is_found_again_near_where_it_was():
 def test_growing_a_mask_within_its_box_is_the_whole_image_dilation(radius):
     import cv2
 
-    from rose_usd.segment.flow import _grown
+    from rose_usd.segment.regions import grown
 
     rng = np.random.default_rng(1)
     mask = np.zeros((90, 120), bool)
@@ -544,8 +544,8 @@ def test_growing_a_mask_within_its_box_is_the_whole_image_dilation(radius):
     mask[0:5, 100:120] = True  # touching the image's edge
     r = int(round(radius))
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    assert np.array_equal(_grown(mask, radius), cv2.dilate(mask.astype(np.uint8), disk).astype(bool))
-    assert not _grown(np.zeros((9, 9), bool), radius).any()
+    assert np.array_equal(grown(mask, radius), cv2.dilate(mask.astype(np.uint8), disk).astype(bool))
+    assert not grown(np.zeros((9, 9), bool), radius).any()
 
 
 def test_flows_made_ahead_are_the_flows_asked_for():

@@ -62,7 +62,7 @@ from rose_usd.segment.hands import found_hands as find_hands
 from rose_usd.segment.moving import MotionForeground, camera_shift
 from rose_usd.segment.prompts import check_prompts, parse_prompts, prompts_source
 from rose_usd.segment.refind import find_hidden
-from rose_usd.segment.regions import components, fill_holes, touching
+from rose_usd.segment.regions import components, fill_holes, grown, touching
 from rose_usd.segment.tracks import INTERACTOR, MaskTrack, author_and_check
 from rose_usd.stage_api import StageContext
 
@@ -156,25 +156,9 @@ class HandPixels:
         color model claims over the skin's (a finger guessed behind the object covers it there),
         and the arm beyond the track's reach of its moved shape ``moved`` (the arm that reaches
         past it; nearer, the object it holds is joined to it)."""
-        near = _grown(moved, _reach_px(tr))
+        near = grown(moved, _reach_px(tr))
         hand = self.hand if self.skin is None else self.hand & ~(tr.fg[idx] > SKIN_RATIO * self.skin[idx])
         return hand | (self.arm & ~near)
-
-
-def _grown(mask: np.ndarray, radius_px: float) -> np.ndarray:
-    """``mask`` dilated by a disk of ``radius_px``: the same pixels as dilating the whole image,
-    dilated only within the mask's box grown by the radius (a reach's 50 px disk over a 640x480
-    frame cost 10 ms a call, a sixth of the backend's time on visp-cube-hand-rgb)."""
-    r = int(round(radius_px))
-    out = np.zeros(mask.shape, bool)
-    ys, xs = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-    if not len(ys):
-        return out
-    y0, y1 = max(0, ys[0] - r), min(mask.shape[0], ys[-1] + r + 1)
-    x0, x1 = max(0, xs[0] - r), min(mask.shape[1], xs[-1] + r + 1)
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    out[y0:y1, x0:x1] = cv2.dilate(mask[y0:y1, x0:x1].astype(np.uint8), disk).astype(bool)
-    return out
 
 
 class FlowTracker:
@@ -332,7 +316,7 @@ class FlowTracker:
         if still is None or np.hypot(*(shift - still)) <= MOVING_PX:
             return shift, still
         # pixels beside the part of the shape not seen are left out: what hides it moves there
-        hidden = _grown(tr.mask & ~part, VOTE_BAND_PX)
+        hidden = grown(tr.mask & ~part, VOTE_BAND_PX)
         for_still, for_moved = self._votes(part & ~hidden, flow, still, prev, t)
         # a track keeps resting, or keeps being carried, unless clearly more pixels say otherwise
         if tr.carried:
@@ -652,7 +636,7 @@ def _within_reach(tracks: list[Track2D]) -> np.ndarray:
     """The pixels within ``_REACH`` of any track's shape (where a pixel could join it)."""
     near = np.zeros_like(tracks[0].mask)
     for tr in tracks:
-        near |= _grown(tr.mask, _reach_px(tr))
+        near |= grown(tr.mask, _reach_px(tr))
     return near
 
 

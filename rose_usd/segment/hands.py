@@ -12,7 +12,7 @@ from rose_usd.errors import EnvironmentProblem
 from rose_usd.geometry.hands import Hand, HandDetector, bridge_gaps, hand_mask
 from rose_usd.progress import progress
 from rose_usd.segment.colors import SHADES, color_index, histogram
-from rose_usd.segment.regions import touching
+from rose_usd.segment.regions import grown, touching
 from rose_usd.segment.segmenter import MIN_REGION_PX
 from rose_usd.stage_api import StageContext
 
@@ -47,7 +47,7 @@ def skin_arm(rgb: np.ndarray, hands: list[Hand], skin: np.ndarray) -> np.ndarray
     claimed = (skin[idx] > ARM_SKIN * rest[idx]).astype(np.uint8)
     claimed = cv2.morphologyEx(claimed, cv2.MORPH_OPEN, disk(0.03 * size))
     claimed = cv2.morphologyEx(claimed, cv2.MORPH_CLOSE, disk(0.1 * size)).astype(bool)
-    near = cv2.dilate(hand.astype(np.uint8), disk(0.6 * size)).astype(bool)
+    near = grown(hand, max(1, int(round(0.6 * size / 2))))  # disk(0.6 * size), within the hand's box
     return touching(claimed | hand, near, grow_px=1) & ~hand
 
 
