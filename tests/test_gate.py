@@ -40,6 +40,19 @@ def test_object_rests_in_newton(oracle_out):
     assert gate.GetAttribute("rose:gate:passed").Get()
 
 
+def test_the_rest_check_measures_the_box_in_the_bodys_own_frame(oracle_out):
+    """The sample's box starts turned about up (137 deg): the corners whose displacement the rest
+    check measures are its own box's (+-4.4 x 4.1 cm), not the hull of that box turned (+-8.4)."""
+    from rose_usd.layers.objects import object_paths
+    from rose_usd.sim.rest import body_corners
+    from rose_usd.usd.geom import read_mesh
+
+    stage = open_stage(oracle_out / "rose.usda")
+    v = read_mesh(stage.GetPrimAtPath(paths.object_visual("Box")), world=False).vertices
+    corners = body_corners(stage, object_paths(stage))["Box"]
+    assert np.allclose(corners.min(axis=0), v.min(axis=0)) and np.allclose(corners.max(axis=0), v.max(axis=0))
+
+
 def test_the_rest_check_stops_once_settled_and_not_while_an_object_tips(oracle_out):
     """The resting box settles within 0.35 s of the 1 s asked for and stops there; tipped onto its
     edge 0.5 deg short of balance it falls back onto its face (12 cm measured) before any stop."""

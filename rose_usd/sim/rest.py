@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Gf, Usd, UsdGeom
 
 from rose_usd.core import se3
 from rose_usd.errors import ValidationError
@@ -158,10 +158,21 @@ def _keep_near(newton, builder, bounds: tuple[np.ndarray, np.ndarray], near_m: f
 
 def body_corners(stage: Usd.Stage, object_paths: dict[str, str]) -> dict[str, np.ndarray]:
     """Each object's bounding-box corners in its body frame (the prim frame: Newton bodies are the
-    rigid-body prims)."""
+    rigid-body prims): the union of its children's bounds relative to it. The prim's own
+    untransformed bound is not that: USD takes it as the box of its bound in its parent's frame,
+    turned back, whose aligned range is then a square's hull (a box turned 137 deg about up:
+    +-8.4 cm for its +-4.4 by 4.1)."""
     corners, bbox = {}, _bbox_cache()
     for name, path in object_paths.items():
-        box = bbox.ComputeUntransformedBound(stage.GetPrimAtPath(path)).ComputeAlignedRange()
+        prim = stage.GetPrimAtPath(path)
+        box = Gf.Range3d()
+        for child in prim.GetChildren():
+            box.UnionWith(bbox.ComputeRelativeBound(child, prim).ComputeAlignedRange())
+        extent = UsdGeom.Boundable(prim).GetExtentAttr().Get() if prim.IsA(UsdGeom.Boundable) else None
+        if extent is not None:  # a body that is itself a mesh: its own extent too
+            box.UnionWith(Gf.Range3d(Gf.Vec3d(*extent[0]), Gf.Vec3d(*extent[1])))
+        if box.IsEmpty():
+            box = Gf.Range3d(Gf.Vec3d(0, 0, 0), Gf.Vec3d(0, 0, 0))  # its origin alone
         corners[name] = box_corners(np.asarray(box.GetMin()), np.asarray(box.GetMax()))
     return corners
 
