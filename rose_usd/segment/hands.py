@@ -40,14 +40,17 @@ def skin_arm(rgb: np.ndarray, hands: list[Hand], skin: np.ndarray) -> np.ndarray
     rest = histogram(idx[~hand])
     size = max(_extent(hand_mask([h], hand.shape)) for h in hands)
 
-    def disk(d: float) -> np.ndarray:
-        r = max(1, int(round(d / 2)))
+    def radius(diameter: float) -> int:
+        return max(1, int(round(diameter / 2)))
+
+    def disk(diameter: float) -> np.ndarray:
+        r = radius(diameter)
         return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
     claimed = (skin[idx] > ARM_SKIN * rest[idx]).astype(np.uint8)
     claimed = cv2.morphologyEx(claimed, cv2.MORPH_OPEN, disk(0.03 * size))
     claimed = cv2.morphologyEx(claimed, cv2.MORPH_CLOSE, disk(0.1 * size)).astype(bool)
-    near = grown(hand, max(1, int(round(0.6 * size / 2))))  # disk(0.6 * size), within the hand's box
+    near = grown(hand, radius(0.6 * size))  # a dilation by disk(0.6 * size), within the hand's box
     return touching(claimed | hand, near, grow_px=1) & ~hand
 
 
