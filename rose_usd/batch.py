@@ -403,6 +403,7 @@ def _run_ray(jobs: list[tuple], address: str, cpus: float, gpus: float, finished
     if started:
         ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=not quiet())
     try:
+        _check_fits(ray.nodes(), cpus, gpus, address)
         task = ray.remote(num_cpus=cpus, num_gpus=gpus, max_retries=0)(run_case)
         pending = [task.remote(*job) for job in jobs]
         bar = progress(range(len(pending)), "batch (ray)", total=len(pending), unit="case")
@@ -412,6 +413,23 @@ def _run_ray(jobs: list[tuple], address: str, cpus: float, gpus: float, finished
     finally:
         if started:
             ray.shutdown()
+
+
+def _check_fits(nodes: list[dict], cpus: float, gpus: float, address: str) -> None:
+    """A case's CPUs and GPUs must fit one live node of the cluster (``ray.nodes()``): Ray waits
+    without end, and without a word to the caller, on a task that no node can run. A cluster
+    started here is refused; another, which an autoscaler may grow, is warned about."""
+    alive = [node.get("Resources", {}) for node in nodes if node.get("Alive")]
+    if any(r.get("CPU", 0.0) >= cpus and r.get("GPU", 0.0) >= gpus for r in alive):
+        return
+    largest = max(alive, key=lambda r: (r.get("CPU", 0.0), r.get("GPU", 0.0)), default={})
+    message = (
+        f"no node of the Ray cluster has {cpus:g} CPUs and {gpus:g} GPUs for a case (the largest:"
+        f" {largest.get('CPU', 0.0):g} CPUs, {largest.get('GPU', 0.0):g} GPUs)"
+    )
+    if address == "local":
+        raise ConfigError(message, hint="lower --cpus-per-case / --gpus-per-case to what this machine has")
+    print(f"warning: {message}; the cases wait until such a node joins", file=sys.stderr, flush=True)
 
 
 def write_summary(out: Path, results: list[CaseResult]) -> None:

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from rose_usd.batch import RECORD, batch, case_names
+from rose_usd.cli import main
 from rose_usd.errors import ConfigError
 
 FAST = {"backends": {"capture": "oracle"}, "until": "capture"}
@@ -241,6 +242,24 @@ def test_ray_runs_the_same_cases_with_the_same_results(tmp_path, sample_case):
             b = (tmp_path / "ray" / c.name / "layers" / "world.usda").read_text()
             strip = [line for line in a.splitlines() if "customLayerData" not in line and "rose =" not in line]
             assert strip == [line for line in b.splitlines() if "customLayerData" not in line and "rose =" not in line]
+
+
+def test_a_case_no_ray_node_can_run_is_refused_not_waited_on(tmp_path, sample_case, capsys):
+    """More CPUs a case than the local Ray cluster has: one line and exit 1 (Ray itself would wait
+    for ever); on a cluster started elsewhere, which may grow, a warning."""
+    pytest.importorskip("ray")
+    from rose_usd.batch import _check_fits
+
+    case = _cases(tmp_path, sample_case, 1)[0]
+    code = main(["batch", str(case), "-o", str(tmp_path / "out"), "--ray", "local", "--cpus-per-case", "4096"])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error")]  # Ray's own beside
+    assert code == 1 and len(err) == 1 and "4096 CPUs" in err[0] and "--cpus-per-case" in err[0], err
+    nodes = [{"Alive": True, "Resources": {"CPU": 8.0, "GPU": 1.0}}, {"Alive": False, "Resources": {"CPU": 64.0}}]
+    _check_fits(nodes, 8, 1, "local")
+    with pytest.raises(ConfigError, match="the largest: 8 CPUs, 1 GPUs"):
+        _check_fits(nodes, 16, 0, "local")
+    _check_fits(nodes, 16, 0, "ray://head:10001")
+    assert "wait until such a node joins" in capsys.readouterr().err
 
 
 def test_a_video_decoded_by_two_workers_keeps_the_first_workers_frames(tmp_path, sample_case, monkeypatch):
