@@ -1,7 +1,8 @@
-"""Shared fixtures. The sample's oracle reconstruction is made once per session and reused."""
+"""Shared fixtures. The sample's oracle reconstruction is made once per run and reused."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 from pathlib import Path
@@ -36,12 +37,24 @@ def sample_case() -> Path:
 
 
 @pytest.fixture(scope="session")
-def oracle_out(tmp_path_factory, sample_case) -> Path:
-    """The sample reconstructed with every stage's oracle backend (read-only for tests)."""
+def oracle_out(tmp_path_factory, sample_case, worker_id) -> Path:
+    """The sample reconstructed with every stage's oracle backend (read-only for tests). Under
+    pytest-xdist the workers share one, made by the first that asks (about 100 s each)."""
     from rose_usd.pipeline import Pipeline
 
-    out = tmp_path_factory.mktemp("oracle") / "out"
-    Pipeline(sample_case, out, oracle_options()).run()
+    if worker_id == "master":
+        out = tmp_path_factory.mktemp("oracle") / "out"
+        Pipeline(sample_case, out, oracle_options()).run()
+        return out
+    root = tmp_path_factory.getbasetemp().parent / "oracle"  # this run's, beside the workers' own
+    root.mkdir(exist_ok=True)
+    out = root / "out"
+    with open(root / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (root / "done").exists():
+            shutil.rmtree(out, ignore_errors=True)
+            Pipeline(sample_case, out, oracle_options()).run()
+            (root / "done").touch()
     return out
 
 
