@@ -476,7 +476,12 @@ def _add_pipeline_commands(sub) -> None:
     p.add_argument(
         "--ray", metavar="ADDRESS", help="run the cases as Ray tasks: ADDRESS, auto (a running cluster) or local"
     )
-    p.add_argument("--cpus-per-case", type=float, default=1.0, help="with --ray: CPUs each case needs (default 1)")
+    p.add_argument(
+        "--cpus-per-case",
+        type=float,
+        default=1.0,
+        help="with --ray: CPUs each case needs (default 1; a node must have them)",
+    )
     p.add_argument("--gpus-per-case", type=float, default=0.0, help="with --ray: GPUs each case needs (default 0)")
     p.add_argument("--until", metavar="STAGE", help="run only this stage and what it needs, for every case")
     p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backend of a stage (as for reconstruct)")
