@@ -43,11 +43,10 @@ def oracle_out(tmp_path_factory, sample_case, worker_id) -> Path:
     from rose_usd.pipeline import Pipeline
 
     if worker_id == "master":
-        out = tmp_path_factory.mktemp("oracle") / "out"
-        Pipeline(sample_case, out, oracle_options()).run()
-        return out
-    root = tmp_path_factory.getbasetemp().parent / "oracle"  # this run's, beside the workers' own
-    root.mkdir(exist_ok=True)
+        root = tmp_path_factory.mktemp("oracle")
+    else:  # this run's, beside the workers' own temporary folders
+        root = tmp_path_factory.getbasetemp().parent / "oracle"
+        root.mkdir(exist_ok=True)
     out = root / "out"
     with open(root / "lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
