@@ -109,3 +109,22 @@ def test_true_runs_are_the_spans_of_consecutive_frames():
 
     assert true_runs(np.array([1, 1, 0, 1, 0, 0, 1], bool)) == [(0, 1), (3, 3), (6, 6)]
     assert true_runs(np.zeros(3, bool)) == [] and true_runs(np.ones(2, bool)) == [(0, 1)]
+
+
+def test_the_rest_simulation_stops_at_rest_or_a_steady_creep_never_while_speeding_up():
+    """``sim.rest._settled`` on corner histories checked every 0.01 s (a window: 10 checks): still,
+    or creeping 0.077 mm a window at a steady pace (XPBD's mug), it has settled; creeping as fast
+    as 0.1 mm a window, or speeding up (tipping, sliding from rest), it has not."""
+    from rose_usd.sim.rest import CREEP_TOL_M, _settled
+
+    def history(x_at):  # the cube's corners moved along x by x_at(check) [m], 30 checks
+        return [{"Box": CUBE + [x_at(k), 0.0, 0.0]} for k in range(30)]
+
+    assert _settled(history(lambda k: 0.0), 10)
+    assert _settled(history(lambda k: 7.7e-6 * k), 10)
+    assert not _settled(history(lambda k: 0.0), 15)  # not two windows seen yet
+    assert not _settled(history(lambda k: 1.05 * CREEP_TOL_M / 10 * k), 10)
+    assert not _settled(history(lambda k: 2e-5 * 2 ** (k / 10)), 10)  # 37 then 75 um a window: tipping
+    assert not _settled(history(lambda k: 1e-7 * k**2), 10)  # sliding from rest: 28 then 48 um a window
+    two = [{"Box": h["Box"], "Can": CUBE + [2e-6 * k**2, 0.0, 0.0]} for k, h in enumerate(history(lambda k: 0.0))]
+    assert not _settled(two, 10)  # one object still, the other speeding up

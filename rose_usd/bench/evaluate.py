@@ -51,8 +51,9 @@ class ObjectScore:
     mass_range_kg: list[float] | None = None
     """The mass the category's density range gives the reconstructed volume (or shell) [kg]."""
     rest_drift_m: float | None = None
-    """Largest displacement of its bounding box's corners in 1 s of Newton from the frame-0 stage
-    without the trajectory (None: no object stage, or no scene to rest on)."""
+    """Largest displacement of its bounding box's corners in Newton from the frame-0 stage without
+    the trajectory, over 1 s or until every object settled or crept steadily (``sim.rest.simulate_rest``;
+    None: no object stage, or no scene to rest on)."""
     mask_iou: float | None = None
     """Mean mask IoU over the frames where the object is more than half visible (None: no segment stage)."""
 
@@ -117,7 +118,7 @@ def _meshes(stage: Usd.Stage, root, time: Usd.TimeCode = Usd.TimeCode.Default())
 
 
 def _rest_drifts(out_dir, scores: list[ObjectScore]) -> None:
-    """Each object's rest drift in Newton (1 s from frame 0) on a stage of the world, scene and
+    """Each object's rest drift in Newton (``ObjectScore.rest_drift_m``) on a stage of the world, scene and
     object layers only (a trajectory layer's time samples are not what rests)."""
     from rose_usd.sim.rest import simulate_rest
     from rose_usd.usd.stage import layer_file

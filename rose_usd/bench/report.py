@@ -306,8 +306,8 @@ def build_report(results_dir: Path) -> Path:
             "hull's surface about its centroid (the outer size: a mug's inner wall left out), reconstructed over "
             "true, minus 1; "
             "category range: the mass the category's density range gives the reconstructed volume "
-            "(the wall's, for hollow categories); rest drift: largest corner displacement in 1 s of Newton "
-            "from frame 0 (target < 5 mm); "
+            "(the wall's, for hollow categories); rest drift: largest corner displacement in Newton from "
+            "frame 0 over 1 s, or until it settled or crept steadily (``sim.rest``; target < 5 mm); "
             "object (s): the object stage's wall time for the case (all its objects).",
             "",
             "| Case | object | Chamfer (mm) | shape Chamfer (mm) | size error (%) | mass (kg) | category range (kg) "
