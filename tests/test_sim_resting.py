@@ -112,19 +112,24 @@ def test_true_runs_are_the_spans_of_consecutive_frames():
 
 
 def test_the_rest_simulation_stops_at_rest_or_a_steady_creep_never_while_speeding_up():
-    """``sim.rest._settled`` on corner histories checked every 0.01 s (a window: 10 checks): still,
-    or creeping 0.077 mm a window at a steady pace (XPBD's mug), it has settled; creeping as fast
-    as 0.1 mm a window, or speeding up (tipping, sliding from rest), it has not."""
+    """``sim.rest._settled`` on corner histories checked every 0.01 s (a window: 10 checks), 0.75 s
+    of a 1 s check left: still, creeping 0.077 mm a window at a steady pace (XPBD's mug) or slowing
+    down, it has settled; creeping as fast as 0.1 mm a window, speeding up (tipping, sliding from
+    rest, starting to move from still), or creeping steadily with 4.75 s left (a 5 s check: 3.7 mm
+    more), it has not."""
     from rose_usd.sim.rest import CREEP_TOL_M, _settled
 
     def history(x_at):  # the cube's corners moved along x by x_at(check) [m], 30 checks
         return [{"Box": CUBE + [x_at(k), 0.0, 0.0]} for k in range(30)]
 
-    assert _settled(history(lambda k: 0.0), 10)
-    assert _settled(history(lambda k: 7.7e-6 * k), 10)
-    assert not _settled(history(lambda k: 0.0), 15)  # not two windows seen yet
-    assert not _settled(history(lambda k: 1.05 * CREEP_TOL_M / 10 * k), 10)
-    assert not _settled(history(lambda k: 2e-5 * 2 ** (k / 10)), 10)  # 37 then 75 um a window: tipping
-    assert not _settled(history(lambda k: 1e-7 * k**2), 10)  # sliding from rest: 28 then 48 um a window
+    assert _settled(history(lambda k: 0.0), 10, 7.5)
+    assert _settled(history(lambda k: 7.7e-6 * k), 10, 7.5)
+    assert _settled(history(lambda k: 3e-4 * (1 - 0.97**k)), 10, 7.5)  # slowing: 60 then 44 um a window
+    assert not _settled(history(lambda k: 7.7e-6 * k), 10, 47.5)
+    assert not _settled(history(lambda k: 0.0), 15, 7.5)  # not two windows seen yet
+    assert not _settled(history(lambda k: 1.05 * CREEP_TOL_M / 10 * k), 10, 7.5)
+    assert not _settled(history(lambda k: 2e-5 * 2 ** (k / 10)), 10, 7.5)  # 37 then 75 um a window: tipping
+    assert not _settled(history(lambda k: 1e-7 * k**2), 10, 7.5)  # sliding from rest: 28 then 48 um a window
+    assert not _settled(history(lambda k: 5e-6 * max(0, k - 19)), 10, 7.5)  # still, then 50 um a window
     two = [{"Box": h["Box"], "Can": CUBE + [2e-6 * k**2, 0.0, 0.0]} for k, h in enumerate(history(lambda k: 0.0))]
-    assert not _settled(two, 10)  # one object still, the other speeding up
+    assert not _settled(two, 10, 7.5)  # one object still, the other speeding up

@@ -29,8 +29,8 @@ class GateConfig:
     physics: bool = True
     """Run the Newton rest check (default true)."""
     physics_duration_s: float = 1.0
-    """Simulated time of the rest check [s] (default 1); it stops once every object has settled
-    (``sim.rest.SETTLE_AFTER_S``)."""
+    """Simulated time of the rest check [s] (default 1); it stops earlier once every object has
+    settled or creeps steadily (``sim.rest.SETTLE_AFTER_S``)."""
     physics_dt_s: float = 1.0 / 600.0
     """Time step of the rest check [s] (default 1/600)."""
     physics_iterations: int = 30

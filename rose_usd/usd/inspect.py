@@ -379,7 +379,7 @@ def _gate_lines(g: dict[str, Any]) -> list[str]:
         + [f"{o} rests in no frame" for o in g.get(tokens.GATE_PHYSICS_NOT_RESTING, [])]
     )
     lines.append(
-        f"  physics: rest check over {g.get(tokens.GATE_PHYSICS_DURATION, 0):g} s: {moves or 'not run'}: "
+        f"  physics: rest check up to {g.get(tokens.GATE_PHYSICS_DURATION, 0):g} s: {moves or 'not run'}: "
         f"{('pass' if g.get(tokens.GATE_PHYSICS_PASSED) else 'FAIL') if objs else 'nothing checked'}"
     )
     names, ious = g.get(tokens.GATE_TRACK_OBJECTS, []), g.get(tokens.GATE_TRACK_IOU, [])
