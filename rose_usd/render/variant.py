@@ -48,6 +48,9 @@ def _gpu_present() -> bool:
 @functools.cache
 def mitsuba():
     """Import Mitsuba with the best variant set; returns the ``mitsuba`` module."""
+    from rose_usd.core.wakeup import ensure_stall_guard
+
+    ensure_stall_guard()  # a lost wake-up in Dr.Jit's thread pool stalled CI: see its docstring
     forced = os.environ.get("ROSE_MITSUBA_VARIANT")
     llvm = find_llvm()
     if llvm:
