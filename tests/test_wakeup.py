@@ -1,8 +1,12 @@
-"""The stall guard on a real lost wake-up: a thread asleep in FUTEX_WAIT on a word that another
-thread changed without FUTEX_WAKE stays asleep until the guard signals it."""
+"""The stall watcher on a real lost wake-up: a thread asleep in FUTEX_WAIT on a word that another
+thread changed without FUTEX_WAKE stays asleep until the watcher (a process of its own) signals
+it, even while this process's main thread holds the GIL; threads that wait on words that did not
+change are never signalled."""
 
 import ctypes
+import os
 import platform
+import signal
 import threading
 import time
 
@@ -21,76 +25,81 @@ def _futex(word: ctypes.c_uint32, op: int, value: int) -> None:
     ctypes.CDLL(None, use_errno=True).syscall(ctypes.c_long(nr), ctypes.byref(word), op, value, None, None, 0)
 
 
-def _sleeper(word: ctypes.c_uint32, done: threading.Event, then_run_s: float = 0.0) -> int:
-    """A thread that waits, the way a thread pool parks, until ``word`` is non-zero, then runs
-    ``then_run_s`` of CPU; its thread id once it is asleep."""
+def _asleep_on_futex(tid: int) -> bool:
+    call = open(f"/proc/self/task/{tid}/syscall").read().split()
+    return call[0] == str(SYS_FUTEX[platform.machine()])
+
+
+def _sleeper(word: ctypes.c_uint32, done: threading.Event) -> int:
+    """A thread that waits, the way a thread pool parks, until ``word`` is non-zero; its thread
+    id once it is asleep."""
     tid = []
 
     def run():
         tid.append(threading.get_native_id())
         while word.value == 0:
             _futex(word, FUTEX_WAIT_PRIVATE, 0)
-        start = time.thread_time()
-        while time.thread_time() - start < then_run_s:
-            pass
         done.set()
 
     threading.Thread(target=run, daemon=True).start()
     for _ in range(500):
-        if tid and tid[0] in wakeup.futex_sleepers():
+        if tid and _asleep_on_futex(tid[0]):
             return tid[0]
         time.sleep(0.01)
     raise AssertionError("the sleeper never reached its futex wait")
 
 
-def test_a_lost_wake_up_stalls_until_the_guard_wakes_the_sleeper(capfd, tmp_path, monkeypatch):
-    monkeypatch.setenv(wakeup.LOG_ENV, str(tmp_path / "stalls.log"))
+@pytest.fixture
+def watcher(tmp_path):
+    """Start a fast watcher of this process (period 0.05 s, confirm 0.3 s); yields its log."""
     assert wakeup.install_handler()  # pytest runs tests on the main thread
-    word, done = ctypes.c_uint32(0), threading.Event()
-    tid = _sleeper(word, done, then_run_s=0.5)
-    word.value = 1  # the waker's store, without its FUTEX_WAKE: the wake-up is lost
-    assert not done.wait(1.0), "asleep on a changed word, it should not have noticed on its own"
-    assert tid in wakeup.futex_sleepers()
-
-    guard = wakeup.StallGuard(stall_s=0.3, period_s=0.1).start()
-    try:
-        assert done.wait(10.0), "the guard did not wake the sleeper"
-        assert tid in guard.signalled
-        deadline = time.monotonic() + 5.0
-        while not guard.stuck and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert len(guard.stuck) == 1  # it ran on after its wake-up: reported
-    finally:
-        guard.stop()
-    assert f"thread {tid} " in capfd.readouterr().err
-    assert f"thread {tid} " in (tmp_path / "stalls.log").read_text()
+    log = tmp_path / "stalls.log"
+    pids = []
+    yield lambda: pids.append(wakeup.start_watcher(period_s=0.05, confirm_s=0.3, log=str(log))) or log
+    for pid in pids:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
 
 
-def test_a_sleeper_whose_word_did_not_change_goes_back_to_sleep():
-    assert wakeup.install_handler()
+def test_a_lost_wake_up_is_ended_even_while_this_process_holds_the_gil(watcher):
     word, done = ctypes.c_uint32(0), threading.Event()
     tid = _sleeper(word, done)
-    guard = wakeup.StallGuard(stall_s=0.2, period_s=0.05).start()
-    try:
-        deadline = time.monotonic() + 10.0
-        while guard.signalled.count(tid) < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert guard.signalled.count(tid) >= 2  # signalled, and asleep again each time
-        assert not done.is_set() and tid in wakeup.futex_sleepers() and not guard.stuck
-    finally:
-        guard.stop()
-        word.value = 1
-        _futex(word, FUTEX_WAKE_PRIVATE, 1)
+    word.value = 1  # the waker's store, without its FUTEX_WAKE: the wake-up is lost
+    assert not done.wait(1.0), "asleep on a changed word, it should not have noticed on its own"
+
+    log = watcher()
+    ctypes.PyDLL(None).usleep(2_000_000)  # holds the GIL: no thread of this process runs Python meanwhile
+    assert done.wait(5.0), "the watcher did not wake the sleeper"
+    text = log.read_text()
+    assert f"thread {tid} " in text and "waiting for 0 while the word held 1" in text
+
+
+def test_threads_waiting_on_unchanged_words_are_never_signalled(watcher):
+    word, done = ctypes.c_uint32(0), threading.Event()
+    tid = _sleeper(word, done)
+    lock, stop = threading.Lock(), threading.Event()
+    lock.acquire()
+    threading.Thread(target=lock.acquire, daemon=True).start()  # blocked on a held lock
+    threading.Thread(target=lambda: [stop.wait(0.01) for _ in iter(stop.is_set, True)], daemon=True).start()
+    log = watcher()
+    time.sleep(1.5)  # five confirm periods
+    stop.set()
+    assert not log.exists() or log.read_text() == ""
+    assert _asleep_on_futex(tid) and not done.is_set()
+    word.value = 1
+    _futex(word, FUTEX_WAKE_PRIVATE, 1)
     assert done.wait(5.0)
+    lock.release()
 
 
-def test_a_running_thread_is_not_signalled():
-    assert wakeup.install_handler()
-    guard = wakeup.StallGuard(stall_s=0.2, period_s=0.05).start()
-    try:
-        end = time.monotonic() + 1.5
-        while time.monotonic() < end:  # this thread runs throughout
-            sum(range(1000))
-        assert threading.get_native_id() not in guard.signalled
-    finally:
-        guard.stop()
+def test_the_watcher_ends_with_the_process_it_watches(tmp_path):
+    import subprocess
+    import sys
+
+    code = "from rose_usd.core import wakeup; wakeup.install_handler(); print(wakeup.start_watcher(), flush=True)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    pid = int(proc.stdout.strip())
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and os.path.exists(f"/proc/{pid}"):
+        time.sleep(0.05)
+    assert not os.path.exists(f"/proc/{pid}")

@@ -1,4 +1,4 @@
-"""Waking threads that sleep on a futex whose wake-up was lost.
+"""Ending stalls on lost futex wake-ups.
 
 What was seen: on two cores with two test workers, processes stalled for 12 minutes and more
 inside Mitsuba calls (``mi.set_variant``, ``SceneParameters.update``), one of them using a core
@@ -9,19 +9,21 @@ lost wake-up needs to end: a waker changed the word but its ``FUTEX_WAKE`` reach
 whatever waits for the sleeper waits too (spinning, if it waits on a spin lock the sleeper holds:
 Dr.Jit's state lock is one, and its thread pool parks threads on futexes).
 
-The guard does what the profiler did, to the threads that need it only: a daemon thread reads
-``/proc/self/task`` every ``period_s``; a thread asleep in a futex wait that has not been on a
-CPU once (its schedstat run count unchanged) for ``stall_s`` gets a signal whose handler does
-nothing (``SA_RESTART``). A waiter whose word changed leaves its wait; one whose word did not goes
-back to sleep (a spurious wake-up, which every futex loop allows), to be signalled again after
-another ``stall_s``. A thread that runs is never signalled. A signalled thread that then runs for
-``RAN_S`` of CPU before it sleeps again was most likely stuck, and one line on stderr (and in
-the file ``$ROSE_USD_STALL_LOG`` names) says so.
+A process that loads Mitsuba starts a watcher (``ensure_stall_guard``): this file run as a
+script, in a process of its own, because a thread of the watched process cannot run while
+another spins holding the GIL. Every ``PERIOD_S`` the watcher reads each thread's system call
+(``/proc/PID/task/TID/syscall``) and, for one asleep in ``FUTEX_WAIT``, the futex word
+(``/proc/PID/mem``). The kernel lets a thread sleep only while the word holds the value it waits
+for, and whoever changes the word must wake it: a thread still asleep, not run once (its
+schedstat run count unchanged), ``CONFIRM_S`` after its word changed, lost its wake-up. The
+watcher signals that thread (``WAKE_SIGNAL``, for which the watched process set a do-nothing
+handler with ``SA_RESTART``); the kernel restarts its wait against the changed word, which returns
+at once. No other thread is ever signalled. Each wake-up is one line on the watched process's
+stderr and in the file ``$ROSE_USD_STALL_LOG`` names, if set (CI prints it).
 """
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import os
 import platform
@@ -29,18 +31,17 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
 
 WAKE_SIGNAL = signal.SIGURG
-"""Ignored by default; the guard installs a do-nothing handler for it (only where none is set)."""
+"""Ignored by default; the watched process sets a do-nothing handler for it (only where none is set)."""
+PERIOD_S = 1.0
+CONFIRM_S = 2.0
 LOG_ENV = "ROSE_USD_STALL_LOG"
-"""Where set, the file each report is appended to as well (CI prints it: stderr of a passing test is
-not shown)."""
-RAN_S = 0.2
-"""CPU a thread uses after its wake-up, before it sleeps again, for the guard to report it as stuck."""
 
-_TGKILL = {"x86_64": 234, "aarch64": 131}.get(platform.machine())
-_guard: StallGuard | None = None
+_SYSCALLS = {"x86_64": (202, 234), "aarch64": (98, 131)}  # (futex, tgkill)
+_FUTEX_WAIT_CMDS = (0, 9)  # FUTEX_WAIT, FUTEX_WAIT_BITSET (op & FUTEX_CMD_MASK)
+_PR_SET_PDEATHSIG, _PR_SET_PTRACER = 1, 0x59616D61
+_started_for: int | None = None  # the pid whose watcher was started (a forked child starts its own)
 _lock = threading.Lock()
 
 
@@ -48,121 +49,20 @@ def _noop(signum, frame) -> None:
     pass
 
 
-def _read(path: str) -> str | None:
-    try:
-        with open(path) as f:
-            return f.read()
-    except OSError:  # the thread ended meanwhile
-        return None
-
-
-@dataclass(frozen=True)
-class ThreadSample:
-    tid: int
-    name: str
-    state: str
-    """``R`` running, ``S`` asleep (interruptibly), ...: ``/proc/.../stat``'s third field."""
-    wchan: str
-    """The kernel function it sleeps in (``futex_wait_queue`` and the like)."""
-    cpu_ns: int
-    runs: int
-    """How many times it has been put on a CPU (``/proc/.../schedstat``)."""
-
-    @property
-    def in_futex_wait(self) -> bool:
-        return self.state == "S" and "futex" in self.wchan
-
-
-def threads() -> list[ThreadSample]:
-    """This process's threads now (those that end while being read are left out)."""
-    out = []
-    for name in os.listdir("/proc/self/task"):
-        base = f"/proc/self/task/{name}"
-        stat, wchan, sched = _read(f"{base}/stat"), _read(f"{base}/wchan"), _read(f"{base}/schedstat")
-        if not (stat and wchan is not None and sched):
-            continue
-        comm = stat[stat.index("(") + 1 : stat.rindex(")")]  # the name may hold spaces and ")"
-        state = stat[stat.rindex(")") + 2 :].split()[0]
-        cpu_ns, _, runs = (int(v) for v in sched.split()[:3])
-        out.append(ThreadSample(int(name), comm, state, wchan.strip(), cpu_ns, runs))
-    return out
-
-
-def futex_sleepers() -> list[int]:
-    """Thread ids of this process that sleep in a futex wait now."""
-    return [t.tid for t in threads() if t.in_futex_wait]
-
-
-@dataclass
-class StallGuard:
-    """The daemon thread described in the module's docstring."""
-
-    stall_s: float = 30.0
-    period_s: float = 5.0
-    signalled: list[int] = field(default_factory=list)
-    """The thread ids it sent a signal to, once per signal."""
-    stuck: list[str] = field(default_factory=list)
-    """The threads it reported as stuck (went on running after their wake-up)."""
-    _stop: threading.Event = field(default_factory=threading.Event)
-
-    def start(self) -> StallGuard:
-        threading.Thread(target=self._run, name="rose-usd-stall-guard", daemon=True).start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-
-    def _run(self) -> None:
-        me = threading.get_native_id()
-        asleep: dict[int, tuple[int, float]] = {}  # tid -> (run count, since when it has not changed)
-        woken: dict[int, int] = {}  # tid -> CPU ns at its wake-up, until it reports or sleeps again
-        while not self._stop.wait(self.period_s):
-            now, seen, samples = time.monotonic(), {}, [t for t in threads() if t.tid != me]
-            for t in samples:
-                if t.tid in woken and t.cpu_ns - woken[t.tid] >= RAN_S * 1e9:
-                    self._report(t)
-                    del woken[t.tid]
-                if not t.in_futex_wait:
-                    continue
-                woken.pop(t.tid, None)  # asleep again: its wake-up was a spurious one
-                runs, since = asleep.get(t.tid, (t.runs, now))
-                if runs != t.runs:
-                    since = now
-                if now - since >= self.stall_s:
-                    _tgkill(t.tid)
-                    self.signalled.append(t.tid)
-                    woken[t.tid], since = t.cpu_ns, now
-                seen[t.tid] = (t.runs, since)
-            alive = {t.tid for t in samples}
-            asleep, woken = seen, {tid: ns for tid, ns in woken.items() if tid in alive}
-
-    def _report(self, t: ThreadSample) -> None:
-        self.stuck.append(t.name)
-        line = (
-            f"rose_usd: thread {t.tid} ({t.name}) of process {os.getpid()} had slept {self.stall_s:.0f} s on a"
-            " futex; woken by a signal, it went on running (a lost wake-up: see rose_usd/core/wakeup.py)"
-        )
-        print(line, file=sys.stderr, flush=True)
-        log = os.environ.get(LOG_ENV)
-        if log:
-            with contextlib.suppress(OSError), open(log, "a") as f:
-                f.write(f"{time.strftime('%H:%M:%S')} {' '.join(sys.argv[:3])[:200]}: {line}\n")
-
-
-def _tgkill(tid: int) -> None:
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.syscall(ctypes.c_long(_TGKILL), ctypes.c_int(os.getpid()), ctypes.c_int(tid), ctypes.c_int(WAKE_SIGNAL))
-
-
 def supported() -> bool:
-    """Linux on x86-64 or AArch64 (``/proc`` with schedstat, and ``tgkill``)."""
-    return sys.platform == "linux" and _TGKILL is not None and os.path.exists("/proc/self/schedstat")
+    """Linux on x86-64 or AArch64 (``/proc`` with schedstat, ``tgkill``, ``posix_spawn``)."""
+    return (
+        sys.platform == "linux"
+        and platform.machine() in _SYSCALLS
+        and os.path.exists("/proc/self/schedstat")
+        and hasattr(os, "posix_spawn")
+    )
 
 
 def install_handler() -> bool:
-    """Set the do-nothing handler for ``WAKE_SIGNAL`` (``SA_RESTART``: other blocking calls
-    resume). False where it cannot be: not ``supported()``, off the main thread (Python sets
-    handlers there only) or the signal already has another handler."""
+    """Set the do-nothing handler for ``WAKE_SIGNAL`` (``SA_RESTART``). False where it cannot be:
+    not ``supported()``, off the main thread (Python sets handlers there only) or the signal
+    already has another handler."""
     if not supported():
         return False
     handler = signal.getsignal(WAKE_SIGNAL)
@@ -175,11 +75,120 @@ def install_handler() -> bool:
     return True
 
 
-def ensure_stall_guard() -> StallGuard | None:
-    """Start this process's guard once (later calls return it); None where ``install_handler``
-    cannot set its handler."""
-    global _guard
+def start_watcher(*, period_s: float = PERIOD_S, confirm_s: float = CONFIRM_S, log: str | None = None) -> int:
+    """Start a watcher of this process; its pid. It ends when this process does (or is killed).
+    It reads only; its standard streams are /dev/null (it writes its reports to this process's
+    stderr), so it holds no pipe of this process's open."""
+    devnull = [(os.POSIX_SPAWN_OPEN, fd, os.devnull, os.O_RDWR, 0) for fd in (0, 1, 2)]
+    argv = [sys.executable, "-I", "-S", os.path.abspath(__file__), str(os.getpid()), str(period_s), str(confirm_s)]
+    pid = os.posix_spawn(sys.executable, argv + ([log] if log else []), dict(os.environ), file_actions=devnull)
+    try:  # where Yama restricts ptrace to ancestors, let the watcher read this process's memory
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PTRACER, ctypes.c_ulong(pid), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+    return pid
+
+
+def ensure_stall_guard() -> bool:
+    """Install the handler and start this process's watcher, once; whether it runs."""
+    global _started_for
     with _lock:
-        if _guard is None and install_handler():
-            _guard = StallGuard().start()
-        return _guard
+        if _started_for != os.getpid() and install_handler():
+            start_watcher(log=os.environ.get(LOG_ENV) or None)
+            _started_for = os.getpid()
+        return _started_for == os.getpid()
+
+
+# ---------------------------------------------------------------------------------------- watcher
+def _read(path: str) -> str | None:
+    try:
+        with open(path, errors="replace") as f:
+            return f.read()
+    except OSError:  # the thread ended meanwhile
+        return None
+
+
+def lost_wait(pid: int, tid: int, mem: int) -> tuple[int, int, int] | None:
+    """(futex address, value waited for, word now) where thread ``tid`` sleeps in a futex wait
+    whose word no longer holds the value it waits for; else None."""
+    call = _read(f"/proc/{pid}/task/{tid}/syscall")
+    fields = call.split() if call else []
+    if len(fields) < 4 or fields[0] != str(_SYSCALLS[platform.machine()][0]):
+        return None
+    addr, op, value = int(fields[1], 16), int(fields[2], 16), int(fields[3], 16) & 0xFFFFFFFF
+    if op & 127 not in _FUTEX_WAIT_CMDS:
+        return None
+    try:
+        word = int.from_bytes(os.pread(mem, 4, addr), sys.byteorder)
+    except OSError:
+        return None
+    return (addr, value, word) if word != value else None
+
+
+def _runs(pid: int, tid: int) -> int | None:
+    sched = _read(f"/proc/{pid}/task/{tid}/schedstat")
+    return int(sched.split()[2]) if sched else None
+
+
+def _report(pid: int, line: str, log: str | None) -> None:
+    for path in [f"/proc/{pid}/fd/2"] + ([log] if log else []):
+        try:
+            with open(path, "a") as f:
+                f.write(line + "\n")
+        except OSError:
+            pass
+
+
+def watch(pid: int, period_s: float, confirm_s: float, log: str | None) -> None:
+    """The watcher's loop (see the module's docstring); returns when process ``pid`` ends."""
+    tgkill = _SYSCALLS[platform.machine()][1]
+    libc = ctypes.CDLL(None, use_errno=True)
+    mem = os.open(f"/proc/{pid}/mem", os.O_RDONLY)
+    seen: dict[int, tuple[tuple, float]] = {}  # tid -> ((addr, value, word, runs), since when)
+    while os.getppid() == pid:
+        now = time.monotonic()
+        for name in os.listdir(f"/proc/{pid}/task"):
+            tid = int(name)
+            lost = lost_wait(pid, tid, mem)
+            runs = _runs(pid, tid) if lost else None
+            if lost is None or runs is None:
+                seen.pop(tid, None)
+                continue
+            key = (*lost, runs)
+            if tid not in seen or seen[tid][0] != key:
+                seen[tid] = (key, now)
+                continue
+            if now - seen[tid][1] < confirm_s:
+                continue
+            libc.syscall(ctypes.c_long(tgkill), ctypes.c_int(pid), ctypes.c_int(tid), ctypes.c_int(WAKE_SIGNAL))
+            addr, value, word = lost
+            comm = (_read(f"/proc/{pid}/task/{tid}/comm") or "?").strip()
+            line = (
+                f"rose_usd: thread {tid} ({comm}) of process {pid} slept {now - seen[tid][1]:.1f} s on futex"
+                f" {addr:#x} waiting for {value} while the word held {word}: a lost wake-up; signalled it"
+                " (rose_usd/core/wakeup.py)"
+            )
+            _report(pid, line, log)
+            seen[tid] = (key, now)  # signalled again after another confirm_s if it sleeps on
+        time.sleep(period_s)
+
+
+def _main(argv: list[str]) -> None:
+    pid, period_s, confirm_s = int(argv[0]), float(argv[1]), float(argv[2])
+    log = argv[3] if len(argv) > 3 else None
+    try:  # end with the watched process (its thread that started this one, the main thread)
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != pid:
+        return
+    try:
+        watch(pid, period_s, confirm_s, log)
+    except PermissionError as exc:
+        _report(pid, f"rose_usd: no stall watcher for process {pid}: {exc}", log)
+    except (FileNotFoundError, ProcessLookupError):  # the watched process ended
+        pass
+
+
+if __name__ == "__main__":
+    _main(sys.argv[1:])
