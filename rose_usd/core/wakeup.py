@@ -149,8 +149,11 @@ def watch(pid: int, period_s: float, confirm_s: float, log: str | None) -> None:
         now = time.monotonic()
         for name in os.listdir(f"/proc/{pid}/task"):
             tid = int(name)
-            lost = lost_wait(pid, tid, mem)
-            runs = _runs(pid, tid) if lost else None
+            try:
+                lost = lost_wait(pid, tid, mem)
+                runs = _runs(pid, tid) if lost else None
+            except ValueError:  # a file cut short as the thread ended
+                lost = runs = None
             if lost is None or runs is None:
                 seen.pop(tid, None)
                 continue
@@ -188,6 +191,8 @@ def _main(argv: list[str]) -> None:
         _report(pid, f"rose_usd: no stall watcher for process {pid}: {exc}", log)
     except (FileNotFoundError, ProcessLookupError):  # the watched process ended
         pass
+    except Exception as exc:  # noqa: BLE001 - said where the watched process's errors go, then ended
+        _report(pid, f"rose_usd: the stall watcher of process {pid} stopped: {exc!r}", log)
 
 
 if __name__ == "__main__":
