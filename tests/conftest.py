@@ -24,6 +24,30 @@ def oracle_options():
     return Options(backends={"all": "oracle"})
 
 
+HUNG_TEST_S = 1500
+"""Past this, a test's process prints every thread's stack and ends (``faulthandler``, from C:
+it needs no GIL, where pytest-timeout's signal needs the main thread back in Python). Set only
+where ``ROSE_USD_STALL_LOG`` is (CI): the stacks go to ``$ROSE_USD_STALL_LOG.hung.PID``."""
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    import faulthandler
+
+    log = os.environ.get("ROSE_USD_STALL_LOG")
+    if not log:
+        yield
+        return
+    with open(f"{log}.hung.{os.getpid()}", "w") as f:  # this test's name, then the stacks if it hangs
+        f.write(f"{item.nodeid} ran past {HUNG_TEST_S} s: every thread's stack, then its process ended\n")
+        f.flush()
+        faulthandler.dump_traceback_later(HUNG_TEST_S, exit=True, file=f)
+        try:
+            yield
+        finally:
+            faulthandler.cancel_dump_traceback_later()
+
+
 def pytest_addoption(parser):
     parser.addoption(
         "--update-reference", action="store_true", help="rewrite stages/*.json from this run (deliberate golden update)"
