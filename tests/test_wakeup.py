@@ -65,13 +65,14 @@ def test_a_lost_wake_up_is_ended_even_while_this_process_holds_the_gil(watcher):
     word, done = ctypes.c_uint32(0), threading.Event()
     tid = _sleeper(word, done)
     word.value = 1  # the waker's store, without its FUTEX_WAKE: the wake-up is lost
-    assert not done.wait(1.0), "asleep on a changed word, it should not have noticed on its own"
+    # (0.5 s: under the 2 s a watcher of this whole process, started by an earlier test's render, waits)
+    assert not done.wait(0.5), "asleep on a changed word, it should not have noticed on its own"
 
     log = watcher()
     ctypes.PyDLL(None).usleep(2_000_000)  # holds the GIL: no thread of this process runs Python meanwhile
+    text = log.read_text() if log.exists() else ""
+    assert f"thread {tid} " in text and "waiting for 0 while the word held 1" in text  # signalled meanwhile
     assert done.wait(5.0), "the watcher did not wake the sleeper"
-    text = log.read_text()
-    assert f"thread {tid} " in text and "waiting for 0 while the word held 1" in text
 
 
 def test_threads_waiting_on_unchanged_words_are_never_signalled(watcher):
@@ -92,14 +93,33 @@ def test_threads_waiting_on_unchanged_words_are_never_signalled(watcher):
     lock.release()
 
 
-def test_the_watcher_ends_with_the_process_it_watches(tmp_path):
+def test_the_watcher_ends_with_the_process_it_watches():
+    """Its period 60 s: only PR_SET_PDEATHSIG can end it within 2 s. The process ends once the
+    watcher holds its memory open (in its loop)."""
     import subprocess
     import sys
 
-    code = "from rose_usd.core import wakeup; wakeup.install_handler(); print(wakeup.start_watcher(), flush=True)"
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    code = (
+        "import os, time\nfrom rose_usd.core import wakeup\nwakeup.install_handler()\n"
+        "w = wakeup.start_watcher(period_s=60.0)\nprint(w, flush=True)\n"
+        "for _ in range(1000):\n"
+        "    if any(os.readlink(f'/proc/{w}/fd/{fd}').endswith('/mem') for fd in os.listdir(f'/proc/{w}/fd')):\n"
+        "        break\n"
+        "    time.sleep(0.01)\n"
+        "else:\n"
+        "    raise SystemExit('the watcher never opened the memory')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
     pid = int(proc.stdout.strip())
-    deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline and os.path.exists(f"/proc/{pid}"):
-        time.sleep(0.05)
-    assert not os.path.exists(f"/proc/{pid}")
+
+    def alive() -> bool:  # a zombie (no init reaping it in a container) counts as ended
+        try:
+            return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"
+        except FileNotFoundError:
+            return False
+
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and alive():
+        time.sleep(0.02)
+    assert not alive()

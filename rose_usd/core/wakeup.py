@@ -16,10 +16,12 @@ another spins holding the GIL. Every ``PERIOD_S`` the watcher reads each thread'
 (``/proc/PID/mem``). The kernel lets a thread sleep only while the word holds the value it waits
 for, and whoever changes the word must wake it: a thread still asleep, not run once (its
 schedstat run count unchanged), ``CONFIRM_S`` after its word changed, lost its wake-up. The
-watcher signals that thread (``WAKE_SIGNAL``, for which the watched process set a do-nothing
-handler with ``SA_RESTART``); the kernel restarts its wait against the changed word, which returns
-at once. No other thread is ever signalled. Each wake-up is one line on the watched process's
-stderr and in the file ``$ROSE_USD_STALL_LOG`` names, if set (CI prints it).
+watcher signals that thread every ``CONFIRM_S`` while it sleeps so (``WAKE_SIGNAL``, for which
+the watched process set a do-nothing handler with ``SA_RESTART``): its wait returns (the kernel
+restarts it against the changed word, or a timed one ends with EINTR) and the thread goes on. No
+other thread is signalled. Each such wait is one line, once, in the file ``$ROSE_USD_STALL_LOG``
+names, if set (CI prints it), and on the watched process's stderr where that is a pipe or a
+terminal.
 """
 
 from __future__ import annotations
@@ -94,23 +96,30 @@ def ensure_stall_guard() -> bool:
     global _started_for
     with _lock:
         if _started_for != os.getpid() and install_handler():
-            start_watcher(log=os.environ.get(LOG_ENV) or None)
+            try:
+                start_watcher(log=os.environ.get(LOG_ENV) or None)
+            except (OSError, ValueError):  # no interpreter to start (an embedded Python): no watcher
+                return False
             _started_for = os.getpid()
         return _started_for == os.getpid()
 
 
 # ---------------------------------------------------------------------------------------- watcher
 def _read(path: str) -> str | None:
+    """The file's text; None where its thread ended meanwhile (lost access is raised)."""
     try:
         with open(path, errors="replace") as f:
             return f.read()
-    except OSError:  # the thread ended meanwhile
+    except (FileNotFoundError, ProcessLookupError):
         return None
 
 
 def lost_wait(pid: int, tid: int, mem: int) -> tuple[int, int, int] | None:
     """(futex address, value waited for, word now) where thread ``tid`` sleeps in a futex wait
     whose word no longer holds the value it waits for; else None."""
+    stat = _read(f"/proc/{pid}/task/{tid}/stat")
+    if not stat or stat[stat.rindex(")") + 2 :].split()[0] != "S":  # stopped (T) or running: not asleep
+        return None
     call = _read(f"/proc/{pid}/task/{tid}/syscall")
     fields = call.split() if call else []
     if len(fields) < 4 or fields[0] != str(_SYSCALLS[platform.machine()][0]):
@@ -119,10 +128,11 @@ def lost_wait(pid: int, tid: int, mem: int) -> tuple[int, int, int] | None:
     if op & 127 not in _FUTEX_WAIT_CMDS:
         return None
     try:
-        word = int.from_bytes(os.pread(mem, 4, addr), sys.byteorder)
+        data = os.pread(mem, 4, addr)
     except OSError:
         return None
-    return (addr, value, word) if word != value else None
+    word = int.from_bytes(data, sys.byteorder)
+    return (addr, value, word) if len(data) == 4 and word != value else None
 
 
 def _runs(pid: int, tid: int) -> int | None:
@@ -131,7 +141,17 @@ def _runs(pid: int, tid: int) -> int | None:
 
 
 def _report(pid: int, line: str, log: str | None) -> None:
-    for path in [f"/proc/{pid}/fd/2"] + ([log] if log else []):
+    """``line`` to the watched process's stderr where it is a pipe or a terminal (a file it writes
+    at its own offset would overwrite the line), and to ``log``."""
+    import stat
+
+    paths = [log] if log else []
+    try:
+        if not stat.S_ISREG(os.stat(f"/proc/{pid}/fd/2").st_mode):
+            paths.insert(0, f"/proc/{pid}/fd/2")
+    except OSError:
+        pass
+    for path in paths:
         try:
             with open(path, "a") as f:
                 f.write(line + "\n")
@@ -139,12 +159,26 @@ def _report(pid: int, line: str, log: str | None) -> None:
             pass
 
 
+def _open_mem(pid: int, wait_s: float = 5.0) -> int:
+    """/proc/PID/mem, retried for ``wait_s``: under Yama the watched process allows this one to
+    read it (``PR_SET_PTRACER``) only after the spawn has returned."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return os.open(f"/proc/{pid}/mem", os.O_RDONLY)
+        except PermissionError:
+            if time.monotonic() > deadline or os.getppid() != pid:
+                raise
+            time.sleep(0.05)
+
+
 def watch(pid: int, period_s: float, confirm_s: float, log: str | None) -> None:
     """The watcher's loop (see the module's docstring); returns when process ``pid`` ends."""
     tgkill = _SYSCALLS[platform.machine()][1]
     libc = ctypes.CDLL(None, use_errno=True)
-    mem = os.open(f"/proc/{pid}/mem", os.O_RDONLY)
-    seen: dict[int, tuple[tuple, float]] = {}  # tid -> ((addr, value, word, runs), since when)
+    mem = _open_mem(pid)
+    seen: dict[int, tuple[tuple, float]] = {}  # tid -> ((addr, value, runs), since when)
+    reported: set[tuple] = set()  # (tid, addr, value): a wait the signal did not end is said once
     while os.getppid() == pid:
         now = time.monotonic()
         for name in os.listdir(f"/proc/{pid}/task"):
@@ -157,26 +191,29 @@ def watch(pid: int, period_s: float, confirm_s: float, log: str | None) -> None:
             if lost is None or runs is None:
                 seen.pop(tid, None)
                 continue
-            key = (*lost, runs)
+            addr, value, word = lost
+            key = (addr, value, runs)  # the word may change again meanwhile: still lost while it differs
             if tid not in seen or seen[tid][0] != key:
                 seen[tid] = (key, now)
                 continue
             if now - seen[tid][1] < confirm_s:
                 continue
             libc.syscall(ctypes.c_long(tgkill), ctypes.c_int(pid), ctypes.c_int(tid), ctypes.c_int(WAKE_SIGNAL))
-            addr, value, word = lost
-            comm = (_read(f"/proc/{pid}/task/{tid}/comm") or "?").strip()
-            line = (
-                f"rose_usd: thread {tid} ({comm}) of process {pid} slept {now - seen[tid][1]:.1f} s on futex"
-                f" {addr:#x} waiting for {value} while the word held {word}: a lost wake-up; signalled it"
-                " (rose_usd/core/wakeup.py)"
-            )
-            _report(pid, line, log)
+            if (tid, addr, value) not in reported:
+                reported.add((tid, addr, value))
+                comm = (_read(f"/proc/{pid}/task/{tid}/comm") or "?").strip()
+                line = (
+                    f"rose_usd: thread {tid} ({comm}) of process {pid} slept {now - seen[tid][1]:.1f} s on futex"
+                    f" {addr:#x} waiting for {value} while the word held {word}: a lost wake-up; signalled it"
+                    " (rose_usd/core/wakeup.py)"
+                )
+                _report(pid, line, log)
             seen[tid] = (key, now)  # signalled again after another confirm_s if it sleeps on
         time.sleep(period_s)
 
 
 def _main(argv: list[str]) -> None:
+    os.closerange(3, 1 << 16)  # any descriptor the watched process let it inherit (a pipe held open)
     pid, period_s, confirm_s = int(argv[0]), float(argv[1]), float(argv[2])
     log = argv[3] if len(argv) > 3 else None
     try:  # end with the watched process (its thread that started this one, the main thread)
