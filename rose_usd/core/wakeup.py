@@ -40,7 +40,7 @@ PERIOD_S = 1.0
 CONFIRM_S = 2.0
 LOG_ENV = "ROSE_USD_STALL_LOG"
 
-_SYSCALLS = {"x86_64": (202, 234), "aarch64": (98, 131)}  # (futex, tgkill)
+_FUTEX_NR, _TGKILL_NR = {"x86_64": (202, 234), "aarch64": (98, 131)}.get(platform.machine(), (None, None))
 _FUTEX_WAIT_CMDS = (0, 9)  # FUTEX_WAIT, FUTEX_WAIT_BITSET (op & FUTEX_CMD_MASK)
 _PR_SET_PDEATHSIG, _PR_SET_PTRACER = 1, 0x59616D61
 _started_for: int | None = None  # the pid whose watcher was started (a forked child starts its own)
@@ -55,7 +55,7 @@ def supported() -> bool:
     """Linux on x86-64 or AArch64 (``/proc`` with schedstat, ``tgkill``, ``posix_spawn``)."""
     return (
         sys.platform == "linux"
-        and platform.machine() in _SYSCALLS
+        and _FUTEX_NR is not None
         and os.path.exists("/proc/self/schedstat")
         and hasattr(os, "posix_spawn")
     )
@@ -122,7 +122,7 @@ def lost_wait(pid: int, tid: int, mem: int) -> tuple[int, int, int] | None:
         return None
     call = _read(f"/proc/{pid}/task/{tid}/syscall")
     fields = call.split() if call else []
-    if len(fields) < 4 or fields[0] != str(_SYSCALLS[platform.machine()][0]):
+    if len(fields) < 4 or fields[0] != str(_FUTEX_NR):
         return None
     addr, op, value = int(fields[1], 16), int(fields[2], 16), int(fields[3], 16) & 0xFFFFFFFF
     if op & 127 not in _FUTEX_WAIT_CMDS:
@@ -174,7 +174,6 @@ def _open_mem(pid: int, wait_s: float = 5.0) -> int:
 
 def watch(pid: int, period_s: float, confirm_s: float, log: str | None) -> None:
     """The watcher's loop (see the module's docstring); returns when process ``pid`` ends."""
-    tgkill = _SYSCALLS[platform.machine()][1]
     libc = ctypes.CDLL(None, use_errno=True)
     mem = _open_mem(pid)
     seen: dict[int, tuple[tuple, float]] = {}  # tid -> ((addr, value, runs), since when)
@@ -198,7 +197,7 @@ def watch(pid: int, period_s: float, confirm_s: float, log: str | None) -> None:
                 continue
             if now - seen[tid][1] < confirm_s:
                 continue
-            libc.syscall(ctypes.c_long(tgkill), ctypes.c_int(pid), ctypes.c_int(tid), ctypes.c_int(WAKE_SIGNAL))
+            libc.syscall(ctypes.c_long(_TGKILL_NR), ctypes.c_int(pid), ctypes.c_int(tid), ctypes.c_int(WAKE_SIGNAL))
             if (tid, addr, value) not in reported:
                 reported.add((tid, addr, value))
                 comm = (_read(f"/proc/{pid}/task/{tid}/comm") or "?").strip()
@@ -216,6 +215,8 @@ def _main(argv: list[str]) -> None:
     os.closerange(3, 1 << 16)  # any descriptor the watched process let it inherit (a pipe held open)
     pid, period_s, confirm_s = int(argv[0]), float(argv[1]), float(argv[2])
     log = argv[3] if len(argv) > 3 else None
+    # core.lifetime.die_with_parent does this, but this script runs without the package (-I -S:
+    # importing rose_usd would load USD into every watcher)
     try:  # end with the watched process (its thread that started this one, the main thread)
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
     except (OSError, AttributeError):
