@@ -1,5 +1,8 @@
 """Atomic layer writes: a stage that fails midway leaves the previous layer and side files intact."""
 
+import subprocess
+import sys
+
 import pytest
 from conftest import oracle_options
 from pxr import UsdGeom
@@ -49,6 +52,49 @@ def test_no_layer_commits_after_an_interrupt_was_lost(tmp_path, monkeypatch):
             UsdGeom.Scope.Define(w.stage, paths.WORLD.AppendChild("Other"))
     assert _tree(tmp_path) == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "staging or temp files left behind"
+
+
+_LOST_IN_A_CALLBACK = """
+import signal, sys, time, weakref
+from rose_usd.core.lifetime import note_interrupt, redeliver_lost_interrupts
+
+def on_sigint(signum, frame):
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    note_interrupt()
+    raise KeyboardInterrupt
+
+signal.signal(signal.SIGINT, on_sigint)
+if sys.argv[1] == "hook":
+    redeliver_lost_interrupts()
+
+class Held:
+    pass
+
+held = Held()
+ref = weakref.ref(held, lambda _: signal.raise_signal(signal.SIGINT))  # the handler runs in the callback
+try:
+    del held
+    for _ in range(200):
+        time.sleep(0.01)
+    print("went on")
+except KeyboardInterrupt:
+    print("raised")
+"""
+
+
+@pytest.mark.parametrize("mode", ["hook", "none"])
+def test_an_interrupt_lost_in_a_callback_is_raised_again(mode):
+    """The SIGINT handler's KeyboardInterrupt raised inside a weakref callback: Python prints it
+    as "Exception ignored" and goes on; with ``redeliver_lost_interrupts`` it is raised again in
+    the main thread, with nothing printed."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _LOST_IN_A_CALLBACK, mode], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    if mode == "hook":
+        assert (proc.stdout.strip(), proc.stderr) == ("raised", "")
+    else:  # what the hook is for
+        assert proc.stdout.strip() == "went on" and "KeyboardInterrupt" in proc.stderr
 
 
 def test_a_side_folder_the_new_layer_does_not_write_goes_with_the_old(tmp_path):

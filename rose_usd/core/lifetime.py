@@ -37,3 +37,31 @@ def note_interrupt() -> None:
 def interrupt_noted() -> bool:
     """Whether ``note_interrupt`` was called in this process."""
     return _interrupted
+
+
+def redeliver_lost_interrupts() -> None:
+    """Once ``note_interrupt`` was called, a KeyboardInterrupt that Python cannot propagate (the
+    SIGINT handler ran inside a weakref callback, a finalizer or a callback from C, which print it
+    as "Exception ignored" and go on) is not printed but raised again in the main thread, a moment
+    later, from outside that callback: a stage interrupted there still ends promptly, and the user
+    sees no traceback. Other unraisable errors go to the hook that was installed before."""
+    import _thread
+    import signal
+    import threading
+
+    before = sys.unraisablehook
+
+    def raise_once(signum, frame):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    def hook(info) -> None:
+        lost = _interrupted and isinstance(info.exc_value, KeyboardInterrupt)
+        if not lost or threading.current_thread() is not threading.main_thread():
+            before(info)
+            return
+        signal.signal(signal.SIGINT, raise_once)
+        # not from here: the handler would run before this hook returns, where it is lost again
+        threading.Timer(0.01, _thread.interrupt_main, (signal.SIGINT,)).start()
+
+    sys.unraisablehook = hook
