@@ -2,6 +2,9 @@
 own loaders expect."""
 
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -108,6 +111,55 @@ def test_lerobot_video_round_trip(tmp_path):
     stats = json.loads((tmp_path / "meta" / "stats.json").read_text())
     assert stats["observation.images.camera"]["count"] == [16]
     assert np.asarray(stats["observation.images.camera"]["max"]).reshape(3).tolist() == [1.0, 1.0, 1.0]
+
+
+_ENCODE = """
+import os, subprocess, sys
+import numpy as np
+from rose_usd.io.video import VideoWriter
+
+os.environ["SVT_LOG"] = "1"
+path, how = sys.argv[1], sys.argv[2]
+frames = [np.full((32, 32, 3), 20 * i, np.uint8) for i in range(6)]
+if how == "bare":  # PyAV alone, as lerobot's encoder calls it
+    import av
+
+    with av.open(path, mode="w") as container:
+        stream = container.add_stream("libsvtav1", rate=30)
+        stream.width = stream.height = 32
+        stream.pix_fmt = "yuv420p"
+        for rgb in frames:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
+                container.mux(packet)
+            realtime_while = os.sched_getscheduler(0) != os.SCHED_OTHER
+        for packet in stream.encode():
+            container.mux(packet)
+else:
+    with VideoWriter(path, 30, 32, 32) as writer:
+        for rgb in frames:
+            writer.write(rgb)
+            realtime_while = os.sched_getscheduler(0) != os.SCHED_OTHER
+threads = {int(tid): os.sched_getscheduler(int(tid)) for tid in os.listdir("/proc/self/task")}
+policy = "import os; print(os.sched_getscheduler(0))"
+child = subprocess.run([sys.executable, "-c", policy], capture_output=True, text=True)
+print(int(realtime_while), int(any(p != os.SCHED_OTHER for p in threads.values())), child.stdout.strip())
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0, reason="SVT-AV1 asks for real-time only as root")
+def test_encoding_leaves_no_thread_real_time(tmp_path):
+    """SVT-AV1 run as root makes the thread that opens it real-time (SCHED_FIFO 99), and every
+    process started from it afterwards; spinning real-time threads on two cores stalled CI for
+    many minutes. The writer puts every thread back, so a process started after it is normal."""
+    run = lambda how: subprocess.run(  # noqa: E731
+        [sys.executable, "-c", _ENCODE, str(tmp_path / f"{how}.mp4"), how], capture_output=True, text=True, timeout=300
+    )
+    bare = run("bare")
+    assert bare.returncode == 0, bare.stderr
+    assert bare.stdout.split()[0] == "1" and bare.stdout.split()[2] == str(os.SCHED_FIFO), bare.stdout  # the cause
+    ours = run("writer")
+    assert ours.returncode == 0, ours.stderr
+    assert ours.stdout.split() == ["0", "0", str(os.SCHED_OTHER)], ours.stdout
 
 
 def test_lerobot_tasks_read_with_pandas_as_lerobot_does(tmp_path):

@@ -1,6 +1,13 @@
 """MP4 video with PyAV, encoded as lerobot's ``encode_video_frames`` does by default: AV1 by
 SVT-AV1, yuv420p, a keyframe every 2 frames (cheap random access for training), crf 30, preset 12.
-yuv420p needs an even width and height."""
+yuv420p needs an even width and height.
+
+SVT-AV1 run as root makes the thread that opens the encoder, and the threads it starts, real-time
+(SCHED_FIFO, priority 99), and every process started from that thread afterwards inherits it. On
+two cores, a real-time thread that spins waiting for a lock (Dr.Jit's, nanothread's workers) keeps
+the real-time holder of that lock off its core until the other core frees up: Mitsuba calls stood
+still for 12-14 minutes in CI that way. So after each encoder call every thread of the process
+that became real-time goes back to the encoding thread's own scheduling (``_undo_realtime``)."""
 
 from __future__ import annotations
 
@@ -34,6 +41,7 @@ class VideoWriter:
         self._container = av.open(str(self.path), mode="w")
         self._stream = self._container.add_stream(codec, rate=int(fps), options=dict(OPTIONS))
         self._stream.width, self._stream.height, self._stream.pix_fmt = width, height, PIX_FMT
+        self._scheduling = _scheduling()
         self.frames = 0
 
     def write(self, rgb: np.ndarray) -> None:
@@ -43,12 +51,16 @@ class VideoWriter:
             raise ValueError(f"frame of shape {rgb.shape}, the video is {self.height}x{self.width}x3")
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb, dtype=np.uint8), format="rgb24")
         frame.pts = self.frames
-        for packet in self._stream.encode(frame):
+        packets = self._stream.encode(frame)  # the first call opens the encoder
+        _undo_realtime(self._scheduling)
+        for packet in packets:
             self._container.mux(packet)
         self.frames += 1
 
     def close(self) -> None:
-        for packet in self._stream.encode():
+        packets = self._stream.encode()
+        _undo_realtime(self._scheduling)
+        for packet in packets:
             self._container.mux(packet)
         self._container.close()
 
@@ -57,6 +69,34 @@ class VideoWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+_REALTIME = {getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1)}
+
+
+def _scheduling() -> tuple[int, int] | None:
+    """The calling thread's scheduling policy and priority; None where they cannot be read."""
+    if not hasattr(os, "sched_getscheduler"):
+        return None
+    return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+
+def _undo_realtime(original: tuple[int, int] | None) -> None:
+    """Every thread of this process that runs real-time where ``original`` (the encoding thread's
+    scheduling before the encoder) is not: back to ``original``. A process started real-time on
+    purpose (``chrt``) is left as it is."""
+    if original is None or original[0] in _REALTIME:
+        return
+    try:
+        threads = [int(name) for name in os.listdir("/proc/self/task")]
+    except OSError:
+        return
+    for tid in threads:
+        try:
+            if os.sched_getscheduler(tid) in _REALTIME:
+                os.sched_setscheduler(tid, original[0], os.sched_param(original[1]))
+        except OSError:  # the thread has ended
+            pass
 
 
 def read_frames(path: Path) -> Iterator[np.ndarray]:
