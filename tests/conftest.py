@@ -27,18 +27,18 @@ def oracle_options():
 HUNG_TEST_S = 1500
 """Past this, a test's process prints every thread's stack and ends (``faulthandler``, from C:
 it needs no GIL, where pytest-timeout's signal needs the main thread back in Python). Set only
-where ``ROSE_USD_STALL_LOG`` is (CI): the stacks go to ``$ROSE_USD_STALL_LOG.hung.PID``."""
+where ``ROSE_USD_HUNG_STACKS`` is (CI): the stacks go to ``$ROSE_USD_HUNG_STACKS.PID``."""
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     import faulthandler
 
-    log = os.environ.get("ROSE_USD_STALL_LOG")
-    if not log:
+    prefix = os.environ.get("ROSE_USD_HUNG_STACKS")
+    if not prefix:
         yield
         return
-    with open(f"{log}.hung.{os.getpid()}", "w") as f:  # this test's name, then the stacks if it hangs
+    with open(f"{prefix}.{os.getpid()}", "w") as f:  # this test's name, then the stacks if it hangs
         f.write(f"{item.nodeid} ran past {HUNG_TEST_S} s: every thread's stack, then its process ended\n")
         f.flush()
         faulthandler.dump_traceback_later(HUNG_TEST_S, exit=True, file=f)
@@ -46,6 +46,46 @@ def pytest_runtest_protocol(item, nextitem):
             yield
         finally:
             faulthandler.cancel_dump_traceback_later()
+
+
+_REALTIME = {getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1)}
+
+
+def _realtime_threads() -> list[int]:
+    try:
+        tids = [int(name) for name in os.listdir("/proc/self/task")]
+    except OSError:
+        return []
+    out = []
+    for tid in tids:
+        try:
+            if os.sched_getscheduler(tid) in _REALTIME:
+                out.append(tid)
+        except OSError:  # ended
+            pass
+    return out
+
+
+@pytest.fixture(autouse=True)
+def _no_thread_left_real_time():
+    """A test after which a thread of its process runs real-time fails, and the threads are put
+    back: every process started from such a thread would inherit it, and real-time threads that
+    spin on two cores stall one another for many minutes (``rose_usd/io/video.py``)."""
+    watch = hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) not in _REALTIME
+    yield
+    if not watch:
+        return
+    left = _realtime_threads()
+    for tid in left:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+        except OSError:
+            pass
+    if left:
+        pytest.fail(
+            f"{len(left)} thread(s) of the test process left real-time (SCHED_FIFO/RR)"
+            + (", the main one among them" if os.getpid() in left else "")
+        )
 
 
 def pytest_addoption(parser):

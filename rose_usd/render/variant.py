@@ -48,9 +48,6 @@ def _gpu_present() -> bool:
 @functools.cache
 def mitsuba():
     """Import Mitsuba with the best variant set; returns the ``mitsuba`` module."""
-    from rose_usd.core.wakeup import ensure_stall_guard
-
-    ensure_stall_guard()  # stalls in Dr.Jit calls on CI ended when a profiler attached: see its docstring
     forced = os.environ.get("ROSE_MITSUBA_VARIANT")
     llvm = find_llvm()
     if llvm:
