@@ -24,7 +24,7 @@ def oracle_options():
     return Options(backends={"all": "oracle"})
 
 
-HUNG_TEST_S = 1500
+HUNG_TEST_S = 1000
 """Past this, a test's process prints every thread's stack and ends (``faulthandler``, from C:
 it needs no GIL, where pytest-timeout's signal needs the main thread back in Python). Set only
 where ``ROSE_USD_HUNG_STACKS`` is (CI): the stacks go to ``$ROSE_USD_HUNG_STACKS.PID``."""
