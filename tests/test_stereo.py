@@ -140,3 +140,22 @@ def test_only_clusters_that_rise_stand_on_the_support():
     points = np.concatenate([blob, strays, sheet])
     keep = standing_clusters(points, points[:, 2] - 0.02, 0.02, 30, 0.01)
     assert keep[:400].mean() > 0.95 and not keep[400:].any()
+
+
+@pytest.mark.parametrize("k, views", [(1, 4), (2, 4), (2, 2), (3, 5)])
+def test_mean_of_smallest_is_the_mean_of_the_k_smallest(k, views):
+    """The sweep's per-pixel cost over its best views: the mean of the k smallest values along
+    the first axis, as sorting them gives (ties and a repeated 4.0, the 'not seen' cost, included)."""
+    from rose_usd.geometry.stereo import _mean_of_smallest
+
+    rng = np.random.default_rng(k + views)
+    values = rng.uniform(0, 2, (views, 30, 40)).astype(np.float32)
+    values[:, :5] = 4.0
+    values[0, 10:12] = values[1, 10:12]
+    want = np.sort(values, axis=0)[:k].mean(axis=0)
+    got = _mean_of_smallest(values, k)
+    assert got.dtype == np.float32 and got.shape == (30, 40)
+    if k <= 2:
+        assert np.array_equal(got, want)  # a sum of two is the same in either order
+    else:
+        np.testing.assert_allclose(got, want, rtol=1e-6)

@@ -65,6 +65,20 @@ def _homography(ref: View, src: View, depth_m: float) -> np.ndarray:
     return src.K @ (R + np.outer(t, n) / depth_m) @ np.linalg.inv(ref.K)
 
 
+def _mean_of_smallest(values: np.ndarray, k: int) -> np.ndarray:
+    """The mean over axis 0 of its ``k`` smallest values (values (S, H, W)): kept sorted pixel
+    by pixel while the S layers stream in, a few whole-image passes where ``np.partition`` along
+    a short first axis walks the array pixel by pixel."""
+    if k >= len(values):
+        return values.mean(axis=0)
+    smallest = [np.full(values.shape[1:], np.inf, values.dtype) for _ in range(k)]
+    for layer in values:
+        carry = layer
+        for i in range(k):  # insert: each slot keeps the lesser, passes the greater on
+            smallest[i], carry = np.minimum(smallest[i], carry), np.maximum(smallest[i], carry)
+    return np.mean(np.stack(smallest), axis=0)
+
+
 def plane_depths(near_m: float, far_m: float, planes: int) -> np.ndarray:
     """``planes`` depths [m] from near to far, even in inverse depth."""
     return 1.0 / np.linspace(1.0 / near_m, 1.0 / far_m, planes)
@@ -81,18 +95,15 @@ def sweep(ref: View, sources: list[View], near_m: float, far_m: float, params: S
     best = min(params.best_views, len(sources))
     costs = np.empty((params.planes, h, w), np.float32)
     per_view = np.empty((len(sources), h, w), np.float32)
-    ones = np.ones((h, w), np.float32)
+    stills = [np.ones((h, w), np.float32) if v.moving is None else (~v.moving).astype(np.float32) for v in sources]
     for p, z in enumerate(depths):
         for s, src in enumerate(sources):
             H = _homography(ref, src, float(z))
             flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
             warped = cv2.warpPerspective(src.gray, H, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
-            seen = cv2.warpPerspective(ones, H, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP)
-            if src.moving is not None:
-                still = cv2.warpPerspective(
-                    (~src.moving).astype(np.float32), H, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
-                )
-                seen *= still
+            # the source's pixels that see the reference's, still ones only: outside the image the
+            # constant border (0) leaves them out as well
+            seen = cv2.warpPerspective(stills[s], H, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP)
             m = _box(warped, k)
             var = np.maximum(_box(warped * warped, k) - m * m, 0.0)
             cov = _box(ref.gray * warped, k) - ref_mean * m
@@ -100,11 +111,7 @@ def sweep(ref: View, sources: list[View], near_m: float, far_m: float, params: S
             # a window that leaves the source image (or meets its moving pixels) does not count
             valid = _box(seen, k) > 0.999
             per_view[s] = np.where(valid, 1.0 - zncc, 4.0)
-        if best < len(sources):
-            part = np.partition(per_view, best - 1, axis=0)[:best]
-        else:
-            part = per_view
-        costs[p] = part.mean(axis=0)
+        costs[p] = _mean_of_smallest(per_view, best)
     idx = np.argmin(costs, axis=0)
     rows, cols = np.indices((h, w))
     c0 = costs[idx, rows, cols]
