@@ -22,15 +22,46 @@ not at every read (the stages read a frame several times)."""
 def check_decodes(path: str | os.PathLike, what: str = "image") -> None:
     """InputError naming ``path`` unless its pixels decode. Decoded with Pillow first because a broken
     PNG or JPEG handed to OpenCV prints libpng/libjpeg messages on stderr besides our one line."""
+    _decoded(path, what, None)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PLAIN_RGB = (8, 2)
+"""A PNG's (bit depth, colour type) whose pixels Pillow and OpenCV read alike: 8-bit truecolour ..."""
+PLAIN_GRAY = (8, 0)
+"""... 8-bit gray ..."""
+PLAIN_DEPTH = (16, 0)
+"""... and 16-bit gray."""
+
+
+def _png_kind(path: str | os.PathLike) -> tuple[int, int] | None:
+    """A PNG's (bit depth, colour type) from its header; None for any other file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+    except OSError:
+        return None
+    if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        return None
+    return head[24], head[25]
+
+
+def _decoded(path: str | os.PathLike, what: str, plain: tuple[int, int] | None) -> np.ndarray | None:
+    """``check_decodes``, and at a file's first read in this process the pixels Pillow decoded
+    where it is a PNG of kind ``plain`` without EXIF (lossless, no palette, alpha or orientation
+    to apply: exactly what OpenCV would read, which then is not asked, so the first read decodes
+    once, not twice); None otherwise (OpenCV reads it, as at every later read)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
         st = os.stat(path)
         key = (os.fspath(path), st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
         if key in _DECODED:
-            return
+            return None
+        wanted = plain is not None and _png_kind(path) == plain
         with Image.open(path) as im:
             im.load()
+            pixels = np.array(im) if wanted and "exif" not in im.info else None
     except (OSError, ValueError, SyntaxError, UnidentifiedImageError, Image.DecompressionBombError):
         raise InputError(
             f"cannot read this {what} (missing, truncated or not an image)",
@@ -38,12 +69,17 @@ def check_decodes(path: str | os.PathLike, what: str = "image") -> None:
             hint="replace or remove the file",
         ) from None
     _DECODED.add(key)
+    if pixels is not None and plain == PLAIN_DEPTH:
+        pixels = pixels.astype(np.uint16)  # Pillow's 16-bit gray may come as int32 or big-endian
+    return pixels
 
 
 def read_rgb(path: str | os.PathLike) -> np.ndarray:
     """8-bit RGB image (H, W, 3)."""
     if Path(path).suffix.lower() in IMAGE_SUFFIXES:
-        check_decodes(path)
+        pixels = _decoded(path, "image", PLAIN_RGB)
+        if pixels is not None:
+            return pixels
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise InputError(
@@ -60,8 +96,8 @@ def write_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
     """Boolean mask (H, W): nonzero pixels of an 8-bit or paletted PNG."""
-    check_decodes(path, "mask")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    pixels = _decoded(path, "mask", PLAIN_GRAY)
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if pixels is None else pixels
     if img is None:
         raise InputError(
             "cannot read this mask (missing, truncated or not an image)", path=path, hint="replace or remove the file"
@@ -99,8 +135,8 @@ def read_depth_m(path: str | os.PathLike) -> np.ndarray:
         if depth.ndim == 3:
             depth = depth[..., 0]
     else:
-        check_decodes(path, "depth image")
-        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        pixels = _decoded(path, "depth image", PLAIN_DEPTH)
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if pixels is None else pixels
         if raw is None:
             raise InputError(
                 "cannot read this depth image (missing, truncated or not an image)",
