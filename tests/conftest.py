@@ -48,39 +48,16 @@ def pytest_runtest_protocol(item, nextitem):
             faulthandler.cancel_dump_traceback_later()
 
 
-_REALTIME = {getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1)}
-
-
-def _realtime_threads() -> list[int]:
-    try:
-        tids = [int(name) for name in os.listdir("/proc/self/task")]
-    except OSError:
-        return []
-    out = []
-    for tid in tids:
-        try:
-            if os.sched_getscheduler(tid) in _REALTIME:
-                out.append(tid)
-        except OSError:  # ended
-            pass
-    return out
-
-
 @pytest.fixture(autouse=True)
 def _no_thread_left_real_time():
     """A test after which a thread of its process runs real-time fails, and the threads are put
     back: every process started from such a thread would inherit it, and real-time threads that
-    spin on two cores stall one another for many minutes (``rose_usd/io/video.py``)."""
-    watch = hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) not in _REALTIME
+    spin on two cores stall one another for many minutes (``rose_usd/core/realtime.py``)."""
+    from rose_usd.core.realtime import scheduling, undo_realtime
+
+    before = scheduling()
     yield
-    if not watch:
-        return
-    left = _realtime_threads()
-    for tid in left:
-        try:
-            os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
-        except OSError:
-            pass
+    left = undo_realtime(before)
     if left:
         pytest.fail(
             f"{len(left)} thread(s) of the test process left real-time (SCHED_FIFO/RR)"

@@ -2,12 +2,9 @@
 SVT-AV1, yuv420p, a keyframe every 2 frames (cheap random access for training), crf 30, preset 12.
 yuv420p needs an even width and height.
 
-SVT-AV1 run as root makes the thread that opens the encoder, and the threads it starts, real-time
-(SCHED_FIFO, priority 99), and every process started from that thread afterwards inherits it. On
-two cores, a real-time thread that spins waiting for a lock (Dr.Jit's, nanothread's workers) keeps
-the real-time holder of that lock off its core until the other core frees up: Mitsuba calls stood
-still for 12-14 minutes in CI that way. So after each encoder call every thread of the process
-that became real-time goes back to the encoding thread's own scheduling (``_undo_realtime``)."""
+SVT-AV1 run as root makes the thread that opens the encoder, and its own threads, real-time
+(``core.realtime``): after each encoder call every thread of the process that became real-time
+goes back to the encoding thread's own scheduling."""
 
 from __future__ import annotations
 
@@ -16,6 +13,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+
+from rose_usd.core.realtime import scheduling, undo_realtime
 
 CODEC = "libsvtav1"
 CODEC_NAME = "av1"
@@ -41,7 +40,7 @@ class VideoWriter:
         self._container = av.open(str(self.path), mode="w")
         self._stream = self._container.add_stream(codec, rate=int(fps), options=dict(OPTIONS))
         self._stream.width, self._stream.height, self._stream.pix_fmt = width, height, PIX_FMT
-        self._scheduling = _scheduling()
+        self._scheduling = scheduling()
         self.frames = 0
 
     def write(self, rgb: np.ndarray) -> None:
@@ -52,14 +51,14 @@ class VideoWriter:
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb, dtype=np.uint8), format="rgb24")
         frame.pts = self.frames
         packets = self._stream.encode(frame)  # the first call opens the encoder
-        _undo_realtime(self._scheduling)
+        undo_realtime(self._scheduling)
         for packet in packets:
             self._container.mux(packet)
         self.frames += 1
 
     def close(self) -> None:
         packets = self._stream.encode()
-        _undo_realtime(self._scheduling)
+        undo_realtime(self._scheduling)
         for packet in packets:
             self._container.mux(packet)
         self._container.close()
@@ -69,34 +68,6 @@ class VideoWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-_REALTIME = {getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1)}
-
-
-def _scheduling() -> tuple[int, int] | None:
-    """The calling thread's scheduling policy and priority; None where they cannot be read."""
-    if not hasattr(os, "sched_getscheduler"):
-        return None
-    return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
-
-
-def _undo_realtime(original: tuple[int, int] | None) -> None:
-    """Every thread of this process that runs real-time where ``original`` (the encoding thread's
-    scheduling before the encoder) is not: back to ``original``. A process started real-time on
-    purpose (``chrt``) is left as it is."""
-    if original is None or original[0] in _REALTIME:
-        return
-    try:
-        threads = [int(name) for name in os.listdir("/proc/self/task")]
-    except OSError:
-        return
-    for tid in threads:
-        try:
-            if os.sched_getscheduler(tid) in _REALTIME:
-                os.sched_setscheduler(tid, original[0], os.sched_param(original[1]))
-        except OSError:  # the thread has ended
-            pass
 
 
 def read_frames(path: Path) -> Iterator[np.ndarray]:
