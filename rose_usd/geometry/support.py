@@ -88,17 +88,18 @@ class SupportSurface:
         """The support's height [m] under world points (..., 3), bilinear between cell centres;
         outside the grid, the nearest cell's."""
         p = np.asarray(points)
-        xy = (np.nan_to_num(p[..., :2]) - self.origin) / self.cell_m - 0.5
         rows, cols = self.grid.shape
-        x = np.clip(xy[..., 0], 0, cols - 1)
-        y = np.clip(xy[..., 1], 0, rows - 1)
+        # x and y each on their own (no (..., 2) temporaries); cells by flat index into the grid
+        x = np.clip((np.nan_to_num(p[..., 0]) - self.origin[0]) / self.cell_m - 0.5, 0, cols - 1)
+        y = np.clip((np.nan_to_num(p[..., 1]) - self.origin[1]) / self.cell_m - 0.5, 0, rows - 1)
         x0 = np.minimum(np.floor(x).astype(np.int64), max(cols - 2, 0))
         y0 = np.minimum(np.floor(y).astype(np.int64), max(rows - 2, 0))
-        x1, y1 = np.minimum(x0 + 1, cols - 1), np.minimum(y0 + 1, rows - 1)
+        dx, dy = (x0 + 1 < cols).astype(np.int64), (y0 + 1 < rows).astype(np.int64) * cols
         fx, fy = (x - x0).astype(np.float32), (y - y0).astype(np.float32)
-        g = self.grid
-        top = g[y0, x0] * (1 - fx) + g[y0, x1] * fx
-        bottom = g[y1, x0] * (1 - fx) + g[y1, x1] * fx
+        g, at = self.grid.ravel(), y0 * cols + x0
+        top = g.take(at) * (1 - fx) + g.take(at + dx) * fx
+        at += dy
+        bottom = g.take(at) * (1 - fx) + g.take(at + dx) * fx
         return top * (1 - fy) + bottom * fy
 
     def height_above(self, points: np.ndarray) -> np.ndarray:
