@@ -42,6 +42,36 @@ def test_unreadable_image(capsys, case_copy, tmp_path):
     assert_one_line_error(code, err, "000005.png", "cannot read")
 
 
+def test_a_frame_cut_short_is_refused_before_the_output_is_made(capsys, case_copy, tmp_path):
+    """A PNG whose header reads but whose data stops (a copy that broke off) is named before
+    any stage runs: no output folder is made."""
+    frame = case_copy / "rgb" / "000010.png"
+    frame.write_bytes(frame.read_bytes()[:5000])
+    out = tmp_path / "out"
+    code, err = run_cli(capsys, "run", "segment", str(case_copy), "-o", str(out))
+    assert_one_line_error(code, err, "000010.png", "cannot read")
+    assert not out.exists()
+
+
+def test_a_complete_frame_is_not_decoded_to_be_checked(tmp_path):
+    """The check reads a complete PNG's or JPEG's last bytes only; a JPEG with bytes after its
+    end marker (a camera's trailer) still passes."""
+    from rose_usd.io import images
+
+    rgb = np.random.default_rng(0).integers(0, 255, (40, 60, 3), dtype=np.uint8)
+    png, jpg = tmp_path / "a.png", tmp_path / "b.jpg"
+    cv2.imwrite(str(png), rgb)
+    cv2.imwrite(str(jpg), rgb)
+    jpg.write_bytes(jpg.read_bytes() + b"trailer" * 10)
+    before = set(images._DECODED)
+    for path in (png, jpg):
+        images.check_complete(path)
+    assert images._DECODED == before
+    png.write_bytes(png.read_bytes()[: png.stat().st_size // 2])
+    with pytest.raises(InputError, match="cannot read"):
+        images.check_complete(png)
+
+
 def test_mismatched_frame_counts(capsys, case_copy, tmp_path):
     """Fewer depth maps than RGB frames is refused up front."""
     (case_copy / "depth" / "000047.png").unlink()

@@ -171,7 +171,8 @@ class Case:
             _ = self._video_frames  # decoded now: a truncated video fails before anything is written
         else:
             self.width, self.height = images.image_size(self.frame_paths[0])
-            for p in self.frame_paths[1:]:
+            for p in self.frame_paths:
+                images.check_complete(p)  # a frame cut short fails now, before anything is written
                 size = images.image_size(p)
                 if size != (self.width, self.height):
                     raise InputError(

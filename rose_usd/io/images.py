@@ -171,6 +171,29 @@ def write_depth_mm(path: str | os.PathLike, depth_m: np.ndarray) -> None:
     cv2.imwrite(str(path), np.clip(mm, 0, 65535).astype(np.uint16))
 
 
+def check_complete(path: str | os.PathLike) -> None:
+    """InputError naming ``path`` when it is a PNG or JPEG cut short (a copy or download that
+    stopped) and its pixels do not decode. Reads the file's last bytes: a PNG ends with its IEND
+    chunk, a JPEG's end-of-image marker lies near its end; only a file without them is decoded
+    (``check_decodes``), so a complete one costs no decode and an odd but readable one passes."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 4096))
+            tail = f.read()
+    except OSError:
+        tail, head = b"", b""
+    if head.startswith(PNG_SIGNATURE):
+        ended = tail.endswith(b"IEND\xaeB`\x82")
+    elif head.startswith(b"\xff\xd8"):
+        ended = b"\xff\xd9" in tail  # after it, cameras may append a trailer
+    else:
+        return
+    if not ended:
+        check_decodes(path)
+
+
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
     """(width, height) from the file header, without decoding the pixels."""
     from PIL import Image, UnidentifiedImageError
