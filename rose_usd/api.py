@@ -28,7 +28,8 @@ class Reconstruction:
     case: Path
     out_dir: Path
     plan: dict[str, str]
-    """stage -> the backend that ran it (``auto`` resolved), in run order."""
+    """stage -> the backend that ran it (``auto`` resolved), in run order; ``planned->built``
+    where it built another backend's layer (``stereo->plane``: a camera too still for stereo)."""
     outcomes: list[StageOutcome]
     """Per stage: ``ran``, ``skipped``, ``failed`` or ``not run``, its wall time and backend."""
     wall_time_s: float

@@ -284,7 +284,9 @@ class Pipeline:
                 f"[{stage_def.name}] removed the layers it made stale: {', '.join(writer.removed)}"
                 " (re-run them, or `rose-usd reconstruct`)"
             )
-        return StageOutcome(stage_def.name, "ran", wall, config.backend.value)
+        return StageOutcome(
+            stage_def.name, "ran", wall, usd_stage.shown_backend(writer.provenance, config.backend.value)
+        )
 
     def run(self, target: str | None = None, *, check: bool = True) -> list[StageOutcome]:
         """Run ``target`` (or every stage) and whatever it needs that is missing or stale.
@@ -328,7 +330,8 @@ class Pipeline:
                     )
             else:
                 say(f"[{stage_def.name}] up to date")
-                outcomes.append(StageOutcome(stage_def.name, "skipped", 0.0, backend))
+                prov = usd_stage.read_provenance(usd_stage.layer_file(self.out_dir, stage_def.layer))
+                outcomes.append(StageOutcome(stage_def.name, "skipped", 0.0, usd_stage.shown_backend(prov, backend)))
         if usd_stage.existing_layers(self.out_dir) and not usd_stage.root_file(self.out_dir).is_file():
             usd_stage.write_root(self.out_dir, self.time_info)
         return outcomes

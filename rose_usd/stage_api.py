@@ -166,6 +166,11 @@ class StageContext:
         """Add entries to the layer's provenance (e.g. fit residuals, timings, warnings)."""
         self.writer.provenance.setdefault("results", {}).update(values)
 
+    def built_as(self, backend: str) -> None:
+        """The layer is another backend's work (the planned one found it could not do better:
+        stereo without parallax builds plane's scene); run summaries and ``inspect`` show both."""
+        self.writer.provenance["built_as"] = backend
+
     def warn(self, message: str) -> None:
         """A warning the user should see: printed and kept in the layer's provenance (inside
         ``deferred_warnings``: only collected)."""

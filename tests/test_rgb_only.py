@@ -985,17 +985,28 @@ def test_only_edges_near_the_mask_s_outline_count():
 
 def test_stereo_without_parallax_says_it_made_the_plane_scene(tmp_path, sample_case):
     """A camera with no pair of frames far enough apart for stereo gets the plane backend's scene,
-    and the scene layer warns that it did (a user reading `inspect` saw only "backend stereo")."""
+    and the scene layer warns that it did; the run's summary, its ``plan`` and ``inspect`` name
+    both backends (a user reading them saw only "stereo"), on the run and when it is skipped."""
     import rose_usd
+    from rose_usd.usd.inspect import dump, to_text
     from rose_usd.usd.stage import layer_file, read_provenance
 
     case = tmp_path / "case"
     shutil.copytree(sample_case, case)
     shutil.rmtree(case / "depth")
     settings = {"scene": {"stereo": {"min_baseline": 50.0}}}  # no source is that far from a reference
-    rose_usd.reconstruct(case, tmp_path / "out", until="scene", backends={"scene": "stereo"}, settings=settings)
+    run = functools.partial(
+        rose_usd.reconstruct, case, tmp_path / "out", until="scene", backends={"scene": "stereo"}, settings=settings
+    )
+    first = run()
     prov = read_provenance(layer_file(tmp_path / "out", "scene"))
     assert any("too little for stereo" in w for w in prov.get("warnings", [])), prov.get("warnings")
+    assert prov["backend"] == "stereo" and prov["built_as"] == "plane"
+    again = run()
+    for result, status in ((first, "ran"), (again, "skipped")):
+        assert result.plan["scene"] == "stereo->plane"
+        assert [o.status for o in result.outcomes if o.name == "scene"] == [status]
+    assert "backend stereo->plane" in to_text(dump(tmp_path / "out" / "rose.usda"))
 
 
 def test_a_poor_primitive_fit_asks_only_for_what_is_not_given():

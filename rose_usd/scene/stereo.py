@@ -341,6 +341,7 @@ def run(ctx: StageContext) -> None:
     refs = references(cameras, cfg)
     if len(refs) < 2:
         author_plane(ctx)
+        ctx.built_as("plane")
         ctx.warn(
             f"the camera moves too little for stereo ({len(refs)} reference frames with parallax): the scene is"
             " the plane backend's (the support as a slab, the rest a backdrop)"

@@ -163,7 +163,7 @@ def _layer_entry(root_dir: Path, sub: str) -> dict[str, Any]:
         entry.update(
             specs=len(specs),
             stage=prov.get("stage"),
-            backend=prov.get("backend"),
+            backend=stage_mod.shown_backend(prov, prov.get("backend")) if prov.get("backend") else None,
             wall_time_s=prov.get("wall_time_s"),
             config=prov.get("config"),
             results=prov.get("results"),

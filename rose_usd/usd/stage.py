@@ -180,6 +180,13 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def shown_backend(provenance: dict | None, planned: str) -> str:
+    """The backend a layer names for people: the planned one, ``planned->built`` where it built
+    another's layer (``StageContext.built_as``)."""
+    built = (provenance or {}).get("built_as")
+    return f"{planned}->{built}" if built and built != planned else planned
+
+
 def read_provenance(path: Path) -> dict[str, Any] | None:
     """The ``rose`` entry of a layer's customLayerData, or None if the file has none."""
     if not Path(path).is_file():
