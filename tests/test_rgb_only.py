@@ -1085,3 +1085,22 @@ def test_a_self_calibrated_focal_far_off_the_guess_must_explain_the_map_better(
     assert result.K[0, 0] == (416.0 if kept_guess else self_calibrated[0])
     assert len(runs) == (0 if self_calibrated[0] == 400.0 else 1) and all(k["fix_K"] for k in runs)
     assert bool(warnings) == kept_guess
+
+
+@pytest.mark.parametrize(
+    ("source", "sigma", "warned"),
+    [("vanishing-points", 33.0, True), ("vanishing-points", 6.0, False), ("upright-prior", 20.0, False)],
+)
+def test_an_uncertain_gravity_is_warned_once(source, sigma, warned):
+    """A new user's mug clip printed gravity +-33 deg and nothing else: an uncertain measured
+    gravity now warns and says what would help; a guessed upright keeps its own warning only."""
+    from types import SimpleNamespace
+
+    from rose_usd.capture.gravity import GravityEstimate
+    from rose_usd.capture.sfm import _summarize
+
+    warnings: list[str] = []
+    ctx = SimpleNamespace(warn=warnings.append)
+    gravity = GravityEstimate(np.array([0.0, 0.0, 1.0]), source, None, [], sigma)
+    _summarize(ctx, "static", gravity, ScaleCue("category-prior", 1.0, 0.17), 0.4)
+    assert [("uncertain" in w and "imu/gravity.txt" in w) for w in warnings] == ([True] if warned else [])

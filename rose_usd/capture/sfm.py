@@ -68,6 +68,9 @@ from rose_usd.stage_api import StageContext
 PLAUSIBLE_HEIGHT_M = (0.05, 3.0)
 """The reference camera's height over the support a tabletop video can have [m]; outside, a warning."""
 
+UNCERTAIN_GRAVITY_DEG = 10.0
+"""Gravity measured less surely than this gets a warning (a guessed upright has its own)."""
+
 _IMAGE_GRAVITY = ("vanishing-points", "upright-prior")
 """Gravity sources of a single image (not a map's plane, not a sensor): the object may refine them."""
 
@@ -221,6 +224,12 @@ def _summarize(ctx: StageContext, motion: str, gravity, chosen: ScaleCue, height
             f"the camera comes out {height:.3g} m above the support, not a tabletop video's"
             f" {PLAUSIBLE_HEIGHT_M[0]}-{PLAUSIBLE_HEIGHT_M[1]} m: the gravity, the intrinsics or the scale is"
             " likely wrong (give cam_K.txt, size_m)"
+        )
+    if gravity.uncertainty_deg > UNCERTAIN_GRAVITY_DEG and gravity.source != "upright-prior":
+        ctx.warn(
+            f"gravity from {gravity.source} is uncertain (+-{gravity.uncertainty_deg:.0f} deg): the support may"
+            " be tilted, and objects set down on it float or sink; give imu/gravity.txt, or film more of the"
+            " table and the room's straight edges"
         )
     scale_from = chosen.name + (f" {chosen.detail['file']}" if "file" in chosen.detail else "")
     say(
