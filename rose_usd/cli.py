@@ -12,7 +12,7 @@ import sys
 import traceback
 from pathlib import Path
 
-from rose_usd.errors import ConfigError, RoseError
+from rose_usd.errors import ConfigError, InputError, RoseError
 
 
 def _sample_case() -> Path:
@@ -183,14 +183,35 @@ def _stage_file(arg: str) -> Path:
     from rose_usd.usd import paths
 
     path = Path(arg)
-    return path / paths.ROOT_FILE if path.is_dir() and (path / paths.ROOT_FILE).is_file() else path
+    if path.is_dir():
+        if not (path / paths.ROOT_FILE).is_file():
+            raise InputError(
+                f"no {paths.ROOT_FILE} in this folder (not an output folder, or no stage has written into it yet)",
+                path=path,
+                hint="give an output folder of `rose-usd reconstruct` or a .usda file",
+            )
+        return path / paths.ROOT_FILE
+    return path
+
+
+def _composed(stage: Path) -> Path:
+    """The output folder's stage where ``stage`` is one of its layers/ (a layer alone has no stage
+    metadata and holds only its stage's prims), else ``stage``."""
+    from rose_usd.usd import paths
+
+    root = stage.parent.parent / paths.ROOT_FILE
+    return root if stage.parent.name == "layers" and root.is_file() else stage
 
 
 def cmd_inspect(args) -> int:
     from rose_usd.usd import inspect as usd_inspect
 
-    data = usd_inspect.dump(_stage_file(args.stage))
-    if args.json:
+    stage = _stage_file(args.stage)
+    if _composed(stage) != stage:
+        print(f"inspecting {_composed(stage)}, the stage that layers/{stage.name} is a layer of", file=sys.stderr)
+        stage = _composed(stage)
+    data = usd_inspect.dump(stage)
+    if args.json or args.normalized:
         print(json.dumps(usd_inspect.normalize(data) if args.normalized else data, indent=2, sort_keys=True))
     else:
         print(usd_inspect.to_text(data))
@@ -220,10 +241,12 @@ def cmd_validate(args) -> int:
     from rose_usd.usd.validate import validate as validate_stage
 
     stage = _stage_file(args.stage)
-    root = stage.parent.parent / paths.ROOT_FILE
-    if stage.parent.name == "layers" and root.is_file():  # one layer of an output folder
-        print(f"validating {root}, the stage that layers/{stage.name} is a layer of (a layer has no stage metadata)")
-        stage = root
+    if _composed(stage) != stage:  # one layer of an output folder
+        print(
+            f"validating {_composed(stage)}, the stage that layers/{stage.name} is a layer of"
+            " (a layer has no stage metadata)"
+        )
+        stage = _composed(stage)
     report = validate_stage(stage, with_newton=not args.no_newton)
     for line in report.errors:
         print(f"error: {line}")
@@ -437,8 +460,23 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
     )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a usage error as one line and exit status 1, like every other error a user
+    can fix (argparse's own prints the usage and exits 2, which rose-usd keeps for bugs)."""
+
+    def error(self, message: str):
+        self.exit(1, f"error: {self.prog}: {message}; see `{self.prog} --help`\n")
+
+
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a tolerance (a number >= 0)")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="rose-usd", description="Casual video of a person moving an object -> simulator-ready OpenUSD stage."
     )
     sub = parser.add_subparsers(dest="command", required=True)
@@ -515,16 +553,18 @@ def _add_stage_commands(sub) -> None:
     )
     p.add_argument("stage", help="a .usda/.usd file, or an output folder (its rose.usda)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--normalized", action="store_true", help="with --json: the stable form used by stages/ and diff")
+    p.add_argument(
+        "--normalized", action="store_true", help="the stable JSON form used by stages/ and diff (implies --json)"
+    )
     p.set_defaults(func=cmd_inspect)
 
     p = sub.add_parser(
         "diff", help="compare two stages (or --json dumps) with tolerances, timings left out; exit 1 if they differ"
     )
-    p.add_argument("a")
-    p.add_argument("b")
-    p.add_argument("--rtol", type=float, default=1e-4, help="relative tolerance (default 1e-4)")
-    p.add_argument("--atol", type=float, default=1e-6, help="absolute tolerance (default 1e-6)")
+    p.add_argument("a", help="a .usda/.usd file, an output folder (its rose.usda) or an `inspect --json` dump")
+    p.add_argument("b", help="the same, to compare with a")
+    p.add_argument("--rtol", type=_non_negative, default=1e-4, help="relative tolerance (default 1e-4)")
+    p.add_argument("--atol", type=_non_negative, default=1e-6, help="absolute tolerance (default 1e-6)")
     p.add_argument("--ignore", action="append", metavar="SUBSTRING", help="skip keys containing this (repeatable)")
     p.set_defaults(func=cmd_diff)
 

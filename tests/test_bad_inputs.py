@@ -305,6 +305,34 @@ def test_validate_names_the_layers_an_output_folder_lacks_and_takes_the_folder(
     assert main(["validate", str(out / "layers" / "world.usda"), "--no-newton"]) == 0
     text = capsys.readouterr().out
     assert text.startswith(f"validating {out / 'rose.usda'}") and "0 error(s)" in text, text
+    # inspect does the same, saying so on stderr (stdout stays the dump)
+    assert main(["inspect", str(oracle_out / "layers" / "scene.usda")]) == 0
+    got = capsys.readouterr()
+    assert got.out == by_folder and got.err.startswith(f"inspecting {oracle_out / 'rose.usda'}"), got.err
+
+
+def test_stage_commands_refuse_what_they_cannot_read_in_one_line(capsys, oracle_out, tmp_path):
+    """A new user's trial: `validate` on a folder without rose.usda talked of "a folder, not a stage
+    file"; `diff --rtol -1` listed every value as different; a usage error printed argparse's usage
+    and exited 2 (rose-usd's status for a bug). Each is one line and exit 1 now; `--normalized`
+    alone is the normalized JSON (it was ignored without --json)."""
+    import json
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for command in ("validate", "inspect"):
+        assert_one_line_error(*run_cli(capsys, command, str(empty)), "empty", "no rose.usda in this folder")
+    for flag in ("--rtol", "--atol"):
+        with pytest.raises(SystemExit) as exc:
+            main(["diff", str(oracle_out), str(oracle_out), flag, "-1"])
+        assert_one_line_error(exc.value.code, capsys.readouterr().err, flag, "not a tolerance")
+    with pytest.raises(SystemExit) as exc:
+        main(["reconstruct", str(tmp_path)])
+    assert_one_line_error(exc.value.code, capsys.readouterr().err, "-o/--output", "rose-usd reconstruct --help")
+    assert main(["inspect", str(oracle_out), "--normalized"]) == 0
+    assert main(["inspect", str(oracle_out), "--json", "--normalized"]) == 0
+    alone, with_json = capsys.readouterr().out.split("\n}\n", 1)
+    assert json.loads(alone + "}") == json.loads(with_json)
 
 
 def test_a_truncated_video_is_one_line_with_no_decoder_noise(tmp_path):
