@@ -202,6 +202,44 @@ def test_object_never_visible_leaves_no_mix(capsys, case_copy, out_copy):
     assert not [p for p in out_copy.iterdir() if p.name.startswith(".")]
 
 
+def test_a_layer_of_another_case_is_blamed_not_those_made_after_it(out_copy):
+    """A new user copied another run's object layer into an output folder: validate said the
+    trajectory was made from layers/object.usda "which is missing" although it was there."""
+    import json
+
+    from pxr import Sdf
+
+    from rose_usd.usd.stage import consistency_problems
+
+    layer = Sdf.Layer.FindOrOpen(str(out_copy / "layers" / "object.usda"))
+    data = dict(layer.customLayerData)
+    prov = json.loads(data["rose"])
+    prov["inputs"]["case"] = "another"
+    data["rose"] = json.dumps(prov, sort_keys=True)
+    layer.customLayerData = data
+    layer.Save()
+    problems = consistency_problems(out_copy)
+    assert problems[0] == "layers/object.usda was made from another case than layers/world.usda", problems
+    assert "layers/trajectory.usda depends on layers/object.usda, which does not belong here (above)" in problems
+    assert not [p for p in problems if "missing" in p], problems
+
+
+def test_a_missing_layer_and_a_broken_usda_are_named_in_one_line(capsys, out_copy, tmp_path):
+    """A new user's trial: with layers/scene.usda deleted, validate printed USD's own "Could not
+    load sublayer" warning (stage.cpp, line 3315) before a line that named no layer; a usda with a
+    syntax error was reported by USD's C++ function and source file, cut off. Now: the missing
+    layer, and the file's own line and column."""
+    (out_copy / "layers" / "scene.usda").unlink()
+    for command in ("validate", "inspect"):
+        code, err = run_cli(capsys, command, str(out_copy))
+        assert_one_line_error(code, err, "layers/scene.usda is missing", "rose-usd reconstruct")
+    bad = tmp_path / "bad.usda"
+    bad.write_text('#usda 1.0\n(\n    upAxis = "Z"\n)\n\ndef Xform "World" {\n    double3 a = (1, 2\n}\n')
+    code, err = run_cli(capsys, "inspect", str(bad))
+    assert_one_line_error(code, err, f"{bad}:8:1: parse error", "</World.a>")
+    assert "pxrInternal" not in err and ".cpp" not in err and ".h " not in err
+
+
 def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
     """Oracle backends on a case without gt/ say which backend to choose instead."""
     shutil.rmtree(case_copy / "gt")

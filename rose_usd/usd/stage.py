@@ -13,6 +13,7 @@ import contextlib
 import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -123,12 +124,19 @@ def open_stage(path: str | os.PathLike, *, muted: tuple[str, ...] = ()) -> Usd.S
         if real and Path(real).parent in here and not layer.dirty:
             layer.Reload()
     try:
+        root = Sdf.Layer.FindOrOpen(str(path))
+        gone = [sub for sub in (root.subLayerPaths if root else []) if not (path.parent / sub).is_file()]
+        if gone:  # before USD warns of each on stderr
+            raise StageError(
+                f"{gone[0]} is missing" + (f" (and {len(gone) - 1} more layer(s))" if len(gone) > 1 else ""),
+                path=path,
+                hint=f"`rose-usd reconstruct CASE -o {path.parent}` runs again what is missing",
+            )
         stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
-        lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-        reason = next((line for line in lines if "syntax" in line.lower() or "error" in line.lower()), "")
+        reason = usd_error_reason(str(exc))
         raise StageError(
-            "not a USD stage that can be opened" + (f" ({reason[:120]})" if reason else ""),
+            "not a USD stage that can be opened" + (f" ({reason})" if reason else ""),
             path=path,
             hint="give a stage file written by rose-usd (OUT/rose.usda) or another valid USD file",
         ) from None
@@ -138,6 +146,18 @@ def open_stage(path: str | os.PathLike, *, muted: tuple[str, ...] = ()) -> Usd.S
         stage.MuteLayer(str(layer_file(path.parent, name).resolve()))
     raise_on_composition_errors(stage, path)
     return stage
+
+
+def usd_error_reason(text: str, limit: int = 200) -> str:
+    """The first message of a Tf.ErrorException's text ("Error in 'function' at line N in file
+    F : 'message'"): the message alone, USD's namespace prefix left out (a usda file's own
+    file:line:column stays)."""
+    for chunk in text.split("Error in ")[1:]:
+        _, sep, message = chunk.partition(" : '")
+        if sep:
+            message = re.sub(r"pxrInternal_v\w+?__pxrReserved__::", "", message.strip().removesuffix("'").strip())
+            return message[:limit]
+    return text.strip().splitlines()[0][:limit] if text.strip() else ""
 
 
 def raise_on_composition_errors(stage: Usd.Stage, path: str | os.PathLike | None = None) -> None:
@@ -478,7 +498,7 @@ def _inputs_stale(prov: dict, hashes: dict[str, str], case: str | None) -> str |
             upstream = key.split(":", 1)[1]
             now = hashes.get(upstream, "missing")
             if now != recorded:
-                return f"missing {upstream}" if now == "missing" else f"changed {upstream}"
+                return f"{now if now in ('missing', 'stale') else 'changed'} {upstream}"
     return None
 
 
@@ -496,7 +516,7 @@ def stale_layers(
         why = _inputs_stale(prov, hashes, case)
         if why is not None:
             out.append((name, why))
-            hashes[name] = "missing"
+            hashes[name] = "stale"  # what was made from it is stale too
     return out
 
 
@@ -507,6 +527,8 @@ def _describe(name: str, why: str, first: str | None) -> str:
     kind, upstream = why.split(" ", 1)
     if kind == "missing":
         return f"{layer} was made from {paths.layer_file(upstream)}, which is missing"
+    if kind == "stale":
+        return f"{layer} depends on {paths.layer_file(upstream)}, which does not belong here (above)"
     return f"{layer} is stale: {paths.layer_file(upstream)} changed since it was made"
 
 
