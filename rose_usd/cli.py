@@ -17,7 +17,7 @@ from rose_usd.errors import ConfigError, InputError, RoseError
 
 def _sample_case() -> Path:
     """The bundled sample (package data)."""
-    return Path(__file__).resolve().parent / "samples" / "push-box"
+    return (Path(__file__).resolve().parent / "samples" / "push-box").resolve()  # the path the layers record
 
 
 def _bench_dir(*parts: str) -> Path:

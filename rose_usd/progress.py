@@ -37,18 +37,22 @@ def progress(items: Iterable[T], desc: str, total: int | None = None, unit: str 
 
 def _logged(items: Iterable[T], desc: str, total: int | None, unit: str) -> Iterator[T]:
     """``progress`` off a terminal: "desc: 0/N unit" at the start, then every LOG_EVERY_S, and the
-    count and seconds at the end."""
+    count and seconds at the end, also where the loop stops early."""
     of = f"/{total}" if total is not None else ""
     start = last = time.perf_counter()
     print(f"{desc}: 0{of} {unit}s", file=sys.stderr, flush=True)
     done = 0
-    for item in items:
-        yield item
-        done += 1
-        now = time.perf_counter()
-        if now - last >= LOG_EVERY_S:
-            print(f"{desc}: {done}{of} {unit}s, {now - start:.0f} s", file=sys.stderr, flush=True)
-            last = now
+    try:
+        for item in items:
+            done += 1  # handed out: a loop left during an item counts it
+            yield item
+            now = time.perf_counter()
+            if now - last >= LOG_EVERY_S:
+                print(f"{desc}: {done}{of} {unit}s, {now - start:.0f} s", file=sys.stderr, flush=True)
+                last = now
+    except GeneratorExit:  # left early (a rest check that settled, or an error): its end all the same
+        print(f"{desc}: {done}{of} {unit}s in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+        raise
     print(f"{desc}: {done}{of} {unit}s in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
 
 

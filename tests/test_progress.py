@@ -26,3 +26,25 @@ def test_quiet_prints_nothing(monkeypatch):
     monkeypatch.setenv("ROSE_USD_QUIET", "1")
     assert list(progress_module.progress(range(2), "scene", total=2)) == [0, 1]
     assert log.getvalue() == ""
+
+
+def test_a_loop_left_early_still_gets_its_end_line(monkeypatch):
+    """A rest check stops once the objects settle: its log showed "newton: 0/600 steps" and never
+    an end. Left early (a break, or an error in the loop) it ends with the count reached."""
+    log = io.StringIO()
+    monkeypatch.setattr(progress_module.sys, "stderr", log)
+    monkeypatch.delenv("ROSE_USD_QUIET", raising=False)
+    for step in progress_module.progress(range(600), "newton", total=600, unit="step"):
+        if step == 149:
+            break
+    lines = log.getvalue().splitlines()
+    assert lines[0] == "newton: 0/600 steps" and lines[-1].startswith("newton: 150/600 steps in "), lines
+    log.truncate(0)
+    log.seek(0)
+    try:
+        for _ in progress_module.progress(range(3), "segment", total=3):
+            raise ValueError("a stage's error")
+    except ValueError:
+        pass
+    lines = log.getvalue().splitlines()
+    assert lines[0] == "segment: 0/3 frames" and lines[1].startswith("segment: 1/3 frames in ") and len(lines) == 2
