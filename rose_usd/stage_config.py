@@ -152,7 +152,7 @@ def _setting_hint(key: str, names: list[str], stage: str) -> str:
     moved = [n for n in names if n.rpartition(".")[2] == key.rpartition(".")[2]]
     if moved:
         return f"did you mean {' or '.join(f'{stage}.{n}' for n in moved)}?"
-    close = difflib.get_close_matches(key, names, n=1, cutoff=0.75)
+    close = difflib.get_close_matches(key, names, n=1, cutoff=0.6)  # rose.toml's keys' cutoff: spx -> spp
     if close:
         return f"did you mean {stage}.{close[0]}?"
     return f"settings: {', '.join(names)}"

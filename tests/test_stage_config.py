@@ -48,6 +48,7 @@ def test_hash_covers_the_running_backend_only():
         ({"backend": "colmap"}, "one of auto, fusion, imported, silhouette, oracle"),
         ({"revolution_tolerance": 0.04}, "did you mean object.fusion.revolution_tolerance"),
         ({"voxel_mm": 0.004}, "did you mean object.voxel_m?"),
+        ({"voxl_m": 0.004}, "did you mean object.voxel_m?"),
     ],
 )
 def test_a_value_that_does_not_fit_is_one_line_error(values, needle):
@@ -121,3 +122,11 @@ def test_every_default_can_be_given_back(stage):
     values = flatten(config_to_dict(config, running_only=False), setting_names(stage.config))
     rebuilt = build_config(stage.name, stage.config, values, source="--set")
     assert config_to_dict(rebuilt, running_only=False) == config_to_dict(config, running_only=False)
+
+
+def test_a_short_setting_misspelt_gets_its_suggestion():
+    """`--set gate.spx=3` listed every gate setting where `object.silhouete...` got a "did you mean"."""
+    from rose_usd.gate.config import GateConfig
+
+    with pytest.raises(ConfigError, match=r"did you mean gate\.spp\?"):
+        build_config("gate", GateConfig, {"spx": 3}, source="--set")
