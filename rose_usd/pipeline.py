@@ -84,6 +84,8 @@ class StageOutcome:
     backend: str
     error: str | None = None
     """The failure's one-line message."""
+    removed: tuple[str, ...] = ()
+    """The layers after it that its new layer made stale, removed in its commit."""
 
     @property
     def ran(self) -> bool:
@@ -279,14 +281,8 @@ class Pipeline:
             func(StageContext(stage_def, config, self.case, self.out_dir, self.time_info, writer))
         wall = float(writer.provenance["wall_time_s"])
         say(f"[{stage_def.name}] wrote {usd_stage.layer_file(self.out_dir, stage_def.layer)} in {wall:.1f} s")
-        if writer.removed:
-            say(
-                f"[{stage_def.name}] removed the layers it made stale: {', '.join(writer.removed)}"
-                " (re-run them, or `rose-usd reconstruct`)"
-            )
-        return StageOutcome(
-            stage_def.name, "ran", wall, usd_stage.shown_backend(writer.provenance, config.backend.value)
-        )
+        backend = usd_stage.shown_backend(writer.provenance, config.backend.value)
+        return StageOutcome(stage_def.name, "ran", wall, backend, removed=tuple(writer.removed))
 
     def run(self, target: str | None = None, *, check: bool = True) -> list[StageOutcome]:
         """Run ``target`` (or every stage) and whatever it needs that is missing or stale.
@@ -321,6 +317,7 @@ class Pipeline:
                 t0 = time.perf_counter()
                 try:
                     outcomes.append(self.run_stage(stage_def))
+                    self._say_removed(outcomes[-1], stages)
                 except RoseError as exc:
                     if check:
                         raise
@@ -335,6 +332,19 @@ class Pipeline:
         if usd_stage.existing_layers(self.out_dir) and not usd_stage.root_file(self.out_dir).is_file():
             usd_stage.write_root(self.out_dir, self.time_info)
         return outcomes
+
+    @staticmethod
+    def _say_removed(outcome: StageOutcome, stages: list[StageDef]) -> None:
+        """Which layers the stage's commit removed as stale; what to do only for those this run
+        does not make again."""
+        if not outcome.removed:
+            return
+        later = {s.layer for s in stages}
+        left = [name for name in outcome.removed if name not in later]
+        say(
+            f"[{outcome.name}] removed the layers it made stale: {', '.join(outcome.removed)}"
+            + (f" (re-run {', '.join(left)}, or `rose-usd reconstruct`)" if left else " (this run makes them again)")
+        )
 
 
 def _in_child_process(pipe: Pipeline, stage_def: StageDef) -> StageOutcome:

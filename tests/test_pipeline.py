@@ -73,3 +73,18 @@ def test_bad_options_fail_before_anything_runs(tmp_path, sample_case, flag):
     with pytest.raises(ConfigError):
         Pipeline(sample_case, out, Options(**flag)).run()
     assert not (out / "layers").exists() or not any((out / "layers").iterdir())
+
+
+def test_removed_layers_are_left_to_be_made_again_only_when_the_run_will_not(capsys, monkeypatch):
+    """A full reconstruct printed "[scene] removed the layers it made stale: object, trajectory,
+    gate (re-run them, or `rose-usd reconstruct`)" and then re-ran them itself."""
+    from rose_usd import registry
+    from rose_usd.pipeline import Pipeline, StageOutcome
+
+    monkeypatch.delenv("ROSE_USD_QUIET", raising=False)
+    outcome = StageOutcome("scene", "ran", 1.0, "tsdf", removed=("object", "trajectory", "gate"))
+    Pipeline._say_removed(outcome, list(registry.STAGES))
+    Pipeline._say_removed(outcome, [registry.get(n) for n in ("capture", "segment", "scene", "object")])
+    whole, until_object = capsys.readouterr().err.splitlines()
+    assert whole.endswith("object, trajectory, gate (this run makes them again)"), whole
+    assert until_object.endswith("(re-run trajectory, gate, or `rose-usd reconstruct`)"), until_object
