@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import textwrap
 import traceback
 from pathlib import Path
 
@@ -268,20 +269,27 @@ def cmd_validate(args) -> int:
 
 def cmd_stages(args) -> int:
     from rose_usd import registry
-    from rose_usd.stage_config import config_to_dict, setting_names
+    from rose_usd.stage_config import config_to_dict, setting_docs, setting_names
 
-    for s in registry.STAGES:
-        except_ = "".join(f" ({b}: [{', '.join(n)}])" for b, n in s.needs_by_backend.items())
-        print(
-            f"{s.name:<11} layers/{s.layer}.usda  needs [{', '.join(s.needs)}]{except_}"
-            f"  backends: auto, {', '.join(s.backends)}"
-        )
+    stages = [registry.get(args.stage)] if args.stage else registry.STAGES
+    for s in stages:
+
+        def needing(stages) -> str:
+            return f"the layers of {', '.join(stages)}" if stages else "no layer"
+
+        other = "".join(f"; with {b}: {needing(n)}" for b, n in s.needs_by_backend.items())
+        print(f"{s.name:<11} layers/{s.layer}.usda  needs {needing(s.needs)}{other}")
+        print(f"            backends: auto, {', '.join(s.backends)}")
         print(f"            {s.summary}")
         defaults = config_to_dict(s.config(), running_only=False)
+        docs = setting_docs(s.config) if args.stage else {}
         for name in setting_names(s.config):
             owner, _, field = name.rpartition(".")
             default = defaults[owner][field] if owner else defaults[field]
-            print(f"              {s.name}.{name} = {default!r}")
+            shown = f"{default:.6g}" if isinstance(default, float) else repr(default)
+            print(f"              {s.name}.{name} = {shown}")
+            if docs.get(name):
+                print(textwrap.fill(docs[name], 100, initial_indent=" " * 18, subsequent_indent=" " * 18))
     return 0
 
 
@@ -579,7 +587,8 @@ def _add_stage_commands(sub) -> None:
     p.add_argument("--no-newton", action="store_true", help="skip the Newton load")
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("stages", help="list the pipeline stages, their backends and settings")
+    p = sub.add_parser("stages", help="list the pipeline stages, their backends and settings (with defaults)")
+    p.add_argument("stage", nargs="?", help="one stage, its settings explained (e.g. `rose-usd stages gate`)")
     p.set_defaults(func=cmd_stages)
 
 

@@ -92,6 +92,41 @@ def setting_names(cls: type) -> list[str]:
     return out
 
 
+def setting_docs(cls: type) -> dict[str, str]:
+    """Every setting of a stage config (``setting_names``) -> the docstring under its field in
+    the source, whitespace collapsed ("" where there is none)."""
+    nested = backend_configs(cls)
+    docs = _field_docs(cls)
+    out = {}
+    for name in setting_names(cls):
+        owner, _, field_name = name.rpartition(".")
+        out[name] = (_field_docs(nested[owner]) if owner else docs).get(field_name, "")
+    return out
+
+
+@functools.cache
+def _field_docs(cls: type) -> dict[str, str]:
+    import ast
+    import inspect
+    import textwrap
+
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    except (OSError, TypeError):  # no source (a frozen install)
+        return {}
+    body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+    out = {}
+    for node, after in zip(body, body[1:]):
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            if (
+                isinstance(after, ast.Expr)
+                and isinstance(after.value, ast.Constant)
+                and isinstance(after.value.value, str)
+            ):
+                out[node.target.id] = " ".join(after.value.value.split())
+    return out
+
+
 def flatten(overrides: Mapping[str, Any], names: list[str] | None = None, prefix: str = "") -> dict[str, Any]:
     """{"fusion": {"voxel_m": 1}} and {"fusion.voxel_m": 1} alike as {"fusion.voxel_m": 1}; a
     table given for a setting of ``names`` (a mapping-valued setting) stays whole."""

@@ -9,6 +9,6 @@ STAGE = StageDef(
     needs=("capture", "segment", "scene", "object", "trajectory"),
     config=GateConfig,
     backends={"mitsuba-newton": "rose_usd.gate.run:run"},
-    summary="Mitsuba re-render SSIM, Newton rest check, collider check -> layers/gate.usda + report/",
+    summary="Mitsuba re-render SSIM, track check, Newton rest check, collider check -> layers/gate.usda + report/",
     side_dirs=("report",),
 )
