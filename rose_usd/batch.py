@@ -71,7 +71,8 @@ class CaseResult:
     wall_time_s: float = 0.0
     """Seconds spent on this case in the run that finished it."""
     stage_times_s: dict[str, float] = field(default_factory=dict)
-    """Seconds per stage that ran in that run (a stage whose layer was up to date is absent)."""
+    """Seconds per stage as its layer records them: this run's, or the earlier run's that made a
+    layer this one found up to date (after a resume, the whole case's times)."""
     error: str | None = None
     stages_ran: list[str] = field(default_factory=list)
     layers: dict[str, str] = field(default_factory=dict)
@@ -192,7 +193,7 @@ def run_case(
         with _stderr_to(out / LOG):
             rec = reconstruct(case, out, validate=True, check=False, **options)
         result.stages_ran = [o.name for o in rec.outcomes if o.status == "ran"]
-        result.stage_times_s = {o.name: round(o.wall_time_s, 2) for o in rec.outcomes if o.status == "ran"}
+        result.stage_times_s = _stage_times(out, rec.outcomes)
         result.error = rec.error
         if rec.validation is not None and not rec.validation.ok:
             result.error = result.error or f"{rec.path}: the stage is not valid ({rec.validation.errors[0]})"
@@ -282,10 +283,13 @@ def batch(
     for name, case in zip(names, cases):
         if name in refused:
             line = f"{REFUSED}: {refused[name].one_line()}"
-            finished(asdict(CaseResult(name=name, case=case, out_dir=str(out / name), status="failed", error=line)))
+            finished(asdict(CaseResult(name=name, case=case, out_dir="", status="failed", error=line)))  # none made
         elif earlier[name] is not None:
             finished(asdict(earlier[name]))
     jobs = [job for job in jobs if job[0] not in results]
+    if jobs and len(jobs) < len(names):
+        reused = len(results) - len(refused)
+        say(f"batch: {len(jobs)} of {len(names)} cases to run ({len(refused)} refused, {reused} recorded earlier)")
 
     if jobs and ray:
         _run_ray(jobs, ray, cpus_per_case, gpus_per_case, finished)
@@ -330,6 +334,23 @@ def _line(r: CaseResult) -> str:
     collect = "" if r.collect_success is None else f", collect {100 * r.collect_success:.0f} %"
     how = "recorded earlier" if r.reused else f"in {r.wall_time_s:.0f} s"
     return f"batch: {r.name} done {how}{gate}{collect}"
+
+
+def _stage_times(out: Path, outcomes) -> dict[str, float]:
+    """Seconds per stage of a finished run: those that ran, and for those found up to date what
+    their layer records."""
+    from rose_usd.registry import get
+    from rose_usd.usd.stage import layer_file, read_provenance
+
+    times = {}
+    for o in outcomes:
+        if o.status == "ran":
+            times[o.name] = round(o.wall_time_s, 2)
+        elif o.status == "skipped":
+            wall = (read_provenance(layer_file(out, get(o.name).layer)) or {}).get("wall_time_s")
+            if wall is not None:
+                times[o.name] = round(float(wall), 2)
+    return times
 
 
 def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:
@@ -455,7 +476,7 @@ def _html(out: Path, results: list[CaseResult]) -> str:
         img = (
             f'<a href="{html.escape(os.path.relpath(picture, out))}"><img src="'
             f'{html.escape(os.path.relpath(picture, out))}" width="480"></a>'
-            if picture.is_file()
+            if r.out_dir and picture.is_file()
             else ""
         )
         gate = "" if r.gate_passed is None else ("PASS" if r.gate_passed else "FAIL")

@@ -407,7 +407,10 @@ def cmd_bench_speed(args) -> int:
         print(table(result))
         print(json.dumps({k: v for k, v in result.items() if k != "runs"}, indent=1))
         return 1 if "error" in result else 0
-    registry.get(args.stage)
+    if args.stage not in registry.STAGE_NAMES:
+        raise ConfigError(
+            f"unknown stage {args.stage!r}", hint=f"give one of {', '.join(registry.STAGE_NAMES)}, or all"
+        )
     if len(frames) > 1:
         raise ConfigError("several --frames are for `bench speed all`", hint=f"time {args.stage} at one length")
     result = measure(args.stage, backends, frames=frames[0], width=width, height=height, out_dir=out)
@@ -490,7 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_pipeline_commands(sub)
     _add_stage_commands(sub)
-    _add_bench_commands(sub.add_parser("bench", help="benchmark cases with ground truth"))
+    _add_bench_commands(
+        sub.add_parser("bench", help="benchmarks: generated cases with ground truth, speed, real recordings")
+    )
     return parser
 
 
@@ -605,12 +610,12 @@ def _add_bench_generate(bsub) -> None:
 
     p = bsub.add_parser("generate", help="render one synthetic case with full ground truth")
     p.add_argument("-o", "--output", required=True, help="case folder to create")
-    p.add_argument("--task", default="push", choices=[t.value for t in Task])
-    p.add_argument("--shape", default="box", choices=[s.value for s in ObjectShape])
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--frames", type=int, default=48)
+    p.add_argument("--task", default="push", choices=[t.value for t in Task], help="what the hand does (default push)")
+    p.add_argument("--shape", default="box", choices=[s.value for s in ObjectShape], help="the object (default box)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the scene and motion (default 0)")
+    p.add_argument("--frames", type=int, default=48, help="frames to render (default 48)")
     p.add_argument("--size", default="320x240", help="WIDTHxHEIGHT (default 320x240)")
-    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (anti-aliasing)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing case folder")
     p.set_defaults(func=cmd_bench_generate)
@@ -683,7 +688,7 @@ def _add_bench_tools(bsub) -> None:
     p.add_argument("stage", help="stage to time, or `all` for every stage end to end")
     p.add_argument("--backend", action="append", metavar="STAGE=NAME", help="backends (default: each stage's default)")
     p.add_argument("--frames", default="300", help="frames of the case; with `all` a list too, e.g. 75,150,300")
-    p.add_argument("--size", default="640x480")
+    p.add_argument("--size", default="640x480", help="WIDTHxHEIGHT of the generated case (default 640x480)")
     p.add_argument("--until", metavar="STAGE", help="with `all`: only STAGE and what it needs (default: every stage)")
     p.add_argument("-o", "--output", help="output folder (default benchmarks/results/speed)")
     p.set_defaults(func=cmd_bench_speed)

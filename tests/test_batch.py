@@ -103,6 +103,31 @@ def test_each_case_runs_and_a_broken_one_is_recorded_not_fatal(tmp_path, sample_
     assert [r["name"] for r in csv.DictReader((out / "summary.csv").open())] == ["push-1"]
 
 
+def test_a_resumed_case_reports_every_stage_time_and_a_refused_one_no_folder(
+    tmp_path, sample_case, capsys, monkeypatch
+):
+    """A new user killed a batch and ran it again: the summary gave the resumed case the time of
+    the stage that ran then alone (its earlier stages' columns empty), its progress counted 2 of
+    the 3 cases given, and the refused case named an output folder that was never made."""
+    cases = _cases(tmp_path, sample_case, 1)
+    out = tmp_path / "batch"
+    two = {"backends": {"capture": "oracle", "segment": "oracle"}, "until": "segment"}
+    first = batch(cases, out, workers=1, **two)
+    made = {c.name: c for c in first.cases}
+    assert set(made["push-0"].stage_times_s) == {"capture", "segment"}
+    assert made["broken"].out_dir == "" and not (out / "broken").exists()
+    (out / "push-0" / RECORD).unlink()  # as if killed before the case was recorded, its masks lost
+    (out / "push-0" / "layers" / "masks.usda").unlink()
+    monkeypatch.delenv("ROSE_USD_QUIET")  # the batch's own lines (each case's go to its batch.log)
+    again = batch(cases, out, workers=1, **two)
+    resumed = next(c for c in again.cases if c.name == "push-0")
+    assert resumed.stages_ran == ["segment"]
+    assert resumed.stage_times_s["capture"] == made["push-0"].stage_times_s["capture"]
+    row = next(r for r in csv.DictReader((out / "summary.csv").open()) if r["name"] == "push-0")
+    assert float(row["capture_s"]) > 0 and float(row["segment_s"]) > 0
+    assert "batch: 1 of 2 cases to run (1 refused, 0 recorded earlier)" in capsys.readouterr().err
+
+
 def test_bad_batch_arguments_are_one_line_errors(tmp_path, sample_case):
     with pytest.raises(ConfigError, match="does not exist"):
         batch([tmp_path / "nowhere"], tmp_path / "out")
