@@ -91,3 +91,36 @@ def test_without_depth_silhouettes_nothing_is_claimed_registered():
     rgb, _ = _blocks()
     flat = edge_alignment(lambda t: rgb, lambda t: np.full(rgb.shape[:2], 1.0, np.float32), range(3))
     assert not flat.registered and flat.frames == 0
+
+
+@pytest.mark.parametrize("shift", [True, False])
+def test_the_capture_says_it_shifts_depth_and_can_be_told_not_to(tmp_path, shift):
+    """A user read "depth is shifted by (-20, 4) px" as a complaint, not as what rose did, and found
+    no setting to keep a depth/ they knew was registered: `capture.rgbd.depth_shift = false`."""
+    import rose_usd
+    from rose_usd.usd.stage import layer_file, read_provenance
+
+    rgb, depth = _video(n=30, h=240, w=320)
+    # the background as a table 0.6 m below a camera pitched 45 deg down (a wall has no support)
+    v = (np.arange(240, dtype=np.float32)[:, None] - 119.5) / 300.0
+    table = np.broadcast_to(0.6 / (np.cos(np.pi / 4) * v + np.sin(np.pi / 4)), (240, 320))
+    depth = [np.where(d == 1.0, table, 0.5).astype(np.float32) for d in depth]
+    case = tmp_path / "case"
+    for name in ("rgb", "depth"):
+        (case / name).mkdir(parents=True)
+    for t, (image, d) in enumerate(zip(rgb, depth)):
+        cv2.imwrite(str(case / "rgb" / f"{t:06d}.png"), image)
+        cv2.imwrite(str(case / "depth" / f"{t:06d}.png"), (shift_depth(d, -20, 4) * 1000).astype(np.uint16))
+    (case / "cam_K.txt").write_text("300 0 159.5\n0 300 119.5\n0 0 1\n")
+    (case / "rose.toml").write_text("objects = []\n")
+    settings = {"capture": {"rgbd": {"depth_shift": shift}}}
+    rose_usd.reconstruct(case, tmp_path / "out", until="capture", settings=settings)
+    from rose_usd.layers.world import depth_shift_px
+    from rose_usd.usd.stage import open_stage
+
+    assert depth_shift_px(open_stage(tmp_path / "out" / "rose.usda")) == ((20, -4) if shift else (0, 0))
+    prov = read_provenance(layer_file(tmp_path / "out", "world"))
+    said = [w for w in prov.get("warnings", []) if "does not line up with rgb/" in w]
+    assert bool(said) is shift
+    if shift:
+        assert "every stage reads the depth shifted by (20, -4) px" in said[0] and "depth_shift=false" in said[0]

@@ -40,6 +40,10 @@ class RgbdConfig:
     static_fraction: float = 0.3
     """The camera is static (identity poses, no tracking; capture.static) when at least this
     fraction of the first frame's corners stay within 0.5 px; above 1 never (default 0.3)."""
+    depth_shift: bool = True
+    """With a static camera, find where the depth lines up with the colour (the moving hand and
+    object overlaid) and shift the depth there when it is 2 px or more off; false: take depth/ as
+    registered (default true)."""
     repeatable: bool = True
     """Track in a separate process bound to one CPU, so that runs repeat bit for bit (Open3D's
     parallel odometry sums in an order that varies); false: in this process on every CPU, about

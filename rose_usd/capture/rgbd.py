@@ -60,7 +60,7 @@ def run(ctx: StageContext) -> None:
         poses = np.repeat(np.eye(4)[None], n, axis=0)
         keyframes = [t for t in range(0, n, max(1, n // 24)) if valid[t]] or [int(np.flatnonzero(valid)[0])]
         tracking = {"static_camera": True}
-        shift = _registration(ctx, depth_of)
+        shift = _registration(ctx, depth_of) if cfg.rgbd.depth_shift else shift
         if shift.applies:
             depth_of = cached_frames(lambda t: shift_depth(case.depth_m(t), shift.dx, shift.dy), 64)
     else:
@@ -178,8 +178,9 @@ def _registration(ctx: StageContext, depth_of) -> DepthShift:
     shift = find_depth_shift(case.rgb, depth_of, case.n_frames)
     if shift.applies:
         ctx.warn(
-            f"depth/ is not registered to rgb/: its silhouettes sit ({-shift.dx}, {-shift.dy}) px off the colour "
-            f"(what moves overlaps {shift.overlap_unshifted:.2f} -> {shift.overlap:.2f}); depth is shifted by "
-            f"({shift.dx}, {shift.dy}) px"
+            f"depth/ does not line up with rgb/: what moves sits ({-shift.dx}, {-shift.dy}) px apart in the two"
+            f" (its depth and colour overlap {shift.overlap_unshifted:.2f}, {shift.overlap:.2f} shifted), so every"
+            f" stage reads the depth shifted by ({shift.dx}, {shift.dy}) px (the world layer records it;"
+            " `--set capture.rgbd.depth_shift=false` takes depth/ as it is)"
         )
     return shift
