@@ -95,7 +95,13 @@ def test_datasets_read_back_as_the_rollouts(small_box_out):
     result = read_collect(stage)
     assert result.dataset is not None and result.dataset.endswith("lerobot/meta/info.json")
     info, frames, episodes, tasks = lerobot.read_dataset(small_box_out / "dataset" / "lerobot")
-    demos, env_args = robomimic.read_hdf5(small_box_out / "dataset" / "robomimic.hdf5")
+    assert result.robomimic == str((small_box_out / "dataset" / "robomimic.hdf5").resolve())
+    demos, env_args = robomimic.read_hdf5(result.robomimic)
+    from rose_usd.usd.inspect import dump, to_text
+
+    assert "datasets: dataset/lerobot/meta/info.json (LeRobot v3) and dataset/robomimic.hdf5" in to_text(
+        dump(small_box_out / "rose.usda")
+    )
     assert info["total_episodes"] == len(demos) == result.successes == len(episodes)
     assert tasks == ["move the box along its demonstrated path"]
     assert info["fps"] == 30 and info["features"]["observation.state"]["names"][7] == "panda_finger_joint1"

@@ -21,6 +21,7 @@ from rose_usd.io import lerobot, robomimic
 from rose_usd.progress import progress
 from rose_usd.sim import panda
 from rose_usd.stage_api import StageContext
+from rose_usd.usd import paths
 
 POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
 FEATURES = {
@@ -124,5 +125,5 @@ def write_dataset(
             "states": "joint positions (9), joint velocities (9), object pose (7)",
         },
     }
-    robomimic.write_hdf5(folder / "robomimic.hdf5", demos, env_args)
+    robomimic.write_hdf5(folder / paths.ROBOMIMIC_FILE, demos, env_args)
     return "../dataset/lerobot/meta/info.json"

@@ -15,6 +15,8 @@ from rose_usd.errors import ConfigError
 # ----------------------------------------------------------------------------- layers
 ROOT_FILE = "rose.usda"
 LAYERS_DIR = "layers"
+ROBOMIMIC_FILE = "robomimic.hdf5"
+"""The collect stage's rollouts as robomimic HDF5, beside its LeRobot dataset (dataset/lerobot/)."""
 # subLayers of the root, strongest first (architecture.md, section 2)
 LAYER_ORDER = ("gate", "robot", "trajectory", "object", "scene", "masks", "world")
 
