@@ -77,6 +77,28 @@ def test_a_read_only_case_without_a_prompt_is_told_to_use_a_folder_of_its_own(tm
     assert "is read-only: make a folder of your own" in line and "--prompt" in line
 
 
+def test_a_video_without_its_own_toml_is_told_which_file_is_not_read(tmp_path, sample_case):
+    """A new user gave a video as the case with its settings in clip.mp4.toml (or rose.toml) beside
+    it: the error named clip.toml, which did not exist, and not the file that did; its --prompt
+    hint asked for a NAME the default object does not have."""
+    import cv2
+
+    from rose_usd.cli import main
+
+    video = tmp_path / "clip.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
+    for path in sorted((sample_case / "rgb").glob("*.png"))[:12]:
+        writer.write(cv2.imread(str(path)))
+    writer.release()
+    (tmp_path / "clip.mp4.toml").write_text('[[objects]]\nname = "Box"\n')
+    with pytest.raises(InputError, match="have no prompt") as err:
+        Pipeline(video, tmp_path / "out", Options()).run("segment")
+    line = err.value.one_line()
+    assert f"write {tmp_path / 'clip.toml'}" in line and "(clip.mp4.toml beside it is not read for a video)" in line
+    assert "--prompt FRAME:x0,y0,x1,y1 (or a point, FRAME:x,y)" in line
+    assert main(["run", "segment", str(video), "-o", str(tmp_path / "out"), "--prompt", "0:174,90,208,127"]) == 0
+
+
 def test_command_line_prompt_overrides_rose_toml(tmp_path, case_copy, sample_case):
     """--prompt (segment.prompts) replaces rose.toml's box: a box around the true object works
     even when rose.toml's box is wrong, and the name may be left out for a single object."""
