@@ -97,6 +97,10 @@ def test_a_video_without_its_own_toml_is_told_which_file_is_not_read(tmp_path, s
     assert f"write {tmp_path / 'clip.toml'}" in line and "(clip.mp4.toml beside it is not read for a video)" in line
     assert "--prompt FRAME:x0,y0,x1,y1 (or a point, FRAME:x,y)" in line
     assert main(["run", "segment", str(video), "-o", str(tmp_path / "out"), "--prompt", "0:174,90,208,127"]) == 0
+    # that folder holds the masks layer alone, /World an over there: inspect still lists its prims
+    from rose_usd.usd.inspect import dump, to_text
+
+    assert "Object <Scope> [RoseMaskAPI]" in to_text(dump(tmp_path / "out" / "rose.usda"))
 
 
 def test_command_line_prompt_overrides_rose_toml(tmp_path, case_copy, sample_case):

@@ -233,7 +233,9 @@ def dump(path: str | os.PathLike) -> dict[str, Any]:
         problems = stage_mod.consistency_problems(path.parent)
         if problems:  # absent when the layers agree (the normalized reference dumps stay as they are)
             out["problems"] = problems
-    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+    # defined or not: a stage of the later layers alone (`run segment` with the flow backend) holds
+    # /World as an over, and the default traversal would skip everything under it
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimIsActive & Usd.PrimIsLoaded & ~Usd.PrimIsAbstract)):
         out["prims"][str(prim.GetPath())] = _prim_entry(stage, prim)
     gate = stage.GetPrimAtPath(paths.GATE)
     if gate:
