@@ -283,7 +283,8 @@ def batch(
     for name, case in zip(names, cases):
         if name in refused:
             line = f"{REFUSED}: {refused[name].one_line()}"
-            finished(asdict(CaseResult(name=name, case=case, out_dir="", status="failed", error=line)))  # none made
+            made = str(out / name) if (out / name).is_dir() else ""  # an earlier batch's, or none
+            finished(asdict(CaseResult(name=name, case=case, out_dir=made, status="failed", error=line)))
         elif earlier[name] is not None:
             finished(asdict(earlier[name]))
     jobs = [job for job in jobs if job[0] not in results]

@@ -480,7 +480,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _non_negative(text: str) -> float:
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
     if not value >= 0.0:
         raise argparse.ArgumentTypeError(f"{text} is not a tolerance (a number >= 0)")
     return value

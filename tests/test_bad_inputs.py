@@ -240,6 +240,22 @@ def test_a_missing_layer_and_a_broken_usda_are_named_in_one_line(capsys, out_cop
     assert "pxrInternal" not in err and ".cpp" not in err and ".h " not in err
 
 
+def test_a_usdz_with_a_sublayer_opens(tmp_path):
+    """The missing-layer check looks at an output folder's files only: a .usdz's sublayers are in
+    the package (a reviewer's find: a valid .usdz was refused)."""
+    from pxr import Sdf, UsdUtils
+
+    from rose_usd.usd.stage import open_stage
+
+    Sdf.Layer.CreateAnonymous().Export(str(tmp_path / "sub.usda"))
+    root = Sdf.Layer.CreateNew(str(tmp_path / "root.usda"))
+    root.subLayerPaths.append("./sub.usda")
+    root.Save()
+    assert UsdUtils.CreateNewUsdzPackage(str(tmp_path / "root.usda"), str(tmp_path / "pack.usdz"))
+    (tmp_path / "sub.usda").unlink()
+    assert open_stage(tmp_path / "pack.usdz") is not None
+
+
 def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
     """Oracle backends on a case without gt/ say which backend to choose instead."""
     shutil.rmtree(case_copy / "gt")
@@ -360,10 +376,10 @@ def test_stage_commands_refuse_what_they_cannot_read_in_one_line(capsys, oracle_
     empty.mkdir()
     for command in ("validate", "inspect"):
         assert_one_line_error(*run_cli(capsys, command, str(empty)), "empty", "no rose.usda in this folder")
-    for flag in ("--rtol", "--atol"):
+    for flag, value in (("--rtol", "-1"), ("--atol", "-1"), ("--rtol", "x")):
         with pytest.raises(SystemExit) as exc:
-            main(["diff", str(oracle_out), str(oracle_out), flag, "-1"])
-        assert_one_line_error(exc.value.code, capsys.readouterr().err, flag, "not a tolerance")
+            main(["diff", str(oracle_out), str(oracle_out), flag, value])
+        assert_one_line_error(exc.value.code, capsys.readouterr().err, flag, f"{value} is not a tolerance")
     with pytest.raises(SystemExit) as exc:
         main(["reconstruct", str(tmp_path)])
     assert_one_line_error(exc.value.code, capsys.readouterr().err, "-o/--output", "rose-usd reconstruct --help")

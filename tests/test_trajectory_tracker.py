@@ -258,3 +258,13 @@ def test_silhouette_iou_counts_the_whole_image():
         keep = ~ignore
         expected = np.sum(sil & mask & keep) / np.sum((sil | mask) & keep)
         assert silhouette_iou(model, motion, mask, ignore, cam, K) == pytest.approx(expected, abs=1e-12)
+
+
+def test_no_motion_to_score_is_no_fit():
+    """evaluate_many of no motions is empty (a slide whose fine steps are none)."""
+    from rose_usd.trajectory.tracker import Model, evaluate_many
+
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    model = Model.from_mesh(box.vertices, box.faces, 500)
+    assert evaluate_many(model, model.points[:50], np.zeros((0, 4, 4))) == []
+    assert evaluate_many(model, model.points[:50], np.eye(4)[None])[0].fitness == 1.0

@@ -115,7 +115,7 @@ def run_case(
     from rose_usd import registry
     from rose_usd.bench.evaluate import evaluate
     from rose_usd.pipeline import Options, Pipeline
-    from rose_usd.usd.stage import layer_file, read_provenance
+    from rose_usd.usd.stage import layer_file, read_provenance, shown_backend
 
     monitor = RssMonitor()
     t_start = time.perf_counter()
@@ -127,7 +127,7 @@ def run_case(
         if reuse and stage_def.name not in rerun and pipe.is_current(stage_def):
             prov = read_provenance(layer_file(out, stage_def.layer))
             stages[stage_def.name] = {
-                "backend": prov["backend"],
+                "backend": shown_backend(prov, prov["backend"]),
                 "wall_time_s": prov["wall_time_s"],
                 "peak_rss_mb": None,
                 "reused": True,

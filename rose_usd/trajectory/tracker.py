@@ -229,6 +229,8 @@ def evaluate_many(model: Model, observed: np.ndarray, motions: np.ndarray) -> li
     on both cores. Nearest points are searched within ``INLIER_M`` only: the fit needs no farther
     distance, and the bounded search is faster (0.5 against 0.8 ms for 1500 points)."""
     n = len(observed)
+    if not len(motions):
+        return []
     pulled = np.concatenate([se3.transform_points(se3.invert(m), observed) for m in motions])
     d = model.tree.query(pulled, distance_upper_bound=INLIER_M, workers=-1 if len(motions) > 1 else 1)[0]
     fits = []
@@ -411,7 +413,7 @@ def slide(
 
     def at(offsets: np.ndarray) -> list[Fit]:
         moves = [se3.make_pose(np.eye(3), float(o) * axis) @ here.motion for o in offsets]
-        return evaluate_many(model, observed, np.stack(moves))
+        return evaluate_many(model, observed, np.stack(moves)) if moves else []
 
     coarse = np.arange(-span_m, span_m + 1e-9, step_m)
     top_score, top, best_offset = max(

@@ -125,7 +125,11 @@ def open_stage(path: str | os.PathLike, *, muted: tuple[str, ...] = ()) -> Usd.S
             layer.Reload()
     try:
         root = Sdf.Layer.FindOrOpen(str(path))
-        gone = [sub for sub in (root.subLayerPaths if root else []) if not (path.parent / sub).is_file()]
+        # plain relative files only (an output folder's layers/): a .usdz's sublayers are inside it,
+        # and an absolute path, a search path or a URI is USD's to resolve
+        plain = path.suffix.lower() != ".usdz" and root is not None
+        relative = [sub for sub in (root.subLayerPaths if plain else []) if sub.startswith(("./", "../"))]
+        gone = [sub for sub in relative if not (path.parent / sub).is_file()]
         if gone:  # before USD warns of each on stderr
             raise StageError(
                 f"{gone[0]} is missing" + (f" (and {len(gone) - 1} more layer(s))" if len(gone) > 1 else ""),
