@@ -441,14 +441,14 @@ def _interrupt(child, *, settle_s: float = 2.0, rollback_s: float = 10.0) -> Non
 def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, parent: int) -> None:
     import signal
 
-    from rose_usd.core.lifetime import die_with_parent, note_interrupt, redeliver_lost_interrupts
+    from rose_usd.core.lifetime import after_interrupt, die_with_parent, note_interrupt, redeliver_lost_interrupts
 
     die_with_parent(parent)
     redeliver_lost_interrupts()
     interrupted = []
 
     def on_sigint(signum, frame):
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # one interrupt: the rollback runs to its end
+        signal.signal(signal.SIGINT, after_interrupt)  # one interrupt: the rollback runs to its end
         interrupted.append(signum)
         note_interrupt()  # no layer commits from now on, should the KeyboardInterrupt be lost
         raise KeyboardInterrupt

@@ -200,3 +200,31 @@ def test_a_tracker_whose_parent_sent_nothing_leaves_quietly():
     )
     assert proc.returncode == 1
     assert proc.stderr.decode().strip() == ""
+
+
+def test_an_interrupt_after_the_first_is_nothing_when_a_library_restored_the_handler():
+    """A Ctrl-C test of the gate stage printed "OSError: Signal 2 ignored due to race condition"
+    with a traceback: the stage's SIGINT handler had set SIG_IGN, and Mitsuba's render, which saves
+    and restores the process's C-level SIGINT handler around itself, put Python's back, so a later
+    SIGINT was caught at C level and found SIG_IGN at Python's. Emulated with libc.signal: with
+    ``lifetime.after_interrupt`` as the handler after the first interrupt, nothing is printed."""
+    code = """
+import ctypes, os, signal, sys, time
+from rose_usd.core.lifetime import after_interrupt
+libc = ctypes.CDLL(None)
+libc.signal.restype = ctypes.c_void_p
+libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+signal.signal(signal.SIGINT, lambda *a: None)
+python_handler = libc.signal(signal.SIGINT, 1)  # what a library saves (1: SIG_IGN, put back at once)
+libc.signal(signal.SIGINT, python_handler)
+signal.signal(signal.SIGINT, signal.SIG_IGN if sys.argv[1] == "ign" else after_interrupt)
+libc.signal(signal.SIGINT, python_handler)  # and restores, after the stage's handler changed it
+os.kill(os.getpid(), signal.SIGINT)
+time.sleep(0.1)
+"""
+    errs = {
+        mode: subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, timeout=60).stderr
+        for mode in ("ign", "after")
+    }
+    assert "Signal 2 ignored due to race condition" in errs["ign"], errs
+    assert errs["after"] == "", errs
