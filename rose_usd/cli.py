@@ -207,10 +207,10 @@ def _composed(stage: Path) -> Path:
 def cmd_inspect(args) -> int:
     from rose_usd.usd import inspect as usd_inspect
 
-    stage = _stage_file(args.stage)
-    if _composed(stage) != stage:
-        print(f"inspecting {_composed(stage)}, the stage that layers/{stage.name} is a layer of", file=sys.stderr)
-        stage = _composed(stage)
+    given = _stage_file(args.stage)
+    stage = _composed(given)
+    if stage != given:
+        print(f"inspecting {stage}, the stage that layers/{given.name} is a layer of", file=sys.stderr)
     data = usd_inspect.dump(stage)
     if args.json or args.normalized:
         print(json.dumps(usd_inspect.normalize(data) if args.normalized else data, indent=2, sort_keys=True))
@@ -241,13 +241,10 @@ def cmd_validate(args) -> int:
     from rose_usd.usd.stage import existing_layers
     from rose_usd.usd.validate import validate as validate_stage
 
-    stage = _stage_file(args.stage)
-    if _composed(stage) != stage:  # one layer of an output folder
-        print(
-            f"validating {_composed(stage)}, the stage that layers/{stage.name} is a layer of"
-            " (a layer has no stage metadata)"
-        )
-        stage = _composed(stage)
+    given = _stage_file(args.stage)
+    stage = _composed(given)
+    if stage != given:  # one layer of an output folder
+        print(f"validating {stage}, the stage that layers/{given.name} is a layer of (a layer has no stage metadata)")
     report = validate_stage(stage, with_newton=not args.no_newton)
     for line in report.errors:
         print(f"error: {line}")
@@ -271,12 +268,10 @@ def cmd_stages(args) -> int:
     from rose_usd import registry
     from rose_usd.stage_config import config_to_dict, setting_docs, setting_names
 
-    stages = [registry.get(args.stage)] if args.stage else registry.STAGES
-    for s in stages:
+    def needing(stages) -> str:
+        return f"the layers of {', '.join(stages)}" if stages else "no layer"
 
-        def needing(stages) -> str:
-            return f"the layers of {', '.join(stages)}" if stages else "no layer"
-
+    for s in [registry.get(args.stage)] if args.stage else registry.STAGES:
         other = "".join(f"; with {b}: {needing(n)}" for b, n in s.needs_by_backend.items())
         print(f"{s.name:<11} layers/{s.layer}.usda  needs {needing(s.needs)}{other}")
         print(f"            backends: auto, {', '.join(s.backends)}")

@@ -4,7 +4,6 @@ their verdicts and errors, and the best rollout's joint states per time code."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from pxr import Usd
@@ -40,7 +39,7 @@ class CollectResult:
     @property
     def robomimic(self) -> str | None:
         """The same rollouts as a robomimic HDF5 file, written beside the LeRobot dataset."""
-        return str(Path(self.dataset).parents[2] / paths.ROBOMIMIC_FILE) if self.dataset else None
+        return paths.robomimic_beside(self.dataset) if self.dataset else None
 
     def joint_positions(self, stage: Usd.Stage, n_frames: int) -> np.ndarray:
         """(n_frames, J) joint positions of the best rollout at time codes 0..n_frames-1 (empty when none)."""

@@ -428,6 +428,6 @@ def _collect_lines(robot: str, c: dict[str, Any]) -> list[str]:
         # authored relative to layers/robot.usda: shown relative to the output folder
         path = str(c[tokens.COLLECT_DATASET])  # the dump holds an asset path's string
         shown = path if posixpath.isabs(path) else posixpath.normpath(posixpath.join("layers", path))
-        both = posixpath.join(posixpath.dirname(posixpath.dirname(posixpath.dirname(shown))), paths.ROBOMIMIC_FILE)
+        both = paths.robomimic_beside(shown)
         lines.append(f"  datasets: {shown} (LeRobot v3) and {both} (robomimic), in the output folder")
     return lines

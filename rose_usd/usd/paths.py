@@ -6,6 +6,7 @@ No other module builds a prim path by hand; they call these getters.
 from __future__ import annotations
 
 import fnmatch
+import posixpath
 from dataclasses import dataclass
 
 from pxr import Sdf
@@ -17,6 +18,14 @@ ROOT_FILE = "rose.usda"
 LAYERS_DIR = "layers"
 ROBOMIMIC_FILE = "robomimic.hdf5"
 """The collect stage's rollouts as robomimic HDF5, beside its LeRobot dataset (dataset/lerobot/)."""
+
+
+def robomimic_beside(lerobot_info: str) -> str:
+    """The robomimic file written beside a LeRobot dataset, from that dataset's meta/info.json
+    path (``dataset/lerobot/meta/info.json`` -> ``dataset/robomimic.hdf5``)."""
+    return posixpath.join(posixpath.dirname(posixpath.dirname(posixpath.dirname(lerobot_info))), ROBOMIMIC_FILE)
+
+
 # subLayers of the root, strongest first (architecture.md, section 2)
 LAYER_ORDER = ("gate", "robot", "trajectory", "object", "scene", "masks", "world")
 
