@@ -8,6 +8,7 @@ import contextlib
 import dataclasses
 import enum
 import hashlib
+import json
 import os
 import pickle
 import time
@@ -42,6 +43,20 @@ def _files_hash(files: list[Path], root: Path) -> str:
         h.update(str(f.relative_to(root) if f.is_relative_to(root) else f).encode())
         h.update(_cached_file_hash(f).encode())
     return h.hexdigest()[:16]
+
+
+def _changed_settings(stage: str, made_with: object, config) -> str:
+    """The settings a layer was made with that differ from ``config``'s, as " (a, b 1 -> 2)" (values
+    where short), or "" where the layer recorded none."""
+    if not isinstance(made_with, dict):
+        return ""
+    was, now = flatten(made_with), flatten(json.loads(json.dumps(config_to_dict(config))))
+    shown = []
+    for k in sorted(set(was) | set(now)):
+        if was.get(k, None) != now.get(k, None):
+            a, b = (json.dumps(d[k]) if k in d else "unset" for d in (was, now))
+            shown.append(f"{stage}.{k}" + (f" {a} -> {b}" if len(a) + len(b) <= 40 else ""))
+    return f" ({', '.join(shown[:4])}{', ...' if len(shown) > 4 else ''})" if shown else ""
 
 
 BackendChoice = str | enum.Enum | Any
@@ -226,6 +241,15 @@ class Pipeline:
             inputs[f"layer:{registry.get(need).layer}"] = _cached_file_hash(layer) if layer.is_file() else "missing"
         return inputs
 
+    def _case_parts(self) -> dict[str, str]:
+        """The case's input files' hash per entry of the case folder (``rgb/``, ``rose.toml``, the
+        video): what a stale layer's reason names when the case changed."""
+        groups: dict[str, list[Path]] = {}
+        for f in self.case.input_files():
+            rel = f.relative_to(self.case.folder) if f.is_relative_to(self.case.folder) else Path(f.name)
+            groups.setdefault(rel.parts[0] + ("/" if len(rel.parts) > 1 else ""), []).append(f)
+        return {k: _files_hash(v, self.case.folder) for k, v in groups.items()}
+
     def is_current(self, stage_def: StageDef) -> bool:
         """Whether the stage's layer exists and was made from the same config, inputs and code."""
         return self.why_stale(stage_def) is None
@@ -240,13 +264,17 @@ class Pipeline:
         if prov.get("code") != code_version(stage_def, config.backend.value):
             return "rose_usd's code changed since its layer was made"
         if prov.get("config_hash") != config_hash(config):
-            return "its settings changed"
+            return "its settings changed" + _changed_settings(stage_def.name, prov.get("config"), config)
         made_from, now = prov.get("inputs") or {}, self.input_hashes(stage_def, config)
         changed = [
             k.removeprefix("layer:") for k in sorted(set(made_from) | set(now)) if made_from.get(k) != now.get(k)
         ]
         if changed:
-            return f"what it was made from changed ({', '.join(changed)})"
+            if "case" in changed and isinstance(prov.get("case_parts"), dict):
+                parts, was = self._case_parts(), prov["case_parts"]
+                named = [k for k in sorted(set(parts) | set(was)) if parts.get(k) != was.get(k)]
+                changed[changed.index("case")] = f"case: {', '.join(named)}" if named else "case"
+            return f"what it was made from changed ({'; '.join(changed)})"
         if usd_stage.read_time_info(self.out_dir) != self.time_info:
             return "the frame count or rate changed"
         return None
@@ -271,6 +299,7 @@ class Pipeline:
             "code": code_version(stage_def, config.backend.value),
             "inputs": self.input_hashes(stage_def, config),
             "case": str(self.case.root.resolve()),
+            "case_parts": self._case_parts(),
         }
         func = stage_def.backend_function(config.backend.value)
         say(f"[{stage_def.name}] backend {config.backend.value}")

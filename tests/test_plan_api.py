@@ -225,8 +225,10 @@ def test_a_stage_run_again_says_why(tmp_path, case_copy, capsys, monkeypatch):
     assert main(base) == 0
     assert "[segment] up to date" in capsys.readouterr().err
     assert main([*base, "--set", "segment.min_height_m=0.005"]) == 0
-    assert "[segment] runs again: its settings changed" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "[segment] runs again: its settings changed (segment.min_height_m " in err, err
+    assert " -> 0.005)" in err, err
     (case_copy / "rose.toml").write_text((case_copy / "rose.toml").read_text() + "\n# edited\n")
     assert main([*base, "--set", "segment.min_height_m=0.005"]) == 0
     err = capsys.readouterr().err
-    assert "[capture] runs again: what it was made from changed (case)" in err, err
+    assert "[capture] runs again: what it was made from changed (case: rose.toml)" in err, err

@@ -253,6 +253,7 @@ _VOLATILE = {
     "versions",
     "file",
     "case",
+    "case_parts",
     # the stages' own timings of their parts (two runs of one case differ by them alone)
     "frames_per_s",
     "sfm_seconds",
