@@ -26,7 +26,7 @@ def _flow(**segment) -> Options:
 def test_flow_backend_needs_no_capture_and_follows_the_box(tmp_path, sample_case):
     """From rose.toml's first-frame box and the RGB frames alone, the box's masks reach IoU >= 0.9
     (where it is more than half visible), and no world layer is written or needed (the masks
-    layer's tracks are still listed)."""
+    layer's tracks are still listed); ``masks/sheet.jpg`` shows them."""
     out = tmp_path / "out"
     Pipeline(sample_case, out, _flow()).run("segment")
     assert sorted(p.name for p in (out / "layers").iterdir()) == ["masks.usda"]
@@ -36,6 +36,12 @@ def test_flow_backend_needs_no_capture_and_follows_the_box(tmp_path, sample_case
     assert read_masks(open_stage(out / "rose.usda"), 48).names == ["Box"]  # no world layer defines /World
     gt = GroundTruth(sample_case / "gt")
     assert _mask_ious(gt.mask_dir("Box"), out / "masks" / "Box", gt.n_frames, min_fraction=0.5) >= 0.9
+    # the stage's contact sheet is the one drawn from the finished folder's layer (every 3rd frame)
+    from rose_usd.case.layout import load_case
+    from rose_usd.render.sheets import mask_sheet
+
+    again = mask_sheet(load_case(sample_case), out, tmp_path / "again.jpg", every=3)
+    assert (out / "masks" / "sheet.jpg").read_bytes() == again.read_bytes()
 
 
 def test_masks_alone_are_scored(tmp_path, sample_case):

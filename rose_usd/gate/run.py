@@ -50,16 +50,12 @@ def _geometry_check(stage: Usd.Stage) -> list[str]:
     return problems
 
 
-SHEET_FRAMES = 16
-"""The contact sheets in ``report/`` show about this many frames, spread over the video."""
-
-
 def _contact_sheets(ctx: StageContext, report_dir) -> None:
     """``report/masks.jpg`` (each object's mask and the interactor's over the video) and
     ``report/object.jpg`` (each object's mesh at its trajectory pose, its mask's outline red)."""
-    from rose_usd.render.sheets import mask_sheet, object_sheet
+    from rose_usd.render.sheets import mask_sheet, object_sheet, sheet_every
 
-    every = max(1, -(-ctx.time_info.n_frames // SHEET_FRAMES))
+    every = sheet_every(ctx.time_info.n_frames)
     mask_sheet(ctx.case, ctx.stage, report_dir / "masks.jpg", every=every)
     object_sheet(ctx.case, ctx.stage, report_dir / "object.jpg", every=every)
 

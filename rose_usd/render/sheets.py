@@ -1,6 +1,7 @@
 """Contact sheets of a reconstruction (a run folder or its composed stage), every few frames,
 optionally cropped to a region of interest and enlarged (real clips' objects can be 20-40 px
-wide); the gate writes the first two into ``report/``:
+wide); the gate writes the first two into ``report/``, the segment stage the first into
+``masks/sheet.jpg``:
 
 - ``mask_sheet``: each object's mask (its own colour) and the interactor's (blue) over the video;
 - ``object_sheet``: each object's mesh posed by the trajectory layer, drawn through the world
@@ -31,6 +32,14 @@ Source = Path | Usd.Stage
 
 COLOURS = [(0, 230, 0), (255, 60, 200), (255, 200, 0), (0, 220, 255)]
 HAND = (40, 80, 255)
+SHEET_FRAMES = 16
+"""The contact sheets the stages write (``masks/sheet.jpg``, ``report/``) show about this many
+frames, spread over the video."""
+
+
+def sheet_every(n_frames: int) -> int:
+    """The frame step of the contact sheets that show about SHEET_FRAMES frames of a video."""
+    return max(1, -(-n_frames // SHEET_FRAMES))
 
 
 def mask_sheet(
@@ -47,17 +56,27 @@ def mask_sheet(
     """Write ``path``: the masks of ``run_dir`` (an output folder with a masks layer) over the
     frames of ``case``, every ``every`` frames; ``crop`` is (x0, y0, x1, y1) in pixels;
     ``label(t)`` adds text under the frame number."""
-    n = case.n_frames
-    masks = read_masks(_open(run_dir), n, (case.height, case.width))
+    masks = read_masks(_open(run_dir), case.n_frames, (case.height, case.width))
+
+    def mask_of(name: str, t: int) -> np.ndarray | None:
+        return masks.mask(name, t) if masks.has(name) else None
+
+    frames = range(0, case.n_frames, every)
+    return masks_sheet(case, frames, mask_of, masks.names, path, crop=crop, tile_w=tile_w, cols=cols, label=label)
+
+
+def masks_sheet(case: Case, frames, mask_of, names, path: Path, *, crop=None, tile_w=320, cols=4, label=None) -> Path:
+    """Write ``path``: ``mask_of(name, t)`` (a boolean mask or None) of each object in ``names``
+    (its own colour) and of the interactor (blue) over ``frames`` of ``case``."""
     tiles = []
-    for t in range(0, n, every):
+    for t in frames:
         rgb = case.rgb(t)
         over = rgb.copy()
-        hand = masks.mask(INTERACTOR, t) if masks.has(INTERACTOR) else None
+        hand = mask_of(INTERACTOR, t)
         if hand is not None:
             over[hand] = HAND
-        for k, name in enumerate(masks.names):
-            m = masks.mask(name, t)
+        for k, name in enumerate(names):
+            m = mask_of(name, t)
             if m is not None:
                 over[m] = COLOURS[k % len(COLOURS)]
         tiles.append(_tile(cv2.addWeighted(rgb, 0.45, over, 0.55, 0), t, crop, tile_w, label))

@@ -1,4 +1,5 @@
-"""Authoring mask tracks: PNGs under <out>/masks and their prims under /World/Masks.
+"""Authoring mask tracks: PNGs under <out>/masks, their prims under /World/Masks and a contact
+sheet, ``masks/sheet.jpg``.
 Every segment backend ends here (author_and_check), so all of them write the same layer."""
 
 from __future__ import annotations
@@ -10,10 +11,14 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
 from rose_usd.io.images import write_mask
-from rose_usd.layers.masks import INTERACTOR  # noqa: F401  (segment backends import it from here)
+from rose_usd.layers.masks import INTERACTOR
+from rose_usd.render.sheets import masks_sheet, sheet_every
 from rose_usd.stage_api import StageContext
 from rose_usd.usd import paths, schema, tokens
 from rose_usd.usd.geom import relative_asset
+
+SHEET = "sheet.jpg"
+"""In ``masks/``: every object's mask and the interactor's over about 16 frames of the video."""
 
 
 @dataclass(frozen=True)
@@ -38,7 +43,8 @@ def author_tracks(ctx: StageContext, tracks: list[MaskTrack]) -> dict[str, np.nd
     no_world = not (world and world.IsDefined())  # no world layer (the flow backend on RGB alone)
     UsdGeom.Scope.Define(stage, paths.MASKS)
     UsdGeom.Scope.Define(stage, paths.OBJECT_MASKS)
-    counts = {}
+    counts, shown = {}, set(range(0, n, sheet_every(n)))
+    sampled: dict[str, dict[int, np.ndarray]] = {}
     for track in tracks:
         is_interactor = track.name == INTERACTOR
         prim_path = paths.INTERACTOR_MASK if is_interactor else paths.object_mask(track.name)
@@ -57,6 +63,8 @@ def author_tracks(ctx: StageContext, tracks: list[MaskTrack]) -> dict[str, np.nd
                 raise ValueError(f"mask track {track.name!r} has more than {n} frames")
             name = f"{track.name}/{t:06d}.png"
             write_mask(folder / name, mask)
+            if t in shown:
+                sampled.setdefault(track.name, {})[t] = mask
             visible[t] = int(np.count_nonzero(mask))
             code = Usd.TimeCode(t)
             file_attr.Set(Sdf.AssetPath(relative_asset(final_root / name, ctx.layer_dir)), code)
@@ -67,6 +75,8 @@ def author_tracks(ctx: StageContext, tracks: list[MaskTrack]) -> dict[str, np.nd
         counts[track.name] = visible
     if no_world:  # Define made /World a def here; this layer may only hold an over of it
         stage.GetEditTarget().GetLayer().GetPrimAtPath(paths.WORLD).specifier = Sdf.SpecifierOver
+    names = [tr.name for tr in tracks if tr.name != INTERACTOR]
+    masks_sheet(ctx.case, sorted(shown), lambda k, t: sampled.get(k, {}).get(t), names, folder / SHEET)
     return counts
 
 
