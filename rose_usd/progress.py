@@ -47,13 +47,11 @@ def _logged(items: Iterable[T], desc: str, total: int | None, unit: str) -> Iter
             done += 1  # handed out: a loop left during an item counts it
             yield item
             now = time.perf_counter()
-            if now - last >= LOG_EVERY_S:
+            if now - last >= LOG_EVERY_S and done != total:  # the last item's line is the end's
                 print(f"{desc}: {done}{of} {unit}s, {now - start:.0f} s", file=sys.stderr, flush=True)
                 last = now
-    except GeneratorExit:  # left early (a rest check that settled, or an error): its end all the same
+    finally:  # also when left early (a rest check that settled, an error): its end all the same
         print(f"{desc}: {done}{of} {unit}s in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
-        raise
-    print(f"{desc}: {done}{of} {unit}s in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
 
 
 def say(message: str) -> None:

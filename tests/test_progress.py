@@ -6,8 +6,8 @@ from rose_usd import progress as progress_module
 
 
 def test_off_a_terminal_progress_is_whole_lines(monkeypatch):
-    """A log gets a line when the work starts, one per LOG_EVERY_S and one when it ends; no
-    carriage returns (a tqdm bar's redraws would fill the file)."""
+    """A log gets a line when the work starts, one per LOG_EVERY_S and one when it ends (none
+    just before it); no carriage returns (a tqdm bar's redraws would fill the file)."""
     log = io.StringIO()  # not a terminal
     monkeypatch.setattr(progress_module.sys, "stderr", log)
     monkeypatch.setattr(progress_module, "LOG_EVERY_S", 0.0)
@@ -18,6 +18,7 @@ def test_off_a_terminal_progress_is_whole_lines(monkeypatch):
     assert lines[0] == "segment: 0/3 frames"
     assert lines[1].startswith("segment: 1/3 frames, ")
     assert lines[-1].startswith("segment: 3/3 frames in ") and lines[-1].endswith(" s")
+    assert len(lines) == 4  # start, 1/3, 2/3, end: the last item's periodic line is the end's
 
 
 def test_quiet_prints_nothing(monkeypatch):
