@@ -193,7 +193,7 @@ def run_case(
         with _stderr_to(out / LOG):
             rec = reconstruct(case, out, validate=True, check=False, **options)
         result.stages_ran = [o.name for o in rec.outcomes if o.status == "ran"]
-        result.stage_times_s = _stage_times(out, rec.outcomes)
+        result.stage_times_s = _stage_times(rec.outcomes)
         result.error = rec.error
         if rec.validation is not None and not rec.validation.ok:
             result.error = result.error or f"{rec.path}: the stage is not valid ({rec.validation.errors[0]})"
@@ -337,21 +337,10 @@ def _line(r: CaseResult) -> str:
     return f"batch: {r.name} done {how}{gate}{collect}"
 
 
-def _stage_times(out: Path, outcomes) -> dict[str, float]:
+def _stage_times(outcomes) -> dict[str, float]:
     """Seconds per stage of a finished run: those that ran, and for those found up to date what
-    their layer records."""
-    from rose_usd.registry import get
-    from rose_usd.usd.stage import layer_file, read_provenance
-
-    times = {}
-    for o in outcomes:
-        if o.status == "ran":
-            times[o.name] = round(o.wall_time_s, 2)
-        elif o.status == "skipped":
-            wall = (read_provenance(layer_file(out, get(o.name).layer)) or {}).get("wall_time_s")
-            if wall is not None:
-                times[o.name] = round(float(wall), 2)
-    return times
+    their layer records (``StageOutcome.made_in_s``)."""
+    return {o.name: round(o.made_in_s, 2) for o in outcomes if o.made_in_s is not None}
 
 
 def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:

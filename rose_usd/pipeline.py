@@ -101,10 +101,18 @@ class StageOutcome:
     """The failure's one-line message."""
     removed: tuple[str, ...] = ()
     """The layers after it that its new layer made stale, removed in its commit."""
+    recorded_s: float | None = None
+    """A stage found up to date: the seconds its layer records it took to make."""
 
     @property
     def ran(self) -> bool:
         return self.status == "ran"
+
+    @property
+    def made_in_s(self) -> float | None:
+        """Seconds its layer took to make: this run's where it ran, the layer's record where it
+        was up to date, None otherwise."""
+        return self.wall_time_s if self.ran else self.recorded_s
 
 
 class Pipeline:
@@ -356,8 +364,10 @@ class Pipeline:
                     )
             else:
                 say(f"[{stage_def.name}] up to date")
-                prov = usd_stage.read_provenance(usd_stage.layer_file(self.out_dir, stage_def.layer))
-                outcomes.append(StageOutcome(stage_def.name, "skipped", 0.0, usd_stage.shown_backend(prov, backend)))
+                prov = usd_stage.read_provenance(usd_stage.layer_file(self.out_dir, stage_def.layer)) or {}
+                made = float(prov["wall_time_s"]) if prov.get("wall_time_s") is not None else None
+                shown = usd_stage.shown_backend(prov, backend)
+                outcomes.append(StageOutcome(stage_def.name, "skipped", 0.0, shown, recorded_s=made))
         if usd_stage.existing_layers(self.out_dir) and not usd_stage.root_file(self.out_dir).is_file():
             usd_stage.write_root(self.out_dir, self.time_info)
         return outcomes
