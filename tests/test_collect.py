@@ -299,7 +299,7 @@ def test_an_object_the_gripper_cannot_take_is_passed_over_for_the_next(monkeypat
     monkeypatch.setattr(nb, "_finish", lambda ctx, outcome: finished.append(outcome))
     name, _, target, outcome, plan = nb._planned(ctx, None, None, lambda name: None)
     assert (name, target, outcome.object_name, plan[1]) == ("Dragon", "Dragon", "Dragon", "ranked")
-    assert warned == ["the robot moves 'Dragon': 'Cube': the object is too large for the gripper"]
+    assert warned == ["the robot moves 'Dragon', passing over 'Cube' (the object is too large for the gripper)"]
     assert not finished
 
     monkeypatch.setattr(nb, "_pick_objects", lambda ctx, cfg: [("Cube", path), ("Cube2", path)])

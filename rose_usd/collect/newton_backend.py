@@ -66,8 +66,8 @@ def _planned(ctx: StageContext, cfg: CollectConfig, rng, clearance_for):
                 outcome.message, refused = str(why), outcome
             else:
                 if refusals:
-                    passed = "; ".join(f"{r.object_name!r}: {r.message}" for r in refusals)
-                    ctx.warn(f"the robot moves {name!r}: {passed}")
+                    passed = "; ".join(f"{r.object_name!r} ({r.message})" for r in refusals)
+                    ctx.warn(f"the robot moves {name!r}, passing over {passed}")
                 return name, path, target, outcome, plan
         refusals.append(refused)
     if not refusals:
