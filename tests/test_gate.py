@@ -160,9 +160,32 @@ def test_a_box_rendered_5_cm_off_its_masks_fails_the_track_iou(oracle_out):
     assert off < 0.5
     assert np.isnan(_track_iou(masks, "Box", t, seen(), np.ones((h, w), bool), 50))  # all the hand's
     assert np.isnan(_track_iou(masks, "Box", t, seen(), None, 10**7))  # too few mask pixels
-    summary = _track_summary({"Box": np.array([0.95, np.nan, off]), "Lost": np.full(3, np.nan)}, 0.5)
+    from rose_usd.gate.config import GateConfig
+
+    summary = _track_summary({"Box": np.array([0.95, np.nan, off]), "Lost": np.full(3, np.nan)}, GateConfig(), 30)
     assert summary["frames"] == {"Box": 2, "Lost": 0} and summary["iou"]["Lost"] is None
     assert summary["passed"] == ((0.95 + off) / 2 >= 0.5)
+    assert summary["worst_window"] == {"Box": None, "Lost": None}  # no second with 3 rendered frames
+
+
+def test_a_stretch_where_the_trajectory_left_the_object_fails_the_track_check():
+    """Over 300 frames at 30 fps (every 3rd rendered): IoU 0.9 but 0.2 over frames 240-269
+    (sam2-cups: a cup lying in the air over its upright masks), mean 0.83: the mean passes, the
+    worst second fails, named by its frames; a dip shorter than a second passes."""
+    import numpy as np
+
+    from rose_usd.gate.config import GateConfig
+    from rose_usd.gate.run import _track_summary, _worst_window
+
+    iou = np.full(300, np.nan)
+    iou[::3] = 0.9
+    iou[240:270:3] = 0.2
+    summary = _track_summary({"Cup": iou}, GateConfig(), 30)
+    assert summary["iou"]["Cup"] > 0.8 and not summary["passed"]
+    assert summary["worst_window"]["Cup"] == {"iou": pytest.approx(0.2), "frames": [240, 267]}
+    iou[243:270:3] = 0.9  # frames 240 alone: 0.2 with nine 0.9s in its second
+    assert _track_summary({"Cup": iou}, GateConfig(), 30)["passed"]
+    assert _worst_window(np.full(5, np.nan), 30) is None
 
 
 def test_a_box_set_down_in_the_air_fails_the_rest_check_from_its_last_resting_frame(out_copy):
@@ -204,8 +227,12 @@ def test_the_gate_summary_lists_an_object_resting_in_no_frame_without_a_stray_co
         return GateResult(
             passed=True, ssim_mean=0.9, ssim_min=0.8, ssim_threshold=0.75, rest_displacement_m=moved,
             rest_frames={name: [0] for name in moved}, not_resting=never, rest_threshold_m=0.005,
-            physics_passed=True, geometry_passed=True, geometry_report="", track_iou={}, track_threshold=0.5,
+            physics_passed=True, geometry_passed=True, geometry_report="", track_iou=track, track_threshold=0.5,
+            track_window_iou=window, track_window_threshold=0.3,
         ).summary()  # fmt: skip
 
+    track, window = {}, {}
     assert "rest Cat rests in no frame;" in summary({}, ["Cat"])
     assert "rest Box 1.00 mm (frames 0), Cat rests in no frame;" in summary({"Box": 0.001}, ["Cat"])
+    track, window = {"Cup": 0.67, "Box": 0.9}, {"Cup": 0.24, "Box": float("nan")}
+    assert "track IoU Cup 0.67 (worst window 0.24), Box 0.90 (threshold 0.50);" in summary({}, [])

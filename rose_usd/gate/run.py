@@ -77,7 +77,7 @@ def run(ctx: StageContext) -> None:
         rest, not_resting = resting.result() if resting else ([], [])
     worst = int(np.nanargmin(ssim))
     ssim_mean = float(np.nanmean(ssim))
-    track = _track_summary(track_iou, cfg.track_iou_threshold)
+    track = _track_summary(track_iou, cfg, ctx.time_info.fps)
     physics_ok = all(r.max_displacement_m < cfg.physics_threshold_m for _, r in rest)
     geometry_problems = _geometry_check(stage)
     passed = _author_gate(
@@ -112,6 +112,13 @@ def run(ctx: StageContext) -> None:
             ctx.warn(
                 f"object {name!r}: its re-render overlaps its masks by IoU {iou:.2f} on average"
                 f" (threshold {cfg.track_iou_threshold}): its shape or trajectory does not follow the video"
+            )
+        worst = track["worst_window"][name]
+        if worst is not None and worst["iou"] < cfg.track_window_iou:
+            ctx.warn(
+                f"object {name!r}: its re-render overlaps its masks by IoU {worst['iou']:.2f} over frames"
+                f" {worst['frames'][0]}-{worst['frames'][1]} (threshold {cfg.track_window_iou} over"
+                f" {cfg.track_window_s:g} s): its trajectory has left the object there"
             )
     ctx.record(
         ssim_mean=round(ssim_mean, 5),
@@ -223,13 +230,43 @@ def _track_iou(masks: Masks, name: str, t: int, seen: np.ndarray, left_out, min_
     return float(np.count_nonzero(mask & seen) / np.count_nonzero(mask | seen))
 
 
-def _track_summary(track: dict[str, np.ndarray], threshold: float) -> dict:
-    """Per object its mean IoU (None without masked frames) and frame count; passed when every
-    object with masked frames reaches ``threshold``."""
+def _track_summary(track: dict[str, np.ndarray], cfg, fps: float) -> dict:
+    """Per object its mean IoU (None without masked frames), frame count and worst window (the
+    lowest mean over ``cfg.track_window_s``, frames [first, last], None where no window holds 3
+    rendered frames); passed when every object with masked frames reaches
+    ``cfg.track_iou_threshold`` on average and ``cfg.track_window_iou`` in every window."""
     iou = {name: (float(np.nanmean(v)) if np.isfinite(v).any() else None) for name, v in track.items()}
     frames = {name: int(np.isfinite(v).sum()) for name, v in track.items()}
-    passed = all(v is None or v >= threshold for v in iou.values())
-    return {"iou": iou, "frames": frames, "threshold": threshold, "passed": passed}
+    width = max(1, int(round(cfg.track_window_s * fps)))
+    worst = {name: _worst_window(v, width) for name, v in track.items()}
+    passed = all(v is None or v >= cfg.track_iou_threshold for v in iou.values()) and all(
+        w is None or w["iou"] >= cfg.track_window_iou for w in worst.values()
+    )
+    return {
+        "iou": iou,
+        "frames": frames,
+        "threshold": cfg.track_iou_threshold,
+        "worst_window": worst,
+        "window_threshold": cfg.track_window_iou,
+        "passed": passed,
+    }
+
+
+def _worst_window(v: np.ndarray, width: int) -> dict | None:
+    """The lowest mean of ``v``'s finite values over ``width`` consecutive frames that hold 3 or
+    more of them, with its first and last frame; None where no window does."""
+    finite = np.isfinite(v)
+    sums = np.concatenate([[0.0], np.cumsum(np.where(finite, v, 0.0))])
+    counts = np.concatenate([[0], np.cumsum(finite)])
+    starts = np.flatnonzero(finite)
+    ends = np.minimum(starts + width, len(v))
+    n = counts[ends] - counts[starts]
+    if not np.any(n >= 3):
+        return None
+    means = np.where(n >= 3, (sums[ends] - sums[starts]) / np.maximum(n, 1), np.inf)
+    k = int(np.argmin(means))
+    last = starts[k] + int(np.flatnonzero(finite[starts[k] : ends[k]])[-1])
+    return {"iou": float(means[k]), "frames": [int(starts[k]), int(last)]}
 
 
 def _author_gate(
@@ -274,6 +311,9 @@ def _author_gate(
     )
     gate.GetAttribute(tokens.GATE_TRACK_FRAMES).Set([track["frames"][k] for k in names])
     gate.GetAttribute(tokens.GATE_TRACK_THRESHOLD).Set(float(track["threshold"]))
+    worst = [track["worst_window"][k] for k in names]
+    gate.GetAttribute(tokens.GATE_TRACK_WINDOW_IOU).Set([float("nan") if w is None else w["iou"] for w in worst])
+    gate.GetAttribute(tokens.GATE_TRACK_WINDOW_THRESHOLD).Set(float(track["window_threshold"]))
     gate.GetAttribute(tokens.GATE_TRACK_PASSED).Set(bool(track["passed"]))
     gate.GetAttribute(tokens.GATE_GEOMETRY_PASSED).Set(not geometry_problems)
     gate.GetAttribute(tokens.GATE_GEOMETRY_REPORT).Set("\n".join(geometry_problems))

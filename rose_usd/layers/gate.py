@@ -33,6 +33,10 @@ class GateResult:
     """Per object: mean IoU of its re-render with its masks (NaN without masked frames; empty when
     the check did not run)."""
     track_threshold: float
+    track_window_iou: dict[str, float]
+    """Per object: its lowest mean IoU over a window of the gate's ``track_window_s`` (NaN where
+    no window held 3 rendered frames; empty in a gate layer without the window check)."""
+    track_window_threshold: float
 
     def summary(self) -> str:
         rest = ", ".join(
@@ -42,7 +46,11 @@ class GateResult:
             ]
             + [f"{name} rests in no frame" for name in self.not_resting]
         )
-        track = ", ".join(f"{name} {iou:.2f}" for name, iou in self.track_iou.items())
+        low = {k: v for k, v in self.track_window_iou.items() if v < self.track_window_threshold}  # NaN: not low
+        track = ", ".join(
+            f"{name} {iou:.2f}" + (f" (worst window {low[name]:.2f})" if name in low else "")
+            for name, iou in self.track_iou.items()
+        )
         return (
             f"gate {'PASS' if self.passed else 'FAIL'}: SSIM {self.ssim_mean:.4f} (min {self.ssim_min:.4f}, "
             f"threshold {self.ssim_threshold:.2f}); rest {rest or 'not run'}; "
@@ -81,6 +89,10 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
             zip(list(get(tokens.GATE_TRACK_OBJECTS) or []), [float(v) for v in get(tokens.GATE_TRACK_IOU) or []])
         ),
         track_threshold=float(get(tokens.GATE_TRACK_THRESHOLD) or 0.0),
+        track_window_iou=dict(
+            zip(list(get(tokens.GATE_TRACK_OBJECTS) or []), [float(v) for v in get(tokens.GATE_TRACK_WINDOW_IOU) or []])
+        ),
+        track_window_threshold=float(get(tokens.GATE_TRACK_WINDOW_THRESHOLD) or 0.0),
     )
 
 

@@ -51,6 +51,8 @@ GATE_TRACK_IOU = "rose:gate:track:iou"
 GATE_TRACK_OBJECTS = "rose:gate:track:objects"
 GATE_TRACK_PASSED = "rose:gate:track:passed"
 GATE_TRACK_THRESHOLD = "rose:gate:track:threshold"
+GATE_TRACK_WINDOW_IOU = "rose:gate:track:windowIou"
+GATE_TRACK_WINDOW_THRESHOLD = "rose:gate:track:windowThreshold"
 
 # masks
 MASKS_CONFIDENCE = "rose:masks:confidence"
