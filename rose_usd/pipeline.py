@@ -225,6 +225,10 @@ class Pipeline:
             planning.check_prompted(self.case, prompts, self._prompts_where())
         elif backends.get("segment") == "classical":
             planning.check_all_or_none(self.case, prompts, self._prompts_where())
+        if "collect" in backends:
+            given = "object_name" in flatten(self.options.settings.get("collect", {}))
+            where = self.options.settings_source if given else str(self.case.settings_file)
+            planning.check_collect_object(self.case, self.config(registry.get("collect")).object_name, where)
         return stages
 
     def check_output(self) -> None:

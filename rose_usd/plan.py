@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from rose_usd.case.layout import Case
-from rose_usd.errors import InputError
+from rose_usd.errors import ConfigError, InputError
 
 AUTO = "auto"
 DEPTH_CAPTURES = ("rgbd", "megasam", "oracle")
@@ -100,6 +100,13 @@ def _need_gt(case: Case, plan: Mapping[str, str], stage: str) -> None:
 
 def _need_sensor_depth(case: Case, plan: Mapping[str, str], stage: str) -> None:
     if not case.has_depth:
+        if case.root.is_file():  # a video given as a file reads no depth/, not even one beside it
+            raise InputError(
+                f"the {stage} stage's {plan[stage]} backend needs depth maps, and a video given as a file has none",
+                path=case.root,
+                hint=f"make a case folder holding rgb/{case.root.name} and depth/ (one map per frame), and give"
+                " that folder; or pick another backend",
+            )
         raise InputError(
             f"the {stage} stage's {plan[stage]} backend needs depth maps, and this case has none",
             path=case.folder / "depth",
@@ -157,7 +164,7 @@ def _need_sam2_masks(case: Case, plan: Mapping[str, str], stage: str) -> None:
                 )
             if frame >= case.n_frames:
                 raise InputError(
-                    f"mask of frame {frame}, the video has {case.n_frames}",
+                    f"mask of frame {frame}, the video has frames 0..{case.n_frames - 1}",
                     path=path,
                     hint="give masks of this video's frames only",
                 )
@@ -217,7 +224,7 @@ def _check_gravity_inputs(case: Case) -> None:
         calib = read_geocalib(geocalib)
         if calib.frame >= case.n_frames:
             raise InputError(
-                f"geocalib.json is for frame {calib.frame}, the video has {case.n_frames}",
+                f"geocalib.json is for frame {calib.frame}, the video has frames 0..{case.n_frames - 1}",
                 path=geocalib,
                 hint="calibrate a frame of this video",
             )
@@ -225,7 +232,6 @@ def _check_gravity_inputs(case: Case) -> None:
 
 def check_categories(case: Case) -> None:
     """Every object's category is known (a near miss of a known one is an error, naming rose.toml)."""
-    from rose_usd.errors import ConfigError
     from rose_usd.object.priors import lookup
 
     for spec in case.config.objects:
@@ -277,6 +283,18 @@ def check_prompted(case: Case, prompts, where: str) -> None:
             " (a video without depth) needs one for every object",
             path=where,
             hint=_prompt_hint(case),
+        )
+
+
+def check_collect_object(case: Case, name: str, where: str) -> None:
+    """``collect.object_name`` (from ``where``), where given, is one of the case's objects: known
+    before any stage runs, not once the stages before collect have."""
+    names = [o.name for o in case.config.objects]
+    if name and name not in names:
+        raise ConfigError(
+            f"collect.object_name = {name!r} is not an object of this case",
+            path=where,
+            hint=f"the objects of {case.settings_file.name}: {', '.join(names) or 'none'}",
         )
 
 

@@ -109,6 +109,29 @@ def test_a_video_without_its_own_toml_is_told_which_file_is_not_read(tmp_path, s
     assert "Object <Scope> [RoseMaskAPI]" in to_text(dump(tmp_path / "out" / "rose.usda"))
 
 
+def test_a_video_given_as_a_file_is_told_where_intrinsics_and_depth_go(tmp_path, sample_case):
+    """A video given as a file reads no cam_K.txt and no depth/ (not even beside it): the warning
+    of a guessed field of view and the error of a depth backend said to write them, and where they
+    were written nothing changed."""
+    import cv2
+
+    from rose_usd.capture.intrinsics import resolve_K
+    from rose_usd.case.layout import load_case
+
+    video = tmp_path / "clip.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
+    for path in sorted((sample_case / "rgb").glob("*.png"))[:6]:
+        writer.write(cv2.imread(str(path)))
+    writer.release()
+    (tmp_path / "cam_K.txt").write_text("not a matrix\n")
+    _, source, warning = resolve_K(load_case(video))
+    assert source == "fov-guess" and "the cam_K.txt beside it is not read" in warning
+    assert "make a case folder holding rgb/clip.mp4, cam_K.txt and rose.toml" in warning
+    with pytest.raises(InputError, match="a video given as a file has none") as err:
+        Pipeline(video, tmp_path / "out", Options(backends={"capture": "rgbd"})).plan()
+    assert "make a case folder holding rgb/clip.mp4 and depth/" in err.value.one_line()
+
+
 def test_command_line_prompt_overrides_rose_toml(tmp_path, case_copy, sample_case):
     """--prompt (segment.prompts) replaces rose.toml's box: a box around the true object works
     even when rose.toml's box is wrong, and the name may be left out for a single object."""

@@ -367,7 +367,7 @@ def gravity_from_geocalib(path: Path, world_from_camera: np.ndarray) -> GravityE
     calib = read_geocalib(path)
     if not 0 <= calib.frame < len(world_from_camera):
         raise InputError(
-            f"geocalib.json is for frame {calib.frame}, the video has {len(world_from_camera)}",
+            f"geocalib.json is for frame {calib.frame}, the video has frames 0..{len(world_from_camera) - 1}",
             path=path,
             hint="calibrate a frame of this video",
         )

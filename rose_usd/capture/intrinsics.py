@@ -14,6 +14,18 @@ def guess_K(width: int, height: int, fov_deg: float) -> np.ndarray:
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
+def where_K_goes(case: Case) -> str:
+    """How to give a case its intrinsics: cam_K.txt in its folder; a video given as a file reads
+    none (nor one beside it), so it goes into a case folder of its own first."""
+    if case.root.is_file():
+        beside = " (the cam_K.txt beside it is not read)" if (case.folder / "cam_K.txt").is_file() else ""
+        return (
+            f"a video given as a file reads no cam_K.txt{beside}: make a case folder holding "
+            f"rgb/{case.root.name}, cam_K.txt and rose.toml, and give that folder"
+        )
+    return f"write cam_K.txt in {case.folder}"
+
+
 def resolve_K(
     case: Case, *, imported: np.ndarray | None = None, fov_guess_deg: float = 60.0
 ) -> tuple[np.ndarray, str, str | None]:
@@ -25,6 +37,6 @@ def resolve_K(
         return check_K(imported, case.width, case.height, path="imported intrinsics"), "imported", None
     warning = (
         f"no intrinsics (cam_K.txt) and none imported: guessed a {fov_guess_deg:g} deg horizontal field of view; "
-        "metric results are unreliable, write cam_K.txt"
+        f"metric results are unreliable, {where_K_goes(case)}"
     )
     return guess_K(case.width, case.height, fov_guess_deg), "fov-guess", warning

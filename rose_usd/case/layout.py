@@ -63,7 +63,8 @@ def _sorted_frames(folder: Path, suffixes: tuple[str, ...], what: str, infix: st
         raise InputError(
             f"no {what} files ({'/'.join(suffixes)}) in the folder",
             path=folder,
-            hint=f"put the {what} frames there, one file per frame",
+            hint=f"put the {what} frames there, one file per frame"
+            + (f", or one video ({'/'.join(VIDEO_SUFFIXES)})" if what == "RGB" and folder.name == "rgb" else ""),
         )
     numbers = [_frame_number(p) for p in files]
     if all(n is not None for n in numbers):
@@ -408,8 +409,9 @@ class Case:
                 warnings.simplefilter("ignore")  # an empty file: check_K says what it holds
                 K = np.loadtxt(self.K_path, dtype=float)
         except ValueError as exc:
+            why = str(exc).split(";")[0]  # numpy's advice after it (usecols) is not for this file
             raise InputError(
-                f"not a numeric 3x3 matrix ({exc})", path=self.K_path, hint="write three rows of three numbers"
+                f"not a numeric 3x3 matrix ({why})", path=self.K_path, hint="write three rows of three numbers"
             ) from None
         return check_K(K.reshape(3, 3) if K.size == 9 else K, self.width, self.height, path=self.K_path)
 

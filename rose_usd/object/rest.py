@@ -167,7 +167,9 @@ def resting_clouds(ctx: StageContext, cameras, depth_of) -> dict[str, RestingClo
             raise InputError(
                 f"object {spec.name!r}: only {len(pts)} points above the support in {len(frames)} resting frames",
                 path=folder,
-                hint="check its masks and the depth",
+                hint="look at masks/sheet.jpg: a mask off the object wants a prompt (prompt = { frame = 0, box ="
+                " [x0, y0, x1, y1] } in its [[objects]]), a video that moves no object wants objects = [] in"
+                " rose.toml; else check the depth",
             )
         clouds[spec.name] = RestingCloud(pts, cols, frames, masks, often, toward, ground, tuple(views))
     return clouds

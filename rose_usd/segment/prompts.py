@@ -36,7 +36,7 @@ def check_prompts(specs, width: int, height: int, n: int, where) -> list:
     for s in prompted:
         if not 0 <= s.prompt.frame < n:
             raise InputError(
-                f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has {n}",
+                f"prompt of {s.name!r} is on frame {s.prompt.frame}, the video has frames 0..{n - 1}",
                 path=where,
                 hint="prompt a frame of this video",
             )
