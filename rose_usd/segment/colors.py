@@ -14,17 +14,9 @@ def color_index(rgb: np.ndarray) -> np.ndarray:
     return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
 
 
-def histogram(idx: np.ndarray, *, even_floor: bool = False) -> np.ndarray:
-    """The smoothed, normalized histogram of color indices ``idx``. A color no sample shows gets
-    a floor of 1e-3 counts: the fewer the samples, the higher it lies, so of two such models the
-    one made from fewer pixels wins every color neither saw. With ``even_floor`` that floor is
-    1e-6 of the mass whatever the count: models compare on what they saw (the flow backend: a
-    box's model from 8 500 pixels against its ring's 72 000 claimed the hand's peach, which
-    neither had seen, 9 to 1)."""
+def histogram(idx: np.ndarray) -> np.ndarray:
     hist = np.bincount(idx.ravel(), minlength=BINS**3).astype(np.float64).reshape(BINS, BINS, BINS)
     hist = gaussian_filter(hist, sigma=1.0, mode="constant").reshape(-1)  # shading shifts colors by a bin or two
-    if even_floor:
-        return (hist / max(hist.sum(), 1e-12) + 1e-6) / (1.0 + 1e-6 * hist.size)
     return (hist + 1e-3) / (hist.sum() + 1e-3 * hist.size)
 
 

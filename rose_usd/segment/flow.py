@@ -104,13 +104,6 @@ POINT_BOXES = (0.1, 0.2, 0.4)
 FLOW_AHEAD = 3
 """Flows made ahead of the propagation on a second thread (``FlowTracker.plan``)."""
 
-TIE = 1.001
-"""A track claims a color where its model is more than this many times likelier than the
-background's: colors neither model saw tie (``histogram(even_floor=True)``), and the rounding in
-a track's running average of its colors must not break that tie (default push-box-s103, rgb: the
-hand's peach tied, 76 % of its pixels were claimed by 1e-16, a whole view then took the hand and
-taught the box its colors)."""
-
 _REACH = 0.35
 """A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""
 
@@ -232,10 +225,10 @@ class FlowTracker:
         ring[max(0, y0 - bh) : y1 + bh, max(0, x0 - bw) : x1 + bw] = True
         ring &= ~cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
         idx = color_index(rgb)
-        fg = histogram(idx[mask], even_floor=True)
+        fg = histogram(idx[mask])
         if look is not None:
             fg = (1.0 - LOOK_WEIGHT) * fg + LOOK_WEIGHT * look
-        return Track2D(name, mask, fg, float(mask.sum()), broad=look is not None), histogram(idx[ring], even_floor=True)
+        return Track2D(name, mask, fg, float(mask.sum()), broad=look is not None), histogram(idx[ring])
 
     def look_alikes(self, t: int, tracks: list[Track2D], bg: np.ndarray) -> list[Track2D]:
         """Regions of frame t outside the tracks that their color models claim, as large as them."""
@@ -254,13 +247,7 @@ class FlowTracker:
             if areas[label] >= 0.3 * smallest:
                 m = labels == label
                 out.append(
-                    Track2D(
-                        f"look-alike {len(out) + 1}",
-                        m,
-                        histogram(idx[m], even_floor=True),
-                        float(areas[label]),
-                        is_object=False,
-                    )
+                    Track2D(f"look-alike {len(out) + 1}", m, histogram(idx[m]), float(areas[label]), is_object=False)
                 )
         return out
 
@@ -424,7 +411,7 @@ class FlowTracker:
         visible = []
         for k, tr in enumerate(tracks):
             mine = reachable & (owner == k)
-            claimed = mine & (tr.fg[idx] > TIE * bg[idx])
+            claimed = mine & (tr.fg[idx] > bg[idx])
             if carried[k] and still is not None:  # None: the camera moves
                 claimed &= ~still
             others = [moved[j] for j in range(len(tracks)) if j != k]
@@ -442,7 +429,7 @@ class FlowTracker:
             if 0.85 < frac < 1.3 and not touching[k]:
                 # a clear, whole view: it becomes the shape, and teaches the look as it turns
                 tr.mask = m
-                tr.fg = 0.95 * tr.fg + 0.05 * histogram(idx[m], even_floor=True)
+                tr.fg = 0.95 * tr.fg + 0.05 * histogram(idx[m])
                 tr.typical_px = 0.95 * tr.typical_px + 0.05 * float(m.sum())
             else:  # partly hidden or touching another: its last whole shape, moved
                 tr.mask = moved[k]
