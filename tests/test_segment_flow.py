@@ -83,19 +83,24 @@ def test_a_read_only_case_without_a_prompt_is_told_to_use_a_folder_of_its_own(tm
     assert "is read-only: make a folder of your own" in line and "--prompt" in line
 
 
+def _sample_video(sample_case, video, frames: int):
+    """The sample's first ``frames`` frames as an mp4 file ``video``."""
+    import cv2
+
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
+    for path in sorted((sample_case / "rgb").glob("*.png"))[:frames]:
+        writer.write(cv2.imread(str(path)))
+    writer.release()
+    return video
+
+
 def test_a_video_without_its_own_toml_is_told_which_file_is_not_read(tmp_path, sample_case):
     """A new user gave a video as the case with its settings in clip.mp4.toml (or rose.toml) beside
     it: the error named clip.toml, which did not exist, and not the file that did; its --prompt
     hint asked for a NAME the default object does not have."""
-    import cv2
-
     from rose_usd.cli import main
 
-    video = tmp_path / "clip.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
-    for path in sorted((sample_case / "rgb").glob("*.png"))[:12]:
-        writer.write(cv2.imread(str(path)))
-    writer.release()
+    video = _sample_video(sample_case, tmp_path / "clip.mp4", 12)
     (tmp_path / "clip.mp4.toml").write_text('[[objects]]\nname = "Box"\n')
     with pytest.raises(InputError, match="have no prompt") as err:
         Pipeline(video, tmp_path / "out", Options()).run("segment")
@@ -113,16 +118,10 @@ def test_a_video_given_as_a_file_is_told_where_intrinsics_and_depth_go(tmp_path,
     """A video given as a file reads no cam_K.txt and no depth/ (not even beside it): the warning
     of a guessed field of view and the error of a depth backend said to write them, and where they
     were written nothing changed."""
-    import cv2
-
     from rose_usd.capture.intrinsics import resolve_K
     from rose_usd.case.layout import load_case
 
-    video = tmp_path / "clip.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
-    for path in sorted((sample_case / "rgb").glob("*.png"))[:6]:
-        writer.write(cv2.imread(str(path)))
-    writer.release()
+    video = _sample_video(sample_case, tmp_path / "clip.mp4", 6)
     (tmp_path / "cam_K.txt").write_text("not a matrix\n")
     _, source, warning = resolve_K(load_case(video))
     assert source == "fov-guess" and "the cam_K.txt beside it is not read" in warning
