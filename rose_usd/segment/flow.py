@@ -108,6 +108,17 @@ _REACH = 0.35
 """A pixel can join a track within this fraction of the track's size (sqrt of its area) of its moved mask."""
 
 
+def claims(fg: np.ndarray, bg: np.ndarray) -> np.ndarray:
+    """Per color bin: whether a track whose color model is ``fg`` claims it against the background
+    model ``bg``: likelier under ``fg``, and seen by one of them. A color neither saw lies on both
+    histograms' floors (``colors.histogram``), and the floor of a model made from fewer pixels
+    lies higher: the track's won every such color (default push-box-s103, rgb: the box's 8 531
+    prompt pixels against its ring's 71 588 claimed the pushing hand's peach 9 to 1, a whole view
+    then taught the box the hand's colors; mask IoU 0.45)."""
+    seen = (fg > 2.0 * fg.min()) | (bg > 2.0 * bg.min())
+    return (fg > bg) & seen
+
+
 def _reach_px(tr: "Track2D") -> float:
     """How far from a track's shape a pixel can still join it [px]."""
     return _REACH * np.sqrt(tr.typical_px) + 3.0
@@ -411,7 +422,7 @@ class FlowTracker:
         visible = []
         for k, tr in enumerate(tracks):
             mine = reachable & (owner == k)
-            claimed = mine & (tr.fg[idx] > bg[idx])
+            claimed = mine & claims(tr.fg, bg)[idx]
             if carried[k] and still is not None:  # None: the camera moves
                 claimed &= ~still
             others = [moved[j] for j in range(len(tracks)) if j != k]
