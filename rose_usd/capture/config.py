@@ -66,8 +66,9 @@ class SfmConfig:
     """The camera is static when at least this fraction of the first frame's corners stay within
     0.5 px (capture.static) (default 0.3)."""
     near_static_motion: float = 0.08
-    """A camera whose view moves by less than this fraction of the image width over the video is
-    tracked against its support plane, not by structure from motion [-] (default 0.08)."""
+    """A camera whose view moves by less than this fraction of the image width over the video (the
+    lower quartile of its reference frame's corners' displacements) is tracked against its
+    support plane, not by structure from motion [-] (default 0.08)."""
     keyframes: int = 60
     """Structure from motion runs over at most this many keyframes; the frames between them are
     interpolated (default 60: 7-Scenes' 200 frames in about a minute on 2 CPU cores)."""
