@@ -47,7 +47,7 @@ def main() -> int:
         original = case.rgb(t)
         rendered = renderer.scene.render_srgb8(cams.world_from_cv[t], cams.K[t], case.width, case.height, spp=args.spp)
         moving = np.zeros(original.shape[:2], bool)
-        for track in sorted((out / "masks").iterdir()):
+        for track in sorted(p for p in (out / "masks").iterdir() if p.is_dir()):  # sheet.jpg beside them
             moving |= read_mask(track / f"{t:06d}.png")
         score, ssim_map = masked_ssim(original, rendered, moving)
         row[0].imshow(original)

@@ -222,7 +222,7 @@ def _static_ssim(out, sample_case, frames=(0, 24, 47)) -> float:
     scores = []
     for t in frames:
         moving = np.zeros((case.height, case.width), np.uint8)
-        for track in (out / "masks").iterdir():
+        for track in (p for p in (out / "masks").iterdir() if p.is_dir()):  # sheet.jpg beside them
             moving |= read_mask(track / f"{t:06d}.png").astype(np.uint8)
         exclude = cv2.dilate(moving, np.ones((9, 9), np.uint8)).astype(bool)
         rendered = renderer.scene.render_srgb8(
