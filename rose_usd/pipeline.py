@@ -135,9 +135,12 @@ class Pipeline:
 
     def _prompts_where(self) -> str:
         """Where the segment stage's prompts come from: the caller's (``--prompt``) or rose.toml."""
-        if "prompts" in flatten(self.options.settings.get("segment", {})):
-            return self.options.prompt_source
-        return str(self.case.settings_file)
+        return self._setting_where("segment", "prompts", self.options.prompt_source)
+
+    def _setting_where(self, stage: str, name: str, given: str) -> str:
+        """Where setting ``stage.name`` comes from: ``given`` (the caller's flag) where the caller
+        set it, else the case's settings file."""
+        return given if name in flatten(self.options.settings.get(stage, {})) else str(self.case.settings_file)
 
     def _check_option_stages(self) -> None:
         sources = (("--backend", self.options.backends), (self.options.settings_source, self.options.settings))
@@ -226,8 +229,7 @@ class Pipeline:
         elif backends.get("segment") == "classical":
             planning.check_all_or_none(self.case, prompts, self._prompts_where())
         if "collect" in backends:
-            given = "object_name" in flatten(self.options.settings.get("collect", {}))
-            where = self.options.settings_source if given else str(self.case.settings_file)
+            where = self._setting_where("collect", "object_name", self.options.settings_source)
             planning.check_collect_object(self.case, self.config(registry.get("collect")).object_name, where)
         return stages
 

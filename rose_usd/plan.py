@@ -104,8 +104,7 @@ def _need_sensor_depth(case: Case, plan: Mapping[str, str], stage: str) -> None:
             raise InputError(
                 f"the {stage} stage's {plan[stage]} backend needs depth maps, and a video given as a file has none",
                 path=case.root,
-                hint=f"make a case folder holding rgb/{case.root.name} and depth/ (one map per frame), and give"
-                " that folder; or pick another backend",
+                hint=f"{case.as_folder('depth/ (one map per frame)')}; or pick another backend",
             )
         raise InputError(
             f"the {stage} stage's {plan[stage]} backend needs depth maps, and this case has none",

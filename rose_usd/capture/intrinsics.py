@@ -19,10 +19,7 @@ def where_K_goes(case: Case) -> str:
     none (nor one beside it), so it goes into a case folder of its own first."""
     if case.root.is_file():
         beside = " (the cam_K.txt beside it is not read)" if (case.folder / "cam_K.txt").is_file() else ""
-        return (
-            f"a video given as a file reads no cam_K.txt{beside}: make a case folder holding "
-            f"rgb/{case.root.name}, cam_K.txt and rose.toml, and give that folder"
-        )
+        return f"a video given as a file reads no cam_K.txt{beside}: {case.as_folder('cam_K.txt', 'rose.toml')}"
     return f"write cam_K.txt in {case.folder}"
 
 

@@ -505,6 +505,13 @@ class Case:
         folder = self.pose_dir(name)
         return folder.is_dir() and any(folder.glob("*.txt"))
 
+    def as_folder(self, *entries: str) -> str:
+        """How a video given as a file gets what only a case folder reads (cam_K.txt, depth/):
+        "make a case folder holding rgb/<the video>, <entries>, and give that folder"."""
+        held = [f"rgb/{self.root.name}", *entries]
+        listed = f"{', '.join(held[:-1])} and {held[-1]}" if len(held) > 1 else held[0]
+        return f"make a case folder holding {listed}, and give that folder"
+
     def input_files(self) -> list[Path]:
         """Every input file a stage may read (for provenance hashes), ground truth excluded."""
         files = list(self.frame_paths) if self.video is None else [self.video]

@@ -113,11 +113,11 @@ def run(ctx: StageContext) -> None:
                 f"object {name!r}: its re-render overlaps its masks by IoU {iou:.2f} on average"
                 f" (threshold {cfg.track_iou_threshold}): its shape or trajectory does not follow the video"
             )
-        worst = track["worst_window"][name]
-        if worst is not None and worst["iou"] < cfg.track_window_iou:
+        window = track["worst_window"][name]
+        if window is not None and window["iou"] < cfg.track_window_iou:
             ctx.warn(
-                f"object {name!r}: its re-render overlaps its masks by IoU {worst['iou']:.2f} over frames"
-                f" {worst['frames'][0]}-{worst['frames'][1]} (threshold {cfg.track_window_iou} over"
+                f"object {name!r}: its re-render overlaps its masks by IoU {window['iou']:.2f} over frames"
+                f" {window['frames'][0]}-{window['frames'][1]} (threshold {cfg.track_window_iou} over"
                 f" {cfg.track_window_s:g} s): its trajectory has left the object there"
             )
     ctx.record(

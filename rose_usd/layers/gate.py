@@ -68,6 +68,10 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
     def get(name: str):
         return prim.GetAttribute(name).Get()
 
+    def per_object(name: str) -> dict[str, float]:
+        """A float array of the track check, by the object names of rose:gate:track:objects."""
+        return dict(zip(list(get(tokens.GATE_TRACK_OBJECTS) or []), [float(v) for v in get(name) or []]))
+
     ssim = prim.GetAttribute(tokens.GATE_SSIM)
     samples = [ssim.Get(t) for t in ssim.GetTimeSamples()]
     return GateResult(
@@ -85,13 +89,9 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
         physics_passed=bool(get(tokens.GATE_PHYSICS_PASSED)),
         geometry_passed=bool(get(tokens.GATE_GEOMETRY_PASSED)),
         geometry_report=str(get(tokens.GATE_GEOMETRY_REPORT) or ""),
-        track_iou=dict(
-            zip(list(get(tokens.GATE_TRACK_OBJECTS) or []), [float(v) for v in get(tokens.GATE_TRACK_IOU) or []])
-        ),
+        track_iou=per_object(tokens.GATE_TRACK_IOU),
         track_threshold=float(get(tokens.GATE_TRACK_THRESHOLD) or 0.0),
-        track_window_iou=dict(
-            zip(list(get(tokens.GATE_TRACK_OBJECTS) or []), [float(v) for v in get(tokens.GATE_TRACK_WINDOW_IOU) or []])
-        ),
+        track_window_iou=per_object(tokens.GATE_TRACK_WINDOW_IOU),
         track_window_threshold=float(get(tokens.GATE_TRACK_WINDOW_THRESHOLD) or 0.0),
     )
 
