@@ -501,8 +501,8 @@ def _add_pipeline_commands(sub) -> None:
     """reconstruct, run, demo."""
     p = sub.add_parser(
         "reconstruct",
-        help="run every stage on a case, collect's robot rollouts last (skips stages that are up to date;"
-        " `run gate` stops before collect)",
+        help="run every stage on a case, collect's robot rollouts last, where the gate passed (skips stages that"
+        " are up to date; `run gate` stops before collect)",
     )
     p.add_argument("case", help="case folder, or video file (with its settings in <name>.toml beside it)")
     _add_pipeline_flags(p)

@@ -15,7 +15,7 @@ from pxr import Gf, Sdf, Usd, UsdPhysics, Vt
 from rose_usd.io import lerobot, robomimic
 from rose_usd.layers.robot import read_collect
 from rose_usd.pipeline import Options, Pipeline
-from rose_usd.usd import paths
+from rose_usd.usd import paths, tokens
 from rose_usd.usd.stage import layer_file, open_stage
 from rose_usd.usd.validate import validate
 
@@ -61,6 +61,28 @@ def test_a_box_wider_than_the_gripper_gets_a_layer_that_says_so(oracle_out):
     assert result.status == "no-grasp" and result.rollouts == 0
     assert "too large for the gripper" in result.message and "7.9 cm" in result.message
     assert not (oracle_out / "dataset" / "lerobot").exists()
+
+
+def test_a_failed_gate_gets_a_layer_that_says_so_and_no_rollout(tmp_path, oracle_out, sample_case):
+    """sam2-cups' gate failed (the path left the cup for 2 s) and collect still made a dataset of
+    that path: collect needs the gate, and where it failed writes status gate-failed, naming why,
+    unless collect.after_failed_gate lets it go on."""
+    out = tmp_path / "out"
+    shutil.copytree(oracle_out, out)
+    layer = Sdf.Layer.FindOrOpen(str(layer_file(out, "gate")))
+    stage = Usd.Stage.Open(layer)
+    gate = stage.GetPrimAtPath(paths.GATE)
+    gate.GetAttribute(tokens.GATE_PASSED).Set(False)
+    gate.GetAttribute(tokens.GATE_SSIM_MEAN).Set(0.512)
+    layer.Save()
+    result = _collect(sample_case, out)
+    assert result.status == "gate-failed" and result.rollouts == 0
+    assert result.message.startswith("the gate failed (SSIM 0.512 under 0.75)"), result.message
+    assert "collect.after_failed_gate = true" in result.message
+    assert not (out / "dataset" / "lerobot").exists()
+    assert validate(out / "rose.usda", with_newton=False).ok
+    result = _collect(sample_case, out, after_failed_gate=True)  # the true box: too wide to grasp
+    assert result.status == "no-grasp", result.message
 
 
 def test_rollouts_succeed_on_a_box_that_fits(small_box_out):
@@ -135,7 +157,7 @@ def test_an_object_without_a_collider_gets_a_layer_that_says_so(tmp_path, small_
     stage = Usd.Stage.Open(layer)
     stage.GetPrimAtPath(paths.object_collision("Box")).RemoveAPI(UsdPhysics.CollisionAPI)
     layer.Save()
-    result = _collect(sample_case, out)
+    result = _collect(sample_case, out, after_failed_gate=True)  # the gate's collider check fails
     assert result.status == "no-collider" and "no collision mesh" in result.message and result.rollouts == 0
 
 
@@ -152,7 +174,7 @@ def test_an_object_held_in_every_frame_gets_a_layer_that_says_so(tmp_path, small
         p = translate.Get(Usd.TimeCode(t))
         translate.Set(type(p)(p[0] + 0.01 * t, p[1], p[2] + 0.05), Usd.TimeCode(t))
     layer.Save()
-    result = _collect(sample_case, out)
+    result = _collect(sample_case, out, after_failed_gate=True)  # the gate's track check fails
     assert result.status == "not-resting" and result.rollouts == 0
     assert "'Box' rests in no frame" in result.message
 

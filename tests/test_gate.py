@@ -236,3 +236,25 @@ def test_the_gate_summary_lists_an_object_resting_in_no_frame_without_a_stray_co
     assert "rest Box 1.00 mm (frames 0), Cat rests in no frame;" in summary({"Box": 0.001}, ["Cat"])
     track, window = {"Cup": 0.67, "Box": 0.9}, {"Cup": 0.24, "Box": float("nan")}
     assert "track IoU Cup 0.67 (worst window 0.24), Box 0.90 (threshold 0.50);" in summary({}, [])
+
+
+def test_the_gate_names_each_check_that_failed_in_a_short_phrase():
+    """What collect's gate-failed message lists: the SSIM under its threshold, each object the
+    rest check moved, each object whose re-render left its masks on average or over a window."""
+    from rose_usd.layers.gate import GateResult
+
+    result = GateResult(
+        passed=False, ssim_mean=0.7, ssim_min=0.6, ssim_threshold=0.75, rest_displacement_m={"Ball": 2.7, "Cup": 0.002},
+        rest_frames={"Ball": [0], "Cup": [0]}, not_resting=[], rest_threshold_m=0.005, physics_passed=False,
+        geometry_passed=True, geometry_report="", track_iou={"Cup": 0.68, "Ball": 0.4, "Pen": float("nan")},
+        track_threshold=0.5, track_window_iou={"Cup": 0.25, "Ball": 0.1, "Pen": float("nan")},
+        track_window_threshold=0.3,
+    )  # fmt: skip
+    assert result.failures() == [
+        "SSIM 0.700 under 0.75",
+        "Ball moved 2.70 m in the rest check",
+        "Cup's re-render overlaps its masks by IoU 0.25 in its worst window",
+        "Ball's re-render overlaps its masks by IoU 0.40",
+    ]
+    assert GateResult(**{**result.__dict__, "passed": True, "ssim_mean": 0.8, "rest_displacement_m": {},
+                         "track_iou": {}, "track_window_iou": {}}).failures() == []  # fmt: skip

@@ -21,13 +21,13 @@ def test_second_run_skips_everything(out_copy, sample_case):
 
 
 def test_changed_setting_reruns_only_that_stage(out_copy, sample_case):
-    """A new gate setting re-runs the gate and nothing upstream."""
+    """A new gate setting re-runs the gate, then collect (which needs it), and nothing upstream."""
     before = _mtimes(out_copy)
     options = Options(backends={"all": "oracle"}, settings={"gate": {"spp": "4", "physics": "false"}})
     outcomes = Pipeline(sample_case, out_copy, options).run()
-    assert [o.name for o in outcomes if o.ran] == ["gate"]
+    assert [o.name for o in outcomes if o.ran] == ["gate", "collect"]
     after = _mtimes(out_copy)
-    assert {k for k in after if after[k] != before[k]} == {"gate.usda"}
+    assert {k for k in after if after[k] != before[k]} == {"gate.usda", "robot.usda"}
     prov = read_provenance(layer_file(out_copy, "gate"))
     assert prov["config"]["spp"] == 4 and prov["config"]["physics"] is False
 

@@ -97,7 +97,7 @@ DEFAULT_UNTIL = "gate"
 """The last stage a benchmark run reaches unless ``--until`` names another."""
 
 EVERY_STAGE = "all"
-"""``--until all``: every stage, not only what the last one needs (collect does not need the gate)."""
+"""``--until all``: every stage, not only what the last one needs."""
 
 
 def run_case(

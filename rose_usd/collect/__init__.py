@@ -6,9 +6,10 @@ from rose_usd.stage_api import StageDef
 STAGE = StageDef(
     name="collect",
     layer="robot",
-    needs=("capture", "scene", "object", "trajectory"),
+    needs=("capture", "scene", "object", "trajectory", "gate"),
     config=CollectConfig,
     backends={"newton": "rose_usd.collect.newton_backend:run"},
-    summary="a Franka Panda grasps the object and follows its path in Newton -> layers/robot.usda + dataset/",
+    summary="where the gate passed, a Franka Panda grasps the object and follows its path in Newton"
+    " -> layers/robot.usda + dataset/",
     side_dirs=("dataset",),
 )

@@ -66,6 +66,9 @@ class NewtonConfig:
 class CollectConfig:
     backend: CollectBackend = CollectBackend.AUTO
     """Which simulator collects the demonstrations (default auto)."""
+    after_failed_gate: bool = False
+    """Collect also from a reconstruction the gate failed (default false: the robot layer says the
+    gate failed, and no rollout runs and no dataset is written)."""
     object_name: str = ""
     """The object the robot moves (default "": the object whose path is longest)."""
     grasps: int = 3

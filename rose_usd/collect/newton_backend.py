@@ -24,6 +24,7 @@ from rose_usd.core import se3
 from rose_usd.errors import ConfigError
 from rose_usd.geometry.grasps import sample_surface
 from rose_usd.layers import objects as object_layer
+from rose_usd.layers.gate import read_gate
 from rose_usd.layers.scene import scene_collider
 from rose_usd.layers.trajectory import object_poses
 from rose_usd.progress import progress, say
@@ -336,6 +337,8 @@ def run(ctx: StageContext) -> None:
         """The arm's clearance from the scene and the objects but ``name``, with its base at a point."""
         return lambda base: _arm_checker(ctx, base, cfg, held=name).clearance
 
+    if _gate_refuses(ctx, cfg):
+        return
     planned = _planned(ctx, cfg, rng, clearance_for)
     if planned is None:
         return
@@ -398,6 +401,21 @@ def run(ctx: StageContext) -> None:
         device=device,
         worlds=world.worlds,
     )
+
+
+def _gate_refuses(ctx: StageContext, cfg: CollectConfig) -> bool:
+    """Whether the gate failed the reconstruction (and collect is not told to go on): the layer
+    then says so (status gate-failed), with what failed."""
+    gate = read_gate(ctx.stage)
+    if gate is None or gate.passed or cfg.after_failed_gate:
+        return False
+    why = "; ".join(gate.failures()) or "see report/gate.json"
+    message = (
+        f"the gate failed ({why}): no robot data from a reconstruction it rejects"
+        " (set collect.after_failed_gate = true to collect anyway)"
+    )
+    _finish(ctx, Outcome("gate-failed", message))
+    return True
 
 
 def _device(cfg: CollectConfig) -> tuple[str, bool]:

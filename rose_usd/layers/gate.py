@@ -38,6 +38,23 @@ class GateResult:
     no window held 3 rendered frames; empty in a gate layer without the window check)."""
     track_window_threshold: float
 
+    def failures(self) -> list[str]:
+        """What failed, one short phrase per check (empty when the gate passed)."""
+        out = []
+        if not self.ssim_mean >= self.ssim_threshold:
+            out.append(f"SSIM {self.ssim_mean:.3f} under {self.ssim_threshold:.2f}")
+        moved = {k: d for k, d in self.rest_displacement_m.items() if not d < self.rest_threshold_m}
+        out += [f"{name} moved {_length(d)} in the rest check" for name, d in moved.items()]
+        for name, iou in self.track_iou.items():
+            window = self.track_window_iou.get(name, float("nan"))
+            if iou < self.track_threshold:
+                out.append(f"{name}'s re-render overlaps its masks by IoU {iou:.2f}")
+            elif window < self.track_window_threshold:
+                out.append(f"{name}'s re-render overlaps its masks by IoU {window:.2f} in its worst window")
+        if not self.geometry_passed:
+            out.append(f"colliders: {self.geometry_report}")
+        return out
+
     def summary(self) -> str:
         rest = ", ".join(
             [
@@ -93,6 +110,12 @@ def read_gate(stage: Usd.Stage) -> GateResult | None:
         track_threshold=float(get(tokens.GATE_TRACK_THRESHOLD) or 0.0),
         track_window_iou=per_object(tokens.GATE_TRACK_WINDOW_IOU),
         track_window_threshold=float(get(tokens.GATE_TRACK_WINDOW_THRESHOLD) or 0.0),
+    )
+
+
+def _length(metres: float) -> str:
+    return (
+        f"{metres:.2f} m" if metres >= 1 else f"{1e3 * metres:.0f} mm" if metres >= 0.01 else f"{1e3 * metres:.1f} mm"
     )
 
 
