@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import textwrap
 import traceback
@@ -470,7 +471,17 @@ class _Parser(argparse.ArgumentParser):
     """argparse with a usage error as one line and exit status 1, like every other error a user
     can fix (argparse's own prints the usage and exits 2, which rose-usd keeps for bugs)."""
 
+    argv: list[str] = []
+
+    def parse_known_args(self, args=None, namespace=None):
+        _Parser.argv = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
     def error(self, message: str):
+        flag = re.match(r"argument (--[\w-]+).*: expected one argument$", message)
+        after = [b for a, b in zip(self.argv, self.argv[1:]) if flag and a == flag.group(1)]
+        if any(v.startswith("-") and v[1:2].isdigit() for v in after):  # argparse took the value for an option
+            message += f" (a value that starts with '-' is written {flag.group(1)}=VALUE)"
         self.exit(1, f"error: {self.prog}: {message}; see `{self.prog} --help`\n")
 
 

@@ -13,7 +13,10 @@ from rose_usd.errors import InputError
 
 
 def run_cli(capsys, *argv):
-    code = main(list(argv))
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:  # argparse's usage errors
+        code = exc.code
     err = capsys.readouterr().err.strip()
     return code, err
 
@@ -279,6 +282,17 @@ def test_a_command_line_box_off_the_image_says_which_way(capsys, sample_case, tm
     assert not out.exists()
 
 
+def test_a_prompt_that_starts_with_a_minus_is_told_how_to_write_it(capsys, sample_case, tmp_path):
+    """argparse takes "-1:..." after --prompt for an option and says only "expected one argument"."""
+    code, err = run_cli(capsys, "run", "segment", str(sample_case), "-o", str(tmp_path / "out"), "--prompt", "-1:2,2")
+    assert_one_line_error(code, err, "--prompt: expected one argument", "is written --prompt=VALUE")
+    code, err = run_cli(capsys, "run", "segment", str(sample_case), "-o", str(tmp_path / "out"), "--prompt")
+    assert_one_line_error(code, err, "--prompt: expected one argument")
+    assert "--prompt=VALUE" not in err and not (tmp_path / "out").exists()
+    code, err = run_cli(capsys, "run", "segment", str(sample_case), "-o", str(tmp_path / "out"), "--prompt=-1:2,2")
+    assert_one_line_error(code, err, "--prompt", "is not [Name=]frame:x0,y0,x1,y1")
+
+
 def test_a_command_line_prompt_on_nothing_names_the_prompt(capsys, sample_case, tmp_path):
     """A --prompt box where nothing stands names --prompt, not rose.toml (the stage's own error,
     raised in its child process)."""
@@ -310,8 +324,9 @@ def test_a_video_inside_rgb_is_the_cases_frames(capsys, tmp_path):
 
 
 def test_a_video_files_settings_are_the_toml_beside_it(capsys, tmp_path):
-    """A video given as the case: one generic "Object" alone; <stem>.toml beside it (rose.toml's
-    format) names its objects, their categories and sizes, and is checked like rose.toml."""
+    """A video given as the case: one generic "Object" alone; <stem>.toml (or <name>.toml) beside
+    it (rose.toml's format) names its objects, their categories and sizes, and is checked like
+    rose.toml."""
     video = tmp_path / "cups.avi"
     _video(video)
     assert [o.name for o in load_case(video).config.objects] == ["Object"]
@@ -328,6 +343,12 @@ def test_a_video_files_settings_are_the_toml_beside_it(capsys, tmp_path):
     toml.write_text('[[objects]]\nname = "Cup"\ncategory = "cupp"\n')
     code, err = run_cli(capsys, "reconstruct", str(video), "-o", str(tmp_path / "out"))
     assert_one_line_error(code, err, "cups.toml", "'cupp'", "did you mean 'cup'")
+    # the video's whole name with .toml added is read too, but not beside a <stem>.toml
+    (tmp_path / "cups.avi.toml").write_text('[[objects]]\nname = "Mug"\n')
+    with pytest.raises(InputError, match="two settings files beside the video: cups.toml and cups.avi.toml"):
+        load_case(video)
+    toml.unlink()
+    assert [o.name for o in load_case(video).config.objects] == ["Mug"]
 
 
 def test_validate_names_the_layers_an_output_folder_lacks_and_takes_the_folder(

@@ -134,8 +134,7 @@ class Case:
                 )
             self.video = self.root
             self.folder = self.root.parent
-            # a video's own settings (objects, categories, sizes, fps): <video stem>.toml beside it
-            self.settings_file = self.root.with_suffix(".toml")
+            self.settings_file = _video_settings_file(self.root)
             self.config = load_case_config(self.folder, stage_names, file=self.settings_file)
         else:
             self.folder = self.root
@@ -528,3 +527,16 @@ class Case:
 
 def load_case(path: str | Path, stage_names: tuple[str, ...] = ()) -> Case:
     return Case(Path(path), stage_names)
+
+
+def _video_settings_file(video: Path) -> Path:
+    """A video's own settings (objects, categories, sizes, fps): <video stem>.toml beside it, or
+    <video name>.toml (cups.mp4.toml), not both."""
+    stem, full = video.with_suffix(".toml"), video.with_name(video.name + ".toml")
+    if stem.is_file() and full.is_file():
+        raise InputError(
+            f"two settings files beside the video: {stem.name} and {full.name}",
+            path=video.parent,
+            hint=f"keep one ({stem.name})",
+        )
+    return full if full.is_file() else stem
