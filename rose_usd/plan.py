@@ -314,13 +314,8 @@ def _prompt_hint(case: Case) -> str:
         where = f"add {toml} to each [[objects]] of {case.config.path.name}"
     elif os.access(case.folder, os.W_OK) and case.folder.stat().st_mode & 0o222:  # no write bit: root too
         where = f'write {case.settings_file} with [[objects]] name = "..." and {toml}'
-        if case.root.is_file():  # a video given as the case: its settings are <stem>.toml alone
-            unread = [p.name for p in (case.video.with_name(case.video.name + ".toml"), case.folder / "rose.toml")]
-            unread = [n for n in unread if (case.folder / n).is_file()]
-            if unread:
-                where += (
-                    f" ({' and '.join(unread)} beside it {'is' if len(unread) == 1 else 'are'} not read for a video)"
-                )
+        if case.root.is_file() and (case.folder / "rose.toml").is_file():  # a video's settings are its own
+            where += " (rose.toml beside it is not read for a video)"
     else:
         where = (
             f"{case.folder} is read-only: make a folder of your own with a link video.mp4 -> the video (or rgb ->"

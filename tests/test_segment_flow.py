@@ -95,17 +95,17 @@ def _sample_video(sample_case, video, frames: int):
 
 
 def test_a_video_without_its_own_toml_is_told_which_file_is_not_read(tmp_path, sample_case):
-    """A new user gave a video as the case with its settings in clip.mp4.toml (or rose.toml) beside
-    it: the error named clip.toml, which did not exist, and not the file that did; its --prompt
-    hint asked for a NAME the default object does not have."""
+    """A new user gave a video as the case with its settings in rose.toml beside it: the error
+    named clip.toml, which did not exist, and not the file that did; its --prompt hint asked for a
+    NAME the default object does not have. (clip.mp4.toml is read, as clip.toml is.)"""
     from rose_usd.cli import main
 
     video = _sample_video(sample_case, tmp_path / "clip.mp4", 12)
-    (tmp_path / "clip.mp4.toml").write_text('[[objects]]\nname = "Box"\n')
+    (tmp_path / "rose.toml").write_text('[[objects]]\nname = "Box"\n')
     with pytest.raises(InputError, match="have no prompt") as err:
         Pipeline(video, tmp_path / "out", Options()).run("segment")
     line = err.value.one_line()
-    assert f"write {tmp_path / 'clip.toml'}" in line and "(clip.mp4.toml beside it is not read for a video)" in line
+    assert f"write {tmp_path / 'clip.toml'}" in line and "(rose.toml beside it is not read for a video)" in line
     assert "--prompt FRAME:x0,y0,x1,y1 (or a point, FRAME:x,y)" in line
     assert main(["run", "segment", str(video), "-o", str(tmp_path / "out"), "--prompt", "0:174,90,208,127"]) == 0
     # that folder holds the masks layer alone, /World an over there: inspect still lists its prims
