@@ -12,6 +12,7 @@ import json
 import os
 import pickle
 import time
+import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,8 +42,21 @@ def _files_hash(files: list[Path], root: Path) -> str:
     h = hashlib.sha256()
     for f in sorted(files):
         h.update(str(f.relative_to(root) if f.is_relative_to(root) else f).encode())
-        h.update(_cached_file_hash(f).encode())
+        h.update((_settings_hash(f) if f.suffix == ".toml" else _cached_file_hash(f)).encode())
     return h.hexdigest()[:16]
+
+
+def _settings_hash(path: Path) -> str:
+    """A case's settings file (rose.toml, a video's <name>.toml) hashed without its stage tables
+    and ``[backends]``: each stage's own table and backend are in its config, hashed apart, so an
+    edit of ``[gate]`` makes the gate stale, not every stage (a new user's ``spp = 8`` there re-ran
+    capture onwards and removed the robot's dataset). Comments and layout do not count either."""
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return _cached_file_hash(path)
+    kept = {k: v for k, v in data.items() if k not in registry.STAGE_NAMES and k != "backends"}
+    return hashlib.sha256(json.dumps(kept, sort_keys=True, default=str).encode()).hexdigest()
 
 
 def _changed_settings(stage: str, made_with: object, config) -> str:

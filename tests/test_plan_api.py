@@ -228,8 +228,13 @@ def test_a_stage_run_again_says_why(tmp_path, case_copy, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert "[segment] runs again: its settings changed (segment.min_height_m " in err, err
     assert " -> 0.005)" in err, err
-    (case_copy / "rose.toml").write_text((case_copy / "rose.toml").read_text() + "\n# edited\n")
-    assert main([*base, "--set", "segment.min_height_m=0.005"]) == 0
+    toml = case_copy / "rose.toml"
+    toml.write_text(toml.read_text() + "\n# edited\n[segment]\nmin_height_m = 0.006\n")
+    assert main(base) == 0  # a comment and a stage's own table: that stage alone runs again
+    err = capsys.readouterr().err
+    assert "[capture] up to date" in err and "[segment] runs again: its settings changed (segment.min_height_m" in err
+    toml.write_text(toml.read_text().replace('category = "box"', 'category = "box"\nsize_m = 0.1', 1))
+    assert main(base) == 0
     err = capsys.readouterr().err
     assert "[capture] runs again: what it was made from changed (case: rose.toml)" in err, err
 
