@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import enum
 import hashlib
 import json
@@ -211,10 +212,14 @@ class Pipeline:
                 choice = choice.value
             if not isinstance(choice, str) or (choice not in stage_def.backends and choice != planning.AUTO):
                 given = f"{type(choice).__name__} instance" if dataclasses.is_dataclass(choice) else repr(choice)
+                close = (
+                    difflib.get_close_matches(choice, list(stage_def.backends), n=1) if isinstance(choice, str) else []
+                )
                 raise ConfigError(
                     f"stage {stage_def.name!r} has no backend {given}",
                     path=where,
-                    hint=f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}",
+                    hint=(f"did you mean {close[0]}? " if close else "")
+                    + f"backends of {stage_def.name}: auto, {', '.join(stage_def.backends)}",
                 )
         names = setting_names(stage_def.config)
         from_toml = flatten(self.case.config.stage_overrides.get(stage_def.name, {}), names)

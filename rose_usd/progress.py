@@ -37,7 +37,8 @@ def progress(items: Iterable[T], desc: str, total: int | None = None, unit: str 
 
 def _logged(items: Iterable[T], desc: str, total: int | None, unit: str) -> Iterator[T]:
     """``progress`` off a terminal: "desc: 0/N unit" at the start, then every LOG_EVERY_S, and the
-    count and seconds at the end, also where the loop stops early."""
+    count and seconds at the end; where the loop stops early, "desc: stopped at k/N units after"
+    the seconds (an interrupted collect's "2/8 rollouts in 9.6 s" read as finished)."""
     of = f"/{total}" if total is not None else ""
     start = last = time.perf_counter()
     print(f"{desc}: 0{of} {unit}s", file=sys.stderr, flush=True)
@@ -50,8 +51,10 @@ def _logged(items: Iterable[T], desc: str, total: int | None, unit: str) -> Iter
             if now - last >= LOG_EVERY_S and done != total:  # the last item's line is the end's
                 print(f"{desc}: {done}{of} {unit}s, {now - start:.0f} s", file=sys.stderr, flush=True)
                 last = now
-    finally:  # also when left early (a rest check that settled, an error): its end all the same
-        print(f"{desc}: {done}{of} {unit}s in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+    finally:  # also when left early (a rest check that settled, an error, Ctrl-C): said so
+        took = time.perf_counter() - start
+        end = f"stopped at {done}{of} {unit}s after" if total is not None and done < total else f"{done}{of} {unit}s in"
+        print(f"{desc}: {end} {took:.1f} s", file=sys.stderr, flush=True)
 
 
 def say(message: str) -> None:

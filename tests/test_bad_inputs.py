@@ -153,7 +153,7 @@ def test_rose_toml_typo(capsys, case_copy, tmp_path):
 
 
 def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
-    """Unknown stage and backend names list the valid ones."""
+    """Unknown stage and backend names list the valid ones, a near miss the one meant."""
     code, err = run_cli(capsys, "run", "segmnt", str(sample_case), "-o", str(tmp_path / "o"))
     assert_one_line_error(code, err, "unknown stage", "segment")
     code, err = run_cli(
@@ -165,8 +165,10 @@ def test_unknown_stage_and_backend(capsys, sample_case, tmp_path):
     shutil.copytree(sample_case, case)
     (case / "rose.toml").write_text((case / "rose.toml").read_text() + '\n[backends]\nsegment = "sam3"\n')
     code, err = run_cli(capsys, "run", "capture", str(case), "-o", str(tmp_path / "o2"))
-    assert_one_line_error(code, err, "rose.toml", "no backend 'sam3'", "auto, classical, sam2, flow, oracle")
+    assert_one_line_error(code, err, "rose.toml", "no backend 'sam3'", "did you mean sam2?", "auto, classical, sam2")
     assert "Config" not in err  # nor to someone editing rose.toml
+    code, err = run_cli(capsys, "run", "segment", str(case), "-o", str(tmp_path / "o3"), "--backend", "segment=sam")
+    assert_one_line_error(code, err, "--backend", "no backend 'sam'", "did you mean sam2?")
 
 
 def test_an_output_folder_of_another_case_or_the_case_folder_is_refused(capsys, case_copy, out_copy):

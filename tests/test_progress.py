@@ -39,7 +39,7 @@ def test_a_loop_left_early_still_gets_its_end_line(monkeypatch):
         if step == 149:
             break
     lines = log.getvalue().splitlines()
-    assert lines[0] == "newton: 0/600 steps" and lines[-1].startswith("newton: 150/600 steps in "), lines
+    assert lines[0] == "newton: 0/600 steps" and lines[-1].startswith("newton: stopped at 150/600 steps after "), lines
     log.truncate(0)
     log.seek(0)
     try:
@@ -48,4 +48,8 @@ def test_a_loop_left_early_still_gets_its_end_line(monkeypatch):
     except ValueError:
         pass
     lines = log.getvalue().splitlines()
-    assert lines[0] == "segment: 0/3 frames" and lines[1].startswith("segment: 1/3 frames in ") and len(lines) == 2
+    assert (
+        lines[0] == "segment: 0/3 frames"
+        and lines[1].startswith("segment: stopped at 1/3 frames after ")
+        and len(lines) == 2
+    )

@@ -50,6 +50,7 @@ from rose_usd.errors import InputError
 from rose_usd.geometry.mesh import decimate, longest_edge
 from rose_usd.geometry.primitives import (
     RESTING_MARGIN,
+    TYPICAL,
     hull_points,
     largest_dimension,
     primitive_mesh,
@@ -349,7 +350,11 @@ GIVEN_SIZE_SIGMA = 0.05
 def _fit_primitive(ctx, spec, views, masks, picked, xy, support_z, cameras, scale):
     typ, known = typical(spec.category)
     if not known:
-        ctx.warn(f"object {spec.name!r}: no primitive for category {spec.category!r}: a box stands in for it")
+        shaped = ", ".join(sorted(k for k in TYPICAL if k != "generic"))
+        ctx.warn(
+            f"object {spec.name!r}: no primitive for category {spec.category!r}: a box stands in for it; give"
+            f" [[objects]] name = {spec.name!r} a category in {ctx.case.settings_file.name} (one of: {shaped})"
+        )
     width = _object_width_m(views[0], xy)
     expected, size_cost = size_prior(typ, spec.overrides.get("size_m"), scale.uncertainty)
     kind, fit = None, None
