@@ -210,6 +210,16 @@ def test_a_box_set_down_in_the_air_fails_the_rest_check_from_its_last_resting_fr
     moved = {t: r.max_displacement_m for t, r in rest}
     assert sorted(moved) == [0, 47] and never == []
     assert moved[0] < 0.005 and 0.035 < moved[47] < 0.06, moved
+    # the warning names the frame and what is wrong with the pose there (the summary did neither)
+    from types import SimpleNamespace
+
+    from rose_usd.gate.run import _rest_warnings
+
+    said = []
+    _rest_warnings(SimpleNamespace(stage=stage, warn=said.append), rest, 0.005, 48)
+    assert len(said) == 1 and said[0].startswith("rest check: 'Box' moved "), said
+    assert "from its pose at frame 47, 79 mm tall there, 79 mm at its rest at frame 0, its lowest point 4" in said[0]
+    assert "mm over the support (z = 0): that pose does not rest" in said[0]
 
     import shutil
 

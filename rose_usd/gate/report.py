@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
 
 
-def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: dict[int, tuple]) -> None:
+def write_report(
+    report_dir: Path, ssim: np.ndarray, threshold: float, samples: dict[int, tuple], verdict: str = ""
+) -> None:
+    """``ssim.csv``, ``ssim.png`` and ``compare.png``, both pictures titled with ``verdict`` (the
+    gate's PASS or FAIL and what failed: the pictures alone looked all-pass on a gate that failed
+    its rest check)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -32,6 +38,8 @@ def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: 
     ax.set_ylim(max(0.0, min(threshold, np.nanmin(ssim)) - 0.05), 1.0)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower left", fontsize=8)
+    if verdict:
+        ax.set_title(textwrap.fill(verdict, 110), fontsize=7, loc="left")
     fig.tight_layout()
     fig.savefig(report_dir / "ssim.png")
     plt.close(fig)
@@ -53,5 +61,7 @@ def write_report(report_dir: Path, ssim: np.ndarray, threshold: float, samples: 
         for ax in row:
             ax.axis("off")
     fig.colorbar(im, ax=axes[:, 2].tolist(), shrink=0.5, label="SSIM")
+    if verdict:
+        fig.suptitle(textwrap.fill(verdict, 150), fontsize=9)
     fig.savefig(report_dir / "compare.png")
     plt.close(fig)
