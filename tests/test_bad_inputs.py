@@ -176,7 +176,7 @@ def test_an_output_folder_of_another_case_or_the_case_folder_is_refused(capsys, 
     refused with one line, nothing touched; so is the case folder itself as the output. (A copy
     of the case, unchanged, may use the folder its original's stages are in.)"""
     toml = case_copy / "rose.toml"
-    toml.write_text(toml.read_text() + "\n# another case: another folder, other inputs\n")
+    toml.write_text(toml.read_text().replace('category = "box"', 'category = "box"\nsize_m = 0.1'))  # other inputs
     before = sorted((p.relative_to(out_copy), p.stat().st_mtime_ns) for p in out_copy.rglob("*"))
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(out_copy), "--backend", "all=oracle")
     assert_one_line_error(code, err, str(out_copy), "another case", "another folder")
