@@ -229,6 +229,7 @@ def batch(
     settings: Mapping[str, Mapping[str, Any]] | None = None,
     until: str | None = None,
     force: bool = False,
+    sources: Mapping[str, str] | None = None,
 ) -> BatchResult:
     """Reconstruct every case into ``out/<name>/`` (module docstring); returns each case's result.
 
@@ -237,6 +238,9 @@ def batch(
         ray: run each case as a Ray task instead: an address, ``"auto"`` (a running cluster) or
             ``"local"`` (start one here); ``cpus_per_case``/``gpus_per_case`` are its resources.
         backends, settings, until, force: as for :func:`rose_usd.reconstruct`, for every case.
+        sources: what errors in ``settings`` and ``backends`` name as their source
+            (:class:`rose_usd.pipeline.Options`' ``settings_source``, ``prompt_source``,
+            ``backends_source``; the CLI's flags).
 
     Raises:
         RoseError: no case, a case that does not exist, ``out`` that cannot be a folder, or every
@@ -262,6 +266,7 @@ def batch(
     }
     # a record is reused only under the same options (a forced run is never reused by itself)
     options_key = hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    options["options"] = dict(sources or {})  # what errors name: not what a case is made with
     if force:
         options_key += f"-{time.time_ns()}"
     names = case_names(cases)
@@ -353,7 +358,7 @@ def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:
     for name, case, out_dir, options, *_keys in jobs:
         try:
             given = {"backends": options["backends"], "settings": options["settings"], "force": options["force"]}
-            pipe = Pipeline(case, out_dir, Options(**given))
+            pipe = Pipeline(case, out_dir, Options(**given, **options["options"]))
             pipe.plan(options["until"])
             pipe.check_output()
         except RoseError as exc:

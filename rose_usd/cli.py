@@ -15,6 +15,7 @@ import traceback
 from pathlib import Path
 
 from rose_usd.errors import ConfigError, InputError, RoseError
+from rose_usd.pipeline import CLI_SOURCES
 
 
 def _sample_case() -> Path:
@@ -73,7 +74,10 @@ def _prompts(values: list[str]) -> tuple:
 
 def _api_args(args) -> dict:
     settings = _parse_assignments(args.set, "--set")
-    options = {"isolate": not getattr(args, "in_process", False)}
+    options = {
+        "isolate": not getattr(args, "in_process", False),
+        **CLI_SOURCES,
+    }
     if getattr(args, "prompt", None):
         prompts = _prompts(args.prompt)
         settings.setdefault("segment", {})["prompts"] = prompts
@@ -161,6 +165,7 @@ def cmd_batch(args) -> int:
         settings=api["settings"],
         until=args.until,
         force=args.force,
+        sources={k: v for k, v in api["options"].items() if k.endswith("_source")},
     )
     width = max(len(c.name) for c in result.cases)
     for c in result.cases:

@@ -78,6 +78,10 @@ BackendChoice = str | enum.Enum | Any
 """A backend's name, its member of the stage's backend enum, or a whole config instance."""
 
 
+CLI_SOURCES = {"settings_source": "--set", "prompt_source": "--set", "backends_source": "--backend"}
+"""``Options``' sources where settings and backends come from the command line's flags."""
+
+
 @dataclass
 class Options:
     """What the caller chose (strongest) on top of rose.toml and the configs' defaults."""
@@ -90,10 +94,12 @@ class Options:
     """stage -> {field: value}."""
     force: bool = False
     """Re-run stages even when they are up to date."""
-    settings_source: str = "--set"
-    """What errors in ``settings`` name as their source."""
-    prompt_source: str = "--set"
-    """What errors in ``settings["segment"]["prompts"]`` name as their source."""
+    settings_source: str = "settings="
+    """What errors in ``settings`` name as their source (the CLI: ``--set``)."""
+    prompt_source: str = "settings="
+    """What errors in ``settings["segment"]["prompts"]`` name as their source (``--set``, ``--prompt``)."""
+    backends_source: str = "backends="
+    """What errors in ``backends`` name as their source (the CLI: ``--backend``)."""
     isolate: bool = False
     """Run each stage in a child process of its own (``multiprocessing``'s spawn), which ends with
     it: the memory a stage holds is its own libraries and data, not those of every stage before it
@@ -158,10 +164,11 @@ class Pipeline:
         return given if name in flatten(self.options.settings.get(stage, {})) else str(self.case.settings_file)
 
     def _check_option_stages(self) -> None:
-        sources = (("--backend", self.options.backends), (self.options.settings_source, self.options.settings))
+        chosen = self.options.backends_source
+        sources = ((chosen, self.options.backends), (self.options.settings_source, self.options.settings))
         for what, given in sources:
             for stage in given:
-                if stage == "all" and what == "--backend":
+                if stage == "all" and what == chosen:
                     continue
                 if stage not in registry.STAGE_NAMES:
                     raise ConfigError(
@@ -173,7 +180,7 @@ class Pipeline:
             known = sorted({b for s in registry.STAGES for b in s.backends})
             if not isinstance(name, str) or (name != planning.AUTO and name not in known):
                 raise ConfigError(
-                    f"no stage has a backend {name!r}", path="--backend", hint=f"backends: auto, {', '.join(known)}"
+                    f"no stage has a backend {name!r}", path=chosen, hint=f"backends: auto, {', '.join(known)}"
                 )
 
     # ------------------------------------------------------------------ config
@@ -181,7 +188,7 @@ class Pipeline:
         """The backend asked for and where it was asked (``--backend`` or rose.toml's path)."""
         choice = self.options.backends.get(stage_def.name)
         if choice is not None:
-            return choice, "--backend"
+            return choice, self.options.backends_source
         choice = self.case.config.backends.get(stage_def.name)
         if choice is not None:
             return choice, str(self.case.settings_file)
@@ -189,7 +196,7 @@ class Pipeline:
         if isinstance(everyone, str | enum.Enum):
             everyone = everyone.value if isinstance(everyone, enum.Enum) else everyone
             if everyone in stage_def.backends:
-                return everyone, "--backend"
+                return everyone, self.options.backends_source
         return None, None
 
     def config(self, stage_def: StageDef):

@@ -254,3 +254,23 @@ def test_a_collect_object_name_that_names_no_object_stops_before_any_stage(tmp_p
     (case_copy / "rose.toml").write_text((case_copy / "rose.toml").read_text() + '\n[collect]\nobject_name = "Bx"\n')
     assert main(["run", "collect", str(case_copy), "-o", str(out)]) == 1
     assert "error: " + str(case_copy / "rose.toml") in capsys.readouterr().err
+
+
+def test_api_errors_name_its_arguments_and_the_cli_its_flags(tmp_path, sample_case, capsys):
+    """A new user's `rose_usd.reconstruct(..., settings=...)` typo was blamed on `--set:`, a flag
+    they never typed; the command line's errors still name its flags."""
+    from rose_usd.cli import main
+    from rose_usd.errors import ConfigError
+
+    for kw, named in (
+        ({"settings": {"gate": {"sp": 3}}}, "settings=: "),
+        ({"backends": {"segment": "sam"}}, "backends=: "),
+    ):
+        with pytest.raises(ConfigError) as err:
+            rose_usd.reconstruct(sample_case, tmp_path / "out", **kw)
+        assert err.value.one_line().startswith(named), err.value.one_line()
+    assert main(["run", "segment", str(sample_case), "-o", str(tmp_path / "out"), "--backend", "segment=sam"]) == 1
+    assert capsys.readouterr().err.startswith(
+        "error: --backend: stage 'segment' has no backend 'sam'. did you mean sam2?"
+    )
+    assert not (tmp_path / "out").exists()

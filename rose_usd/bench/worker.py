@@ -114,12 +114,12 @@ def run_case(
     unless it is in ``rerun``."""
     from rose_usd import registry
     from rose_usd.bench.evaluate import evaluate
-    from rose_usd.pipeline import Options, Pipeline
+    from rose_usd.pipeline import CLI_SOURCES, Options, Pipeline
     from rose_usd.usd.stage import layer_file, read_provenance, shown_backend
 
     monitor = RssMonitor()
     t_start = time.perf_counter()
-    pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True, isolate=True))
+    pipe = Pipeline(case, out, Options(backends=backends, settings=settings, force=True, isolate=True, **CLI_SOURCES))
     stages = {}
     # the benchmark of Tables 2 and 3 ends at the gate; robot demonstrations (collect) run only
     # when asked for with --until collect
