@@ -81,6 +81,11 @@ def test_a_failed_gate_gets_a_layer_that_says_so_and_no_rollout(tmp_path, oracle
     assert "collect.after_failed_gate = true" in result.message
     assert not (out / "dataset" / "lerobot").exists()
     assert validate(out / "rose.usda", with_newton=False).ok
+    from rose_usd.usd.inspect import dump, to_text
+
+    shown = to_text(dump(out / "rose.usda"))
+    assert "collect: Panda moves nothing: status gate-failed\n  the gate failed (SSIM 0.512" in shown, shown
+    assert "rollouts: 0/0" not in shown
     result = _collect(sample_case, out, after_failed_gate=True)  # the true box: too wide to grasp
     assert result.status == "no-grasp", result.message
 

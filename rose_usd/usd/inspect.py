@@ -408,12 +408,14 @@ def _collect_lines(robot: str, c: dict[str, Any]) -> list[str]:
         where = f"base at {np.round(base, 3).tolist()} m ({c.get(tokens.COLLECT_BASE_SOURCE, 'reachability')})"
     else:
         where = "no base placed"
-    status = c.get(tokens.COLLECT_STATUS, "?")
-    lines = [f"collect: {robot} moves {c.get(tokens.COLLECT_OBJECT, '?')}, {where}: status {status}"]
+    status, moved = c.get(tokens.COLLECT_STATUS, "?"), c.get(tokens.COLLECT_OBJECT, "")
+    what = f"moves {moved}, {where}" if moved else "moves nothing"  # stopped before choosing one (gate-failed)
+    lines = [f"collect: {robot} {what}: status {status}"]
     if c.get(tokens.COLLECT_MESSAGE):
         lines.append(f"  {c[tokens.COLLECT_MESSAGE]}")
     rate = c.get(tokens.COLLECT_SUCCESS_RATE, 0.0)
-    lines.append(f"  rollouts: {successes}/{rollouts} succeeded, success rate {100 * rate:.0f} %")
+    if rollouts:
+        lines.append(f"  rollouts: {successes}/{rollouts} succeeded, success rate {100 * rate:.0f} %")
     best = c.get(tokens.COLLECT_BEST_ROLLOUT, -1)
     if rollouts and best >= 0:
         mean, final = c[tokens.COLLECT_MEAN_ERROR][best], c[tokens.COLLECT_FINAL_ERROR][best]
