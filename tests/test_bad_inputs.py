@@ -191,6 +191,24 @@ def test_an_output_folder_of_another_case_or_the_case_folder_is_refused(capsys, 
     assert sorted(case_copy.rglob("*")) == listed
 
 
+def test_an_output_folder_in_a_read_only_folder_is_refused_even_for_root(capsys, sample_case, tmp_path):
+    """A new user ran `-o /work/shared/out_nu5` as root: the dataset's folder, read-only by its
+    mode bits, got 5 minutes of output. A folder with no write bit is refused as one line."""
+    import os
+
+    shelf = tmp_path / "dataset"
+    shelf.mkdir()
+    os.chmod(shelf, 0o555)
+    try:
+        code, err = run_cli(
+            capsys, "run", "capture", str(sample_case), "-o", str(shelf / "out"), "--backend", "all=oracle"
+        )
+        assert_one_line_error(code, err, str(shelf / "out"), f"{shelf} is read-only", "-o out/push-box")
+        assert list(shelf.iterdir()) == []
+    finally:
+        os.chmod(shelf, 0o755)
+
+
 def test_object_never_visible_leaves_no_mix(capsys, case_copy, out_copy):
     """An object that never appears fails the segment stage and leaves no mix: the capture re-run
     before it (its ground truth changed) made the old masks stale, so they went with the layers

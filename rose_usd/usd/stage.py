@@ -352,7 +352,9 @@ def output_lock(out_dir: Path):
 
 
 def check_out_case(out_dir: Path, case_root: Path, case_hash: Callable[[], str]) -> None:
-    """An output folder holds one case's stages: refused when it is the case folder itself or lies
+    """An output folder holds one case's stages: refused where it cannot be written (the folder, or
+    the nearest one that exists above it, has no write bit: a read-only dataset, even for root),
+    when it is the case folder itself or lies
     in one of its folders of inputs (the stages would write among them; ``CASE/out`` is fine), or
     when a layer in it was made from another case, one at another path whose inputs differed too
     (its provenance's ``case`` and ``inputs.case`` against ``case_root`` and ``case_hash()``,
@@ -367,6 +369,13 @@ def check_out_case(out_dir: Path, case_root: Path, case_hash: Callable[[], str])
             "is the case folder itself: the stages would write among its inputs",
             path=out_dir,
             hint=f"give -o another folder, e.g. -o out/{root.stem}",
+        )
+    held = next(p for p in (out, *out.parents) if p.exists())  # the folder that will hold it
+    if held.is_dir() and not (os.access(held, os.W_OK) and held.stat().st_mode & 0o222):  # no write bit: root too
+        raise InputError(
+            f"cannot be written: {held} is read-only",
+            path=out_dir,
+            hint=f"give -o a folder of your own, e.g. -o out/{root.stem}",
         )
     inputs = next((root / d for d in CASE_DIRS if out.is_relative_to(root / d)), None) if root.is_dir() else None
     if inputs is not None:
