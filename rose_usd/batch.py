@@ -258,17 +258,7 @@ def batch(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError("the batch output is a file", path=out, hint="give a folder for -o")
-    options = {
-        "backends": dict(backends or {}),
-        "settings": {k: dict(v) for k, v in (settings or {}).items()},
-        "until": until,
-        "force": force,
-    }
-    # a record is reused only under the same options (a forced run is never reused by itself)
-    options_key = hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode()).hexdigest()[:16]
-    options["options"] = dict(sources or {})  # what errors name: not what a case is made with
-    if force:
-        options_key += f"-{time.time_ns()}"
+    options, options_key = _options(backends, settings, until, force, sources)
     names = case_names(cases)
     jobs = [(name, case, str(out / name), options, options_key, inputs_key(case)) for name, case in zip(names, cases)]
     earlier = {job[0]: _record(Path(job[2]), options_key, job[5]) for job in jobs}
@@ -346,6 +336,22 @@ def _stage_times(outcomes) -> dict[str, float]:
     """Seconds per stage of a finished run: those that ran, and for those found up to date what
     their layer records (``StageOutcome.made_in_s``)."""
     return {o.name: round(o.made_in_s, 2) for o in outcomes if o.made_in_s is not None}
+
+
+def _options(backends, settings, until, force: bool, sources) -> tuple[dict, str]:
+    """Every case's ``reconstruct`` arguments, and the key a finished case's record is reused
+    under: the same options (a forced run's is never reused by itself), whatever ``sources``
+    (what errors name as the settings' source, not what a case is made with)."""
+    options = {
+        "backends": dict(backends or {}),
+        "settings": {k: dict(v) for k, v in (settings or {}).items()},
+        "until": until,
+        "force": force,
+    }
+    key = hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    if force:
+        key += f"-{time.time_ns()}"
+    return {**options, "options": dict(sources or {})}, key
 
 
 def _preflight(jobs: list[tuple]) -> dict[str, RoseError]:
