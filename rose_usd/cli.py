@@ -68,7 +68,12 @@ def _prompts(values: list[str]) -> tuple:
         try:
             out += parse_object_prompts([value])
         except (TypeError, ValueError) as exc:
-            raise ConfigError(str(exc), path="--prompt", hint="write e.g. --prompt Box=0:120,80,200,170") from None
+            raise ConfigError(
+                str(exc),
+                path="--prompt",
+                hint="write e.g. --prompt 0:120,80,200,170 (NAME=0:... names an object of the case, where it has"
+                " several)",
+            ) from None
     return tuple(out)
 
 
