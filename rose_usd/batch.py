@@ -406,10 +406,15 @@ def _run_local(jobs: list[tuple], workers: int, finished) -> None:
                 with contextlib.suppress(OSError):
                     os.kill(proc.pid, signal.SIGINT)
         pool.shutdown(wait=True, cancel_futures=True)
-        # a case that finished before the Ctrl-C reached this loop is in the summary too
-        for future in futures:
-            if future not in reported and future.done() and not future.cancelled() and future.exception() is None:
+        # a case that finished before the Ctrl-C reached this loop is in the summary too, also one
+        # whose worker was interrupted after writing its record, before handing its result back
+        for future, (_name, _case, out_dir, _options, key, inputs) in futures.items():
+            if future in reported:
+                continue
+            if future.done() and not future.cancelled() and future.exception() is None:
                 finished(future.result())
+            elif (done := _record(Path(out_dir), key, inputs)) is not None:
+                finished(asdict(done) | {"reused": False})  # run by this batch
         raise
     pool.shutdown(wait=True)
 
