@@ -512,7 +512,13 @@ def _interrupt(child, *, settle_s: float = 2.0, rollback_s: float = 10.0) -> Non
 def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, parent: int) -> None:
     import signal
 
-    from rose_usd.core.lifetime import after_interrupt, die_with_parent, note_interrupt, redeliver_lost_interrupts
+    from rose_usd.core.lifetime import (
+        after_interrupt,
+        die_with_parent,
+        note_interrupt,
+        raise_after_import,
+        redeliver_lost_interrupts,
+    )
 
     die_with_parent(parent)
     redeliver_lost_interrupts()
@@ -522,6 +528,8 @@ def _child_stage(send, case: Case, out_dir: Path, options: Options, name: str, p
         signal.signal(signal.SIGINT, after_interrupt)  # one interrupt: the rollback runs to its end
         interrupted.append(signum)
         note_interrupt()  # no layer commits from now on, should the KeyboardInterrupt be lost
+        if raise_after_import(frame):  # not inside a native module's init: raised once it is over
+            return
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, on_sigint)  # it started ignoring SIGINT (_sigint_ignored)

@@ -228,3 +228,34 @@ time.sleep(0.1)
     }
     assert "Signal 2 ignored due to race condition" in errs["ign"], errs
     assert errs["after"] == "", errs
+
+
+def test_an_interrupt_during_an_import_is_raised_once_the_import_is_over(tmp_path):
+    """A fresh clone's Ctrl-C test of the gate saw its stage's process abort (exit -6,
+    "terminate called after throwing an instance of 'nanobind::python_error'"): the
+    KeyboardInterrupt was raised inside Mitsuba's import, through a native module's init. A SIGINT
+    that finds an import running is raised once it is over: the module is whole, then it stops."""
+    (tmp_path / "slow_module.py").write_text(
+        "import os, signal, time\nos.kill(os.getpid(), signal.SIGINT)\ntime.sleep(0.5)\nDONE = True\n"
+    )
+    script = (
+        "import signal, sys\n"
+        "from rose_usd.core.lifetime import raise_after_import\n"
+        "def on_sigint(signum, frame):\n"
+        "    if raise_after_import(frame):\n"
+        "        return\n"
+        "    raise KeyboardInterrupt\n"
+        "signal.signal(signal.SIGINT, on_sigint)\n"
+        "try:\n"
+        "    import slow_module\n"
+        "    print('imported', slow_module.DONE, flush=True)\n"
+        "    import time; time.sleep(5)\n"
+        "    print('not interrupted', flush=True)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted after', 'slow_module' in sys.modules, flush=True)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=60,
+        env=dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path])),
+    )  # fmt: skip
+    assert done.stdout.split("\n")[:2] == ["imported True", "interrupted after True"], done.stdout + done.stderr

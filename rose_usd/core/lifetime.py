@@ -73,3 +73,43 @@ def redeliver_lost_interrupts() -> None:
         threading.Timer(0.01, _thread.interrupt_main, (signal.SIGINT,)).start()
 
     sys.unraisablehook = hook
+
+
+def _importing(frame) -> bool:
+    """Whether ``frame``'s stack runs an import (importlib's bootstrap frames in it)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def raise_after_import(frame) -> bool:
+    """For a SIGINT handler interrupting ``frame`` (the main thread's): where an import runs there,
+    arrange the KeyboardInterrupt for when it is over and return True (the handler returns without
+    raising); else False. Raised inside an import it may unwind through a native module's init
+    (Mitsuba's nanobind enums), which turns it into std::terminate: the gate's process aborted
+    (exit -6) instead of rolling back, in a fresh clone's Ctrl-C test. A thread watches the main
+    thread's stack and interrupts it again (``_thread.interrupt_main``) once no import runs."""
+    import _thread
+    import signal
+    import threading
+    import time
+
+    if not _importing(frame):
+        return False
+
+    def raise_once(signum, frame):
+        signal.signal(signal.SIGINT, after_interrupt)
+        raise KeyboardInterrupt
+
+    main = threading.main_thread().ident
+
+    def watch() -> None:
+        while _importing(sys._current_frames().get(main)):
+            time.sleep(0.02)
+        _thread.interrupt_main(signal.SIGINT)
+
+    signal.signal(signal.SIGINT, raise_once)
+    threading.Thread(target=watch, name="interrupt-after-import", daemon=True).start()
+    return True
