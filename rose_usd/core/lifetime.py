@@ -42,6 +42,14 @@ def after_interrupt(signum, frame) -> None:
     (seen once in a Ctrl-C test of the gate stage)."""
 
 
+def _raise_once(signum, frame) -> None:
+    """SIGINT's handler for an interrupt raised again (``_thread.interrupt_main``): it raises, once."""
+    import signal
+
+    signal.signal(signal.SIGINT, after_interrupt)
+    raise KeyboardInterrupt
+
+
 def interrupt_noted() -> bool:
     """Whether ``note_interrupt`` was called in this process."""
     return _interrupted
@@ -59,16 +67,12 @@ def redeliver_lost_interrupts() -> None:
 
     before = sys.unraisablehook
 
-    def raise_once(signum, frame):
-        signal.signal(signal.SIGINT, after_interrupt)
-        raise KeyboardInterrupt
-
     def hook(info) -> None:
         lost = _interrupted and isinstance(info.exc_value, KeyboardInterrupt)
         if not lost or threading.current_thread() is not threading.main_thread():
             before(info)
             return
-        signal.signal(signal.SIGINT, raise_once)
+        signal.signal(signal.SIGINT, _raise_once)
         # not from here: the handler would run before this hook returns, where it is lost again
         threading.Timer(0.01, _thread.interrupt_main, (signal.SIGINT,)).start()
 
@@ -98,11 +102,6 @@ def raise_after_import(frame) -> bool:
 
     if not _importing(frame):
         return False
-
-    def raise_once(signum, frame):
-        signal.signal(signal.SIGINT, after_interrupt)
-        raise KeyboardInterrupt
-
     main = threading.main_thread().ident
 
     def watch() -> None:
@@ -110,6 +109,6 @@ def raise_after_import(frame) -> bool:
             time.sleep(0.02)
         _thread.interrupt_main(signal.SIGINT)
 
-    signal.signal(signal.SIGINT, raise_once)
+    signal.signal(signal.SIGINT, _raise_once)
     threading.Thread(target=watch, name="interrupt-after-import", daemon=True).start()
     return True
