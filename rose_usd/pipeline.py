@@ -39,11 +39,13 @@ def _cached_file_hash(path: Path) -> str:
     return _hash_cache[key]
 
 
-def _files_hash(files: list[Path], root: Path) -> str:
+def _files_hash(files: list[Path], root: Path, settings: Path | None = None) -> str:
+    """The files' hash (their paths under ``root`` and contents); the case's ``settings`` file
+    among them by ``_settings_hash``."""
     h = hashlib.sha256()
     for f in sorted(files):
         h.update(str(f.relative_to(root) if f.is_relative_to(root) else f).encode())
-        h.update((_settings_hash(f) if f.suffix == ".toml" else _cached_file_hash(f)).encode())
+        h.update((_settings_hash(f) if f == settings else _cached_file_hash(f)).encode())
     return h.hexdigest()[:16]
 
 
@@ -262,16 +264,14 @@ class Pipeline:
     def check_output(self) -> None:
         """The output folder is this case's (``usd.stage.check_out_case``), checked after the
         inputs: a broken input is named as such, not as another case."""
-        usd_stage.check_out_case(
-            self.out_dir, self.case.root, lambda: _files_hash(self.case.input_files(), self.case.folder)
-        )
+        usd_stage.check_out_case(self.out_dir, self.case.root, lambda: self._inputs_hash(self.case.input_files()))
 
     def plan_line(self, stages: list[StageDef]) -> str:
         return "plan: " + " ".join(f"{s.name}={self.config(s).backend.value}" for s in stages)
 
     # ------------------------------------------------------------------ staleness
     def input_hashes(self, stage_def: StageDef, config) -> dict[str, str]:
-        inputs = {"case": _files_hash(self.case.input_files(), self.case.folder)}
+        inputs = {"case": self._inputs_hash(self.case.input_files())}
         if config.backend.value == "oracle" or stage_def.name == "gate":
             gt_dir = self.case.folder / "gt"
             if gt_dir.is_dir():
@@ -288,7 +288,11 @@ class Pipeline:
         for f in self.case.input_files():
             rel = f.relative_to(self.case.folder) if f.is_relative_to(self.case.folder) else Path(f.name)
             groups.setdefault(rel.parts[0] + ("/" if len(rel.parts) > 1 else ""), []).append(f)
-        return {k: _files_hash(v, self.case.folder) for k, v in groups.items()}
+        return {k: self._inputs_hash(v) for k, v in groups.items()}
+
+    def _inputs_hash(self, files: list[Path]) -> str:
+        """The hash of some of the case's input files (its settings file without its stage tables)."""
+        return _files_hash(files, self.case.folder, self.case.config.path)
 
     def is_current(self, stage_def: StageDef) -> bool:
         """Whether the stage's layer exists and was made from the same config, inputs and code."""
