@@ -243,7 +243,9 @@ def test_grasps_whose_arm_meets_the_scene_on_the_path_rank_last():
     grasps_ = grasping.Candidates(
         object_from_tcp=np.stack([se3.make_pose(down, [0, 0, 0.02]), se3.make_pose(turned, [0, 0, 0.02])]),
         width_m=np.array([0.05, 0.05]),
+        opening_m=np.array([0.08, 0.08]),
         com_distance_m=np.array([0.0, 0.01]),  # the first is the better by the prior
+        depth_m=np.zeros(2),
         approach_up=np.array([-1.0, -1.0]),
         alignment=np.array([1.0, 1.0]),
         sampled_pairs=2,
@@ -266,3 +268,134 @@ def _wrist(tcp: np.ndarray) -> float:
 
     q, _, _ = ik.solve(tcp[None], panda.HOME_Q, n_seeds=8, iterations=80)
     return float(q[0, 6])
+
+
+def _lying_pen_candidates(radius: float, clearance_m: float = 0.015, neighbour_m: float | None = None):
+    """Grasp candidates of a pen (a cylinder ``radius`` thick, 14 cm long, along x) lying on a table
+    at z = 0 (points 4 mm apart), the object frame the world's; with ``neighbour_m``, a second pen
+    lies parallel to it that far away (centre to centre)."""
+    from rose_usd.collect import grasping
+
+    def pen_at(y: float) -> trimesh.Trimesh:
+        pen = trimesh.creation.cylinder(radius=radius, height=0.14, sections=48)
+        pen.apply_transform(se3.make_pose(se3.rotation_about([0, 1, 0], np.pi / 2), [0.5, y, radius]))
+        return pen
+
+    pen = pen_at(0.0)
+    g = np.arange(-0.2, 0.2, 0.004)
+    scene = np.stack(np.meshgrid(0.5 + g, g, [0.0]), axis=-1).reshape(-1, 3)
+    if neighbour_m is not None:
+        scene = np.concatenate([scene, pen_at(neighbour_m).sample(3000, seed=1)])
+    path = np.repeat(np.eye(4)[None], 6, axis=0)
+    path[3:, 2, 3] = 0.05  # lifted 5 cm half way
+    return grasping.candidates(
+        np.asarray(pen.vertices),
+        np.asarray(pen.faces),
+        np.asarray(pen.center_mass),
+        path,
+        scene,
+        friction=0.5,
+        max_width_m=0.076,
+        clearance_m=clearance_m,
+        surface_points=300,
+        approach_turns=12,
+        lift_m=0.01,
+        rng=np.random.default_rng(0),
+    )
+
+
+def test_a_thin_pen_lying_on_the_table_is_held_near_the_pads_tips():
+    """An 11 mm pen: held at the pads' centre, their tips (9.25 mm past it) would be 4 mm into the
+    table; the grasps found hold the chord nearer the tips, close level and come straight down,
+    every fingertip above the table, the pen's axis between the pads, the fingers pre-shaped to its
+    width plus 1.5 cm a side."""
+    from rose_usd.collect import grasping
+    from rose_usd.sim import panda
+
+    cands = _lying_pen_candidates(0.0055)
+    assert len(cands) > 0
+    assert set(np.round(cands.depth_m, 4)) <= set(grasping.GRASP_DEPTHS_M) - {0.0}
+    np.testing.assert_allclose(cands.opening_m, cands.width_m + 0.03)
+    assert np.all((cands.width_m > 0.010) & (cands.width_m < 0.02))  # flat pads: the pen's extent across them
+    assert np.all(cands.approach_up < -0.99)
+    for frame, opening in zip(cands.object_from_tcp, cands.opening_m, strict=True):
+        assert abs(frame[2, 1]) < np.sin(np.radians(2.0))  # closing level
+        for side in (1.0, -1.0):  # the finger box's lowest corner, at this opening
+            centre, half = panda.finger_box(side)
+            corners = centre + half * np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+            corners[:, 1] += side * opening / 2
+            assert se3.transform_points(frame, corners)[:, 2].min() > 0.0
+        axis_in_tcp = se3.transform_points(se3.invert(frame), np.array([[0.5, 0.0, 0.0055]]))[0]
+        assert panda.PAD_Z[0] < axis_in_tcp[2] < panda.PAD_Z[1]
+
+
+def test_a_pen_beside_another_is_grasped_only_with_the_fingers_pre_shaped():
+    """A second pen 6 cm away: fingers opened all the way (8 cm apart, each 2.6 cm thick) reach
+    into it from every grasp across the pen; opened to the pen's width plus 1.5 cm a side, they do not."""
+    from rose_usd.collect import grasping
+
+    assert len(_lying_pen_candidates(0.0055, neighbour_m=0.06)) > 0
+    with pytest.raises(grasping.NoGrasp, match="into the scene or the object"):
+        _lying_pen_candidates(0.0055, clearance_m=0.04, neighbour_m=0.06)
+
+
+def test_a_thick_object_is_held_at_the_pads_centre_where_it_can_be():
+    """A 4 cm cylinder lying on the table: grasps at the pads' centre exist; the pre-shape opens
+    the fingers to 4 + 3 cm, at most 8; of two grasps alike but for the depth, the centred ranks first."""
+    from rose_usd.collect import grasping
+
+    cands = _lying_pen_candidates(0.02)
+    assert np.any(cands.depth_m == 0.0)
+    np.testing.assert_allclose(cands.opening_m, np.minimum(0.08, cands.width_m + 0.03))
+    two = cands.take(np.array([0, 0]))
+    two = grasping.Candidates(**{**two.__dict__, "depth_m": np.array([0.007, 0.0])})
+    assert list(two.prior_order()) == [1, 0]
+
+
+def test_the_plan_opens_the_fingers_to_the_pre_shape_only():
+    from rose_usd.sim import panda
+
+    grasp = se3.make_pose(np.diag([1.0, -1.0, -1.0]), [0.5, 0.0, 0.1])
+    route = _straight_route
+    plan = motion.approach_plan(np.eye(4), grasp, 30.0, 0.5, route, opening_m=0.03)
+    fingers = np.array(plan.q)[:, 7]
+    assert fingers.max() == pytest.approx(0.015) and fingers[-1] == 0.0
+    motion.carry_plan(plan, np.eye(4), np.repeat(grasp[None], 4, axis=0), 0.01)
+    release = np.array(plan.q)[plan.phase_ticks("release"), 7]
+    assert release[-1] == pytest.approx(0.015)
+    assert motion.approach_plan(np.eye(4), grasp, 30.0, 0.5, route).opening_m == panda.MAX_OPENING_M
+
+
+def _straight_route(q_from: np.ndarray, q_to: np.ndarray):
+    from rose_usd.collect import planning
+
+    return planning.Route(np.stack([q_from[:7], q_to[:7]]), "straight", np.inf)
+
+
+def test_levelled_pairs_close_level_where_they_stay_in_the_friction_cone():
+    """A chord tilted 10 deg whose contacts are 5 deg off their normals turns level (15 deg, inside
+    the 26.6 deg cone of friction 0.5), width and midpoint kept; one tilted 25 deg (30) is dropped."""
+
+    def pair(tilt_deg: float) -> np.ndarray:
+        return 0.01 * np.array([np.cos(np.radians(tilt_deg)), 0.0, np.sin(np.radians(tilt_deg))])
+
+    p1 = np.array([[0.1, 0.2, 0.05], [0.0, 0.0, 0.05], [0.0, 0.0, 0.05]])
+    p2 = p1 + np.stack([pair(10.0), pair(25.0), pair(0.0)])
+    pairs = grasps.Antipodal(p1, p2, np.full(3, np.cos(np.radians(5.0))))
+    flat = grasps.levelled(pairs, np.array([0.0, 0.0, 1.0]), friction=0.5)
+    assert len(flat) == 1  # the level one needs no turn, the 25 deg one leaves the cone
+    np.testing.assert_allclose(flat.axis[0], [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(flat.center[0], pairs.center[0], atol=1e-12)
+    assert flat.width[0] == pytest.approx(0.01)
+    assert flat.alignment[0] == pytest.approx(np.cos(np.radians(15.0)))
+
+
+def test_the_first_approach_of_a_level_pair_is_straight_down_the_given_way():
+    """Frames for a level closing axis: the first approach is ``down`` exactly, whatever the
+    object frame's own z (here the object lies turned 90 deg about x: the world's down is its +y)."""
+    pairs = grasps.Antipodal(np.array([[0.0, 0.0, 0.0]]), np.array([[0.02, 0.0, 0.0]]), np.ones(1))
+    down = np.array([0.0, 1.0, 0.0])
+    frames, _ = grasps.grasp_frames(pairs, 12, down=down)
+    np.testing.assert_allclose(frames[0, :3, 2], down, atol=1e-12)
+    default, _ = grasps.grasp_frames(pairs, 12)
+    np.testing.assert_allclose(default[0, :3, 2], [0.0, 0.0, -1.0], atol=1e-12)

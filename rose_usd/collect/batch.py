@@ -105,11 +105,18 @@ class BatchSimulator:
 
 
 def full_plan(
-    base_pose: np.ndarray, grasp_tcp: np.ndarray, path: np.ndarray, rate: float, cfg: CollectConfig, route
+    base_pose: np.ndarray,
+    grasp_tcp: np.ndarray,
+    path: np.ndarray,
+    rate: float,
+    cfg: CollectConfig,
+    route,
+    opening_m: float,
 ) -> motion.Plan:
-    """Approach, grasp, lift, follow, place and release, planned for a grasp's world tool pose (4, 4)
-    and the object's path (N, 4, 4) as reconstructed; ``route`` as for :func:`motion.approach_plan`."""
-    plan = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s, route)
+    """Approach, grasp, lift, follow, place and release, planned for a grasp's world tool pose (4, 4),
+    its pre-shape ``opening_m`` and the object's path (N, 4, 4) as reconstructed; ``route`` as for
+    :func:`motion.approach_plan`."""
+    plan = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s, route, opening_m)
     follow = motion.lifted(motion.follow_poses(path, path[0], grasp_tcp), cfg.lift_m)
     motion.carry_plan(plan, base_pose, follow, cfg.lift_m)
     return plan

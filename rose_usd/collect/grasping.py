@@ -1,10 +1,14 @@
 """Grasps and the robot base, without learned weights.
 
-1. Antipodal pairs on the object's visual mesh (``rose_usd.geometry.grasps``), each turned into
-   tool frames at several approach directions.
-2. Rejected where the gripper (hand and open fingers as boxes) holds a point of the scene
-   collider or of the object: at the grasp, on the way in from the pre-grasp, and, carried with
-   the object, along its path.
+1. Antipodal pairs on the object's visual mesh (``rose_usd.geometry.grasps``), and the same
+   pairs closing level where that keeps them antipodal, each turned into tool frames at several
+   approach directions, the first the nearest straight down.
+2. Rejected where the gripper (hand and fingers as boxes, the fingers pre-shaped: opened to the
+   object's width across the pads plus a clearance) holds a point of the scene collider or of the
+   object: at the grasp, on the way in from the pre-grasp, and, carried with the object, along its
+   path. A grasp that fails with the chord between the pads' centres is tried with the chord
+   nearer the pads' tips (``GRASP_DEPTHS_M``): an object thinner than the pads are long, lying on
+   the support, is only held that way.
 3. The base: candidates on the support's height on rings around the path, facing it; each
    scored by how much of the path the best few grasps reach (batched IK), unless rose.toml fixes it.
 4. Ranking: reachable along the whole path (batched IK) first, then the grasp centre's distance
@@ -26,6 +30,10 @@ from rose_usd.sim import panda
 REACH_POS_M = 0.005
 """IK position error under which a pose counts as reached [m]."""
 REACH_ROT_DEG = 3.0
+GRASP_DEPTHS_M = (0.0, 0.004, 0.007)
+"""Where the chord may sit along the approach, from the tcp (the pads' centre) toward their tips,
+tried in this order [m]: the pads reach 9.25 mm past the tcp, so a pen 11 mm thick held at its
+middle puts the fingertips 4 mm into the desk it lies on; at 7 mm they stay 1.7 mm above it."""
 
 
 class NoGrasp(Exception):
@@ -40,8 +48,13 @@ class Candidates:
     """(G, 4, 4)."""
     width_m: np.ndarray
     """(G,) how far the pads must open: the object's extent across them [m]."""
+    opening_m: np.ndarray
+    """(G,) how far the pads open before they close (the pre-shape): the width plus the clearance
+    on each side, at most the Panda's 8 cm [m]."""
     com_distance_m: np.ndarray
     """(G,) from the grasp centre to the centre of mass [m]."""
+    depth_m: np.ndarray
+    """(G,) where the chord sits from the tcp toward the pads' tips (one of ``GRASP_DEPTHS_M``) [m]."""
     approach_up: np.ndarray
     """(G,) world z of the approach direction at frame 0 (-1 straight down)."""
     alignment: np.ndarray
@@ -56,17 +69,21 @@ class Candidates:
         return Candidates(
             self.object_from_tcp[index],
             self.width_m[index],
+            self.opening_m[index],
             self.com_distance_m[index],
+            self.depth_m[index],
             self.approach_up[index],
             self.alignment[index],
             self.sampled_pairs,
         )
 
     def prior_order(self) -> np.ndarray:
-        """Candidates by centre-of-mass distance, plus 5 cm per unit of approach away from straight
-        down and 1 cm per degree of the closing line away from the surface normals."""
+        """Candidates by centre-of-mass distance plus the chord's depth toward the pads' tips, 5 cm
+        per unit of approach away from straight down and 1 cm per degree of the closing line away
+        from the surface normals."""
         misalign_deg = np.degrees(np.arccos(np.clip(self.alignment, -1.0, 1.0)))
-        return np.argsort(self.com_distance_m + 0.05 * (1.0 + self.approach_up) + 0.01 * misalign_deg, kind="stable")
+        score = self.com_distance_m + self.depth_m + 0.05 * (1.0 + self.approach_up) + 0.01 * misalign_deg
+        return np.argsort(score, kind="stable")
 
 
 def _along_path(path: np.ndarray, count: int) -> np.ndarray:
@@ -110,8 +127,9 @@ def _frames_from_above(
     pairs: antipodal.Antipodal, approach_turns: int, start_pose: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tool frames (G, 4, 4) of the pairs whose approach is not from below at ``start_pose`` (4, 4),
-    their pair indices (G,) and the approach's world z (G,)."""
-    frames, which = antipodal.grasp_frames(pairs, approach_turns)
+    their pair indices (G,) and the approach's world z (G,); the first approach of each pair is
+    the one nearest straight down."""
+    frames, which = antipodal.grasp_frames(pairs, approach_turns, down=-start_pose[2, :3])
     world0 = np.einsum("ij,gjk->gik", start_pose, frames)
     approach_up = world0[:, 2, 2]
     frames, which, approach_up = frames[approach_up < 0.3], which[approach_up < 0.3], approach_up[approach_up < 0.3]
@@ -120,40 +138,96 @@ def _frames_from_above(
     return frames, which, approach_up
 
 
+def _gripper_hit(frames: np.ndarray, opening_m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(G,) whether the hand or a finger, the pads ``opening_m`` (G,) apart, holds one of the
+    points (P, 3) at each tool frame (G, 4, 4) [m]."""
+    hit = antipodal.boxes_hit(frames, panda.HAND_BOX[0][None], panda.HAND_BOX[1][None], points)
+    for side in (1.0, -1.0):
+        at_pad = frames.copy()
+        at_pad[:, :3, 3] += (side * opening_m / 2)[:, None] * frames[:, :3, 1]
+        centre, half = panda.finger_box(side)
+        hit |= antipodal.boxes_hit(at_pad, centre[None], half[None], points)
+    return hit
+
+
 def _collision_free(
     frames: np.ndarray,
-    gripper: tuple[np.ndarray, np.ndarray],
+    opening_m: np.ndarray,
     object_cloud: np.ndarray,
     scene_points: np.ndarray,
     path: np.ndarray,
     lift_m: float,
 ) -> np.ndarray:
-    """(G,) whether the gripper boxes ``gripper`` (centres, half sizes) at each tool frame (G, 4, 4)
-    stay clear of the object's points and of the scene points [m] at the grasp, on the way in and
+    """(G,) whether the gripper, pre-shaped to ``opening_m`` (G,), at each tool frame (G, 4, 4)
+    stays clear of the object's points and of the scene points [m] at the grasp, on the way in and
     along the lifted path (N, 4, 4)."""
-    centres, halves = gripper
-    hit = antipodal.boxes_hit(frames, centres, halves, object_cloud)
+    hit = _gripper_hit(frames, opening_m, object_cloud)
     # on the way in: the hand and fingers backed off along the approach
     for back in (0.03, 0.06, motion.PREGRASP_M):
         shifted = frames.copy()
         shifted[:, :3, 3] -= back * frames[:, :3, 2]
-        hit |= antipodal.boxes_hit(shifted, centres, halves, object_cloud)
+        hit |= _gripper_hit(shifted, opening_m, object_cloud)
     free = ~hit
     if len(scene_points):
         # the scene at the grasp and on the way in (world frame at frame 0), and along the path
         local_scene = se3.transform_points(se3.invert(path[0]), scene_points)
         for back in (0.0, 0.05, motion.PREGRASP_M):
-            shifted = frames[free].copy()
-            shifted[:, :3, 3] -= back * shifted[:, :3, 2]
             idx = np.flatnonzero(free)
-            free[idx[antipodal.boxes_hit(shifted, centres, halves, local_scene)]] = False
+            shifted = frames[idx].copy()
+            shifted[:, :3, 3] -= back * shifted[:, :3, 2]
+            free[idx[_gripper_hit(shifted, opening_m[idx], local_scene)]] = False
         for pose in _along_path(motion.lifted(path, lift_m), 8)[1:]:
             idx = np.flatnonzero(free)
             if len(idx) == 0:
                 break
             moved = np.einsum("ij,gjk->gik", pose, frames[idx])
-            free[idx[antipodal.boxes_hit(moved, centres, halves, scene_points)]] = False
+            free[idx[_gripper_hit(moved, opening_m[idx], scene_points)]] = False
     return free
+
+
+def _free_at_depths(
+    frames: np.ndarray,
+    object_cloud: np.ndarray,
+    scene_points: np.ndarray,
+    path: np.ndarray,
+    *,
+    max_width_m: float,
+    clearance_m: float,
+    lift_m: float,
+) -> tuple[np.ndarray, ...]:
+    """Each tool frame (G, 4, 4) moved back along its approach by the first of ``GRASP_DEPTHS_M``
+    at which the object fits between the pads and the pre-shaped gripper is free: the indices of
+    those free at some depth (K,), their moved frames (K, 4, 4), and the depth, the pads' width and
+    their opening there (K,) [m].
+
+    Raises:
+        NoGrasp: the object is too wide across the pads at every frame.
+    """
+    index, moved, depths, widths, openings = [], [], [], [], []
+    todo, narrowest = np.arange(len(frames)), np.inf
+    for depth in GRASP_DEPTHS_M:
+        shifted = frames[todo].copy()
+        shifted[:, :3, 3] -= depth * shifted[:, :3, 2]
+        # flat pads open as wide as the object is across them, which may exceed the pair's chord
+        width = antipodal.closing_extent(shifted, object_cloud, panda.PAD_HALF_X, panda.PAD_Z)
+        narrowest = min(narrowest, float(width[width > 0].min(initial=np.inf)))
+        opening = np.minimum(panda.MAX_OPENING_M, width + 2 * clearance_m)
+        free = (width > 0) & (width <= max_width_m)
+        free[free] = _collision_free(shifted[free], opening[free], object_cloud, scene_points, path, lift_m)
+        index.append(todo[free])
+        moved.append(shifted[free])
+        depths.append(np.full(int(free.sum()), depth))
+        widths.append(width[free])
+        openings.append(opening[free])
+        todo = todo[~free]
+        if not len(todo):
+            break
+    if narrowest > max_width_m:
+        raise NoGrasp(
+            f"the object is too large for the gripper: across the finger pads it is at least "
+            f"{100 * narrowest:.1f} cm wide, the Panda takes at most {100 * max_width_m:.1f} cm"
+        )
+    return tuple(np.concatenate(part) for part in (index, moved, depths, widths, openings))
 
 
 def candidates(
@@ -165,6 +239,7 @@ def candidates(
     *,
     friction: float,
     max_width_m: float,
+    clearance_m: float,
     surface_points: int,
     approach_turns: int,
     lift_m: float,
@@ -178,6 +253,7 @@ def candidates(
         center_of_mass: (3,) in the object frame [m].
         path: (N, 4, 4) the object's world poses; path[0] is where it is grasped.
         scene_points: (P, 3) points on the scene collider near the path [m].
+        clearance_m: the pre-shaped pads open this much wider than the object on each side [m].
 
     Raises:
         NoGrasp: none fits the gripper or none is free of the scene and the object.
@@ -191,28 +267,27 @@ def candidates(
         max_pairs=max_pairs,
         rng=rng,
     )
-    frames, which, approach_up = _frames_from_above(pairs, approach_turns, path[0])
-
-    gripper = panda.gripper_boxes(panda.MAX_OPENING_M)
-    object_cloud, _ = antipodal.sample_surface(object_vertices, object_faces, 1500, rng)
-    # flat pads open as wide as the object is across them, which may exceed the pair's chord
-    extent = antipodal.closing_extent(frames, object_cloud, panda.PAD_HALF_X, panda.PAD_Z)
-    fits = extent <= max_width_m
-    if not fits.any():
-        raise NoGrasp(
-            f"the object is too large for the gripper: across the finger pads it is at least "
-            f"{100 * extent.min():.1f} cm wide, the Panda takes at most {100 * max_width_m:.1f} cm"
+    flat = antipodal.levelled(pairs, path[0][2, :3], friction)  # up in the object frame at the grasp
+    pairs = antipodal.Antipodal(
+        *(
+            np.concatenate([a, b])
+            for a, b in zip((pairs.p1, pairs.p2, pairs.alignment), (flat.p1, flat.p2, flat.alignment))
         )
-    frames, which, approach_up, extent = frames[fits], which[fits], approach_up[fits], extent[fits]
-    free = _collision_free(frames, gripper, object_cloud, scene_points, path, lift_m)
-    if not free.any():
+    )
+    frames, which, approach_up = _frames_from_above(pairs, approach_turns, path[0])
+    object_cloud, _ = antipodal.sample_surface(object_vertices, object_faces, 1500, rng)
+    free, frames, depth, width, opening = _free_at_depths(
+        frames, object_cloud, scene_points, path, max_width_m=max_width_m, clearance_m=clearance_m, lift_m=lift_m
+    )
+    if not len(free):
         raise NoGrasp(f"all {found} antipodal grasps of the object would put the gripper into the scene or the object")
-    frames, which, approach_up, extent = frames[free], which[free], approach_up[free], extent[free]
-    centre = pairs.center[which]
+    which, approach_up = which[free], approach_up[free]
     return Candidates(
         object_from_tcp=frames,
-        width_m=extent,
-        com_distance_m=np.linalg.norm(centre - np.asarray(center_of_mass, dtype=float), axis=1),
+        width_m=width,
+        opening_m=opening,
+        com_distance_m=np.linalg.norm(pairs.center[which] - np.asarray(center_of_mass, dtype=float), axis=1),
+        depth_m=depth,
         approach_up=approach_up,
         alignment=pairs.alignment[which],
         sampled_pairs=found,

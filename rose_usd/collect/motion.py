@@ -4,7 +4,9 @@ home -> pre-grasp (to an IK solution 10 cm back along the approach, through join
 straight line, or around the scene where that collides, :mod:`rose_usd.collect.planning`) ->
 grasp (a straight descent) -> close (the fingers' target goes to 0; their drives' force limit
 squeezes) -> lift (to the path's first pose, ``lift_m`` higher) -> follow (the path at the
-video's times) -> place (down by ``lift_m``) -> release (fingers open, hand backs off).
+video's times) -> place (down by ``lift_m``) -> release (fingers open, hand backs off). The
+fingers open no wider than the grasp's pre-shape (``Plan.opening_m``) from home to the grasp and at
+the release.
 
 The follow is ``T_ee(t) = T_obj(t) · T_obj(t_grasp)^-1 · T_ee(t_grasp)`` (:func:`follow_poses`),
 with the object's and the hand's poses at the grasp as simulated, so a grasp that landed a few
@@ -140,6 +142,8 @@ class Plan:
     ik_error_deg: float = 0.0
     approach: str = "straight"
     """How the approach's route was found (:class:`rose_usd.collect.planning.Route`)."""
+    opening_m: float = panda.MAX_OPENING_M
+    """How far apart the pads open before they close and at the release [m]."""
 
     def __len__(self) -> int:
         return len(self.q)
@@ -235,13 +239,15 @@ def approach_plan(
     rate_hz: float,
     approach_s: float,
     route: Callable[[np.ndarray, np.ndarray], object],
+    opening_m: float = panda.MAX_OPENING_M,
 ) -> Plan:
-    """Home -> pre-grasp -> grasp -> close, for a grasp's world tool pose (4, 4).
+    """Home -> pre-grasp -> grasp -> close, for a grasp's world tool pose (4, 4), the pads
+    ``opening_m`` apart until they close.
 
     ``route(q_home, q_pregrasp)`` returns the approach's :class:`rose_usd.collect.planning.Route`
     (``ArmChecker.route``)."""
-    plan = Plan(rate_hz)
-    open_, closed = panda.FINGER_OPEN_M, 0.0
+    plan = Plan(rate_hz, opening_m=min(float(opening_m), panda.MAX_OPENING_M))
+    open_, closed = plan.opening_m / 2, 0.0
     pre = grasp_tcp.copy()
     pre[:3, 3] -= PREGRASP_M * grasp_tcp[:3, 2]
     q_pre, pos_err, rot_err = ik.solve((se3.invert(base_pose) @ pre)[None], panda.HOME_Q, n_seeds=16, iterations=80)
@@ -266,7 +272,7 @@ def carry_plan(plan: Plan, base_pose: np.ndarray, follow_tcp: np.ndarray, lift_m
         follow_tcp: (N, 4, 4) world tool poses at the video's frames, already ``lift_m`` up.
     """
     rate = plan.rate_hz
-    closed, open_ = 0.0, panda.FINGER_OPEN_M
+    closed, open_ = 0.0, plan.opening_m / 2
     q = plan.q[-1].copy()
     grasp_tcp = plan.tcp[-1]
     q = plan.path(base_pose, cartesian(grasp_tcp, follow_tcp[0], ticks(LIFT_S, rate)), q, "lift", closed)

@@ -196,6 +196,7 @@ def _grasps_and_base(
         target.scene_points,
         friction=cfg.grasp_friction,
         max_width_m=cfg.max_width_m,
+        clearance_m=cfg.grasp_clearance_m,
         surface_points=cfg.surface_points,
         approach_turns=cfg.approach_turns,
         lift_m=cfg.lift_m,
@@ -269,7 +270,8 @@ def _roll_out(
     for g, pert in progress(jobs, "collect rollouts", total=len(jobs), unit="rollout"):
         if g not in plans:
             grasp_tcp = path[0] @ ranked.object_from_tcp[g]
-            plans[g] = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s, checker.route)
+            opening = ranked.opening_m[g]
+            plans[g] = motion.approach_plan(base_pose, grasp_tcp, rate, cfg.approach_s, checker.route, opening)
         rollouts.append(run_rollout(sim, plans[g], path, pert, g, cfg))
     return rollouts
 
@@ -452,7 +454,10 @@ def _roll_out_batched(
     sim = batch.BatchSimulator(world, cfg.newton.dt_s, cfg.newton.iterations, cfg.newton.contacts_per_world)
     t_build = time.perf_counter() - t0
     grasp_tcp = [path[0] @ ranked.object_from_tcp[g] for g in range(len(ranked))]
-    plans = [batch.full_plan(base_pose, tcp, path, rate, cfg, checker.route) for tcp in grasp_tcp]
+    plans = [
+        batch.full_plan(base_pose, tcp, path, rate, cfg, checker.route, opening)
+        for tcp, opening in zip(grasp_tcp, ranked.opening_m, strict=True)
+    ]
     plans = [p.delayed(max(len(q) for q in plans)) for p in plans]  # one length for every world
     rollouts: list[Rollout] = []
     for start in progress(range(0, len(jobs), size), "collect batches", total=-(-len(jobs) // size), unit="batch"):

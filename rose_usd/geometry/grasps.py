@@ -106,12 +106,35 @@ def antipodal_pairs(
     return Antipodal(points[i], points[j], np.minimum(at_i[i, j], at_j[i, j]))
 
 
-def grasp_frames(pairs: Antipodal, n_turns: int) -> tuple[np.ndarray, np.ndarray]:
+def levelled(pairs: Antipodal, up: np.ndarray, friction: float) -> Antipodal:
+    """The pairs with their closing line turned level (perpendicular to ``up`` (3,)) about its
+    midpoint, the width kept, where the turn keeps the line inside both friction cones: the pads of
+    a gripper coming from above close level, and the few sampled chords that are level are what
+    holds a thin object lying on the support. A turn by a moves the line's angle to each contact's
+    normal by at most a, so a pair stays antipodal when its larger angle plus a is within the cone."""
+    up = np.asarray(up, dtype=float) / np.linalg.norm(up)
+    d = pairs.axis
+    flat = d - (d @ up)[:, None] * up
+    norm = np.linalg.norm(flat, axis=1)
+    tilt = np.arcsin(np.clip(np.abs(d @ up), 0.0, 1.0))
+    worst = np.arccos(np.clip(pairs.alignment, -1.0, 1.0)) + tilt
+    keep = (norm > 1e-6) & (tilt > np.radians(0.5)) & (worst <= np.arctan(friction))
+    flat = flat[keep] / norm[keep, None]
+    half = pairs.width[keep, None] / 2
+    c = pairs.center[keep]
+    return Antipodal(c - half * flat, c + half * flat, np.cos(worst[keep]))
+
+
+def grasp_frames(pairs: Antipodal, n_turns: int, down: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Tool frames (G * n_turns, 4, 4) of the pairs: origin at the midpoint, y along the closing
-    axis, z (the approach) turned about it by ``n_turns`` angles evenly spread over a full turn.
+    axis, z (the approach) turned about it by ``n_turns`` angles evenly spread over a full turn,
+    the first as near ``down`` (3,) (default -z) as the closing axis allows.
     Returns the frames and the index of the pair each one belongs to."""
     y = pairs.axis
-    ref = np.where(np.abs(y[:, 2:3]) < 0.9, [[0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0]])
+    down = np.array([0.0, 0.0, -1.0]) if down is None else np.asarray(down, dtype=float) / np.linalg.norm(down)
+    other = np.array([1.0, 0.0, 0.0] if abs(down[0]) < 0.9 else [0.0, 1.0, 0.0])
+    other -= (other @ down) * down  # for a closing axis along ``down``: a direction across it
+    ref = np.where(np.abs(y @ down)[:, None] < 0.9, down[None], other[None] / np.linalg.norm(other))
     z0 = ref - np.sum(ref * y, axis=1, keepdims=True) * y
     z0 /= np.linalg.norm(z0, axis=1, keepdims=True)
     x0 = np.cross(y, z0)

@@ -71,16 +71,12 @@ PAD_Z = (-0.00925, 0.00925)
 """The pad's extent along the approach axis in the tcp frame [m] (18.5 mm, centred on the tcp)."""
 
 
-def gripper_boxes(opening_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """The gripper as boxes in the tcp frame with the pads' inner faces ``opening_m`` apart:
-    centres (3, 3) and half extents (3, 3) [m] of the hand and the two fingers."""
-    centres, halves = [HAND_BOX[0]], [HAND_BOX[1]]
+def finger_box(side: float) -> tuple[np.ndarray, np.ndarray]:
+    """One finger as a box, centre (3,) and half extents (3,) [m], in a frame at its pad's inner
+    face: the tcp frame moved ``side`` (+1 or -1) x half the opening along the closing axis (y)."""
     half_y = (FINGER_BOX_Y[1] - FINGER_BOX_Y[0]) / 2
     zc, hz = (FINGER_BOX_Z[0] + FINGER_BOX_Z[1]) / 2, (FINGER_BOX_Z[1] - FINGER_BOX_Z[0]) / 2
-    for side in (1.0, -1.0):
-        centres.append(np.array([0.0, side * (opening_m / 2 + FINGER_BOX_Y[0] + half_y), zc]))
-        halves.append(np.array([FINGER_HALF_X, half_y, hz]))
-    return np.stack(centres), np.stack(halves)
+    return np.array([0.0, side * (FINGER_BOX_Y[0] + half_y), zc]), np.array([FINGER_HALF_X, half_y, hz])
 
 
 # ----------------------------------------------------------------------------- the files

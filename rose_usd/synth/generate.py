@@ -71,7 +71,7 @@ class GenerateConfig:
     static_camera: bool = False
     """The camera stands on a tripod (no sweep, no shake)."""
     lying: bool = False
-    """The manipulated object starts lying on its side (cans and mugs)."""
+    """The manipulated object starts lying on its side (cans and mugs; a pen always does)."""
 
 
 @dataclass
@@ -357,7 +357,7 @@ def generate_case(config: GenerateConfig, out_dir: str | Path, *, overwrite: boo
     else:
         obj = _make_object(rng, config.shape, config.shape.value.capitalize(), 1)
         start = se3.make_pose(se3.rotation_about([0, 0, 1], rng.uniform(-np.pi, np.pi)), [0.0, 0.0, 0.0])
-        if config.lying:
+        if config.lying or config.shape is shapes.ObjectShape.PEN:
             start[:3, :3] = start[:3, :3] @ _lying_rotation(obj.spec.mesh, rng)
             start[2, 3] = -float((obj.spec.mesh.vertices @ start[:3, :3].T)[:, 2].min())
         motion = task_motion(config.task, n, start, obj.spec.size_m, rng, **table)

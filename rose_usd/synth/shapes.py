@@ -22,10 +22,11 @@ class ObjectShape(enum.Enum):
     BOX = "box"
     CAN = "can"
     MUG = "mug"
+    PEN = "pen"  # thinner than the gripper's pads are long; always lies on its side
 
 
 # category (rose_usd.object.priors) of each shape
-SHAPE_CATEGORY = {ObjectShape.BOX: "box", ObjectShape.CAN: "can", ObjectShape.MUG: "mug"}
+SHAPE_CATEGORY = {ObjectShape.BOX: "box", ObjectShape.CAN: "can", ObjectShape.MUG: "mug", ObjectShape.PEN: "pen"}
 
 
 def to_manifold(mesh: trimesh.Trimesh) -> manifold3d.Manifold:
@@ -100,6 +101,9 @@ def sample_object(shape: ObjectShape, rng: np.random.Generator) -> ShapeSpec:
     elif shape is ObjectShape.MUG:
         r, h = rng.uniform(0.036, 0.045), rng.uniform(0.08, 0.10)
         mesh = mug(r, h, wall=0.005)
+    elif shape is ObjectShape.PEN:
+        r, h = rng.uniform(0.005, 0.0075), rng.uniform(0.12, 0.15)
+        mesh = cylinder(r, h, sections=32)
     else:  # pragma: no cover - enum is closed
         raise ValueError(shape)
     return ShapeSpec(shape=shape, mesh=mesh, size_m=tuple(float(v) for v in mesh.extents))
