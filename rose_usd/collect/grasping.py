@@ -222,7 +222,7 @@ def _free_at_depths(
         todo = todo[~free]
         if not len(todo):
             break
-    if narrowest > max_width_m:
+    if np.isfinite(narrowest) and narrowest > max_width_m:
         raise NoGrasp(
             f"the object is too large for the gripper: across the finger pads it is at least "
             f"{100 * narrowest:.1f} cm wide, the Panda takes at most {100 * max_width_m:.1f} cm"
