@@ -90,12 +90,9 @@ def settle(
 def _sideways(world: np.ndarray, supports: list, max_push_m: float) -> np.ndarray:
     """The horizontal move (3,) that takes the points out of what they sink into from the side:
     among the points deeper than ``TOUCHING_M`` inside a support, those whose way out (to the
-    nearest surface point) is within 45 deg of horizontal (a wall, or the slope the scene's wrap
-    leaves between the table and a cup: there a horizontal move is the shorter way out); moved
-    along their mean horizontal way out, as far as the deepest of them needs to leave the surface
-    it meets (its depth over the cosine between the move and the surface's normal) plus the
-    clearance. Zero when there are none, or when the move would exceed ``max_push_m`` (not a
-    contact error: a wrong pose)."""
+    nearest surface point) is within 30 deg of horizontal; moved along their mean horizontal way
+    out, by the deepest of them along it plus the clearance. Zero when there are none, or when
+    the move would exceed ``max_push_m`` (not a contact error: a wrong pose)."""
     best = np.zeros(3)
     for support in supports:
         inside = support(world)
@@ -108,18 +105,14 @@ def _sideways(world: np.ndarray, supports: list, max_push_m: float) -> np.ndarra
         )["points"].numpy()
         out = closest - pts
         length = np.linalg.norm(out, axis=1)
-        side = (length > 0) & (np.abs(out[:, 2]) <= np.sin(np.radians(45.0)) * np.maximum(length, 1e-12))
+        side = (length > 0) & (np.abs(out[:, 2]) < 0.5 * np.maximum(length, 1e-12))
         if not side.any():
             continue
         way = out[side, :2].sum(axis=0)
         if np.linalg.norm(way) < 1e-9:
             continue
         way /= np.linalg.norm(way)
-        along = out[side, :2] @ way  # each point's way out, projected on the move: depth x cosine
-        ok = along > 0.5 * length[side]  # a surface the move leaves (within 60 deg of its normal)
-        if not ok.any():
-            continue
-        push = float(np.max(length[side][ok] ** 2 / along[ok])) + CLEARANCE_M
+        push = float(np.max(out[side, :2] @ way)) + CLEARANCE_M
         if push > max_push_m or push <= np.linalg.norm(best):
             continue
         best = np.array([*(push * way), 0.0])
