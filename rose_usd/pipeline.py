@@ -415,10 +415,15 @@ class Pipeline:
         if not outcome.removed:
             return
         later = {s.layer for s in stages}
-        left = [name for name in outcome.removed if name not in later]
+        left = [s.name for s in registry.STAGES if s.layer in outcome.removed and s.layer not in later]
+        again = " or ".join(f"`rose-usd run {name} ...`" for name in left)
         say(
             f"[{outcome.name}] removed the layers it made stale: {', '.join(outcome.removed)}"
-            + (f" (re-run {', '.join(left)}, or `rose-usd reconstruct`)" if left else " (this run makes them again)")
+            + (
+                f" (make them again with {again}, or `rose-usd reconstruct`)"
+                if left
+                else " (this run makes them again)"
+            )
         )
 
 

@@ -292,10 +292,13 @@ def test_no_ground_truth_for_oracle(capsys, case_copy, tmp_path):
     [
         ("0:208,127,174,90", "has its corners swapped"),
         ("0:300,200,330,250", "runs past the 320x240 image's right edge by 10 px, bottom edge by 10 px"),
+        # fractions of the image: a traceback from OpenCV's GrabCut in the capture stage
+        ("0:0.7,0.2,0.88,0.4", "is 0.18 x 0.2 px, under 2 px a side (fractions of the image?)"),
     ],
 )
 def test_a_command_line_box_off_the_image_says_which_way(capsys, sample_case, tmp_path, box, message):
-    """A hand-typed --prompt box with its corners swapped, or running past an edge, is told as such."""
+    """A hand-typed --prompt box with its corners swapped, running past an edge or given as
+    fractions of the image, is told as such."""
     out = tmp_path / "out"
     code, err = run_cli(capsys, "run", "segment", str(sample_case), "-o", str(out), "--prompt", box)
     assert_one_line_error(code, err, "--prompt", message)
@@ -473,6 +476,18 @@ def test_a_missing_mesh_names_rose_toml_and_the_mesh_beside_it(capsys, case_copy
     toml.write_text(toml.read_text().replace('mesh = "mesh/Box.obj"', 'mesh = "rose.toml"', 1))
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
     assert_one_line_error(code, err, "rose.toml", "mesh = 'rose.toml' is not a mesh file", ".obj")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_mesh_folder_of_two_meshes_asks_which_one(capsys, case_copy, tmp_path):
+    """mesh/ holding Cat_m.obj and Cat_mm.obj (deepac-cat-rgb's layout) and rose.toml naming none:
+    a new user's run used neither and fitted a box 37 % too large; now one line asks which, before
+    anything is written."""
+    (case_copy / "mesh").mkdir()
+    for name in ("Box_m.obj", "Box_mm.obj"):
+        (case_copy / "mesh" / name).write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "rose.toml", "mesh/ holds 2 meshes (Box_m.obj, Box_mm.obj)", 'mesh = "mesh/')
     assert not (tmp_path / "out").exists()
 
 

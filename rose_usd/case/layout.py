@@ -460,7 +460,8 @@ class Case:
         """The mesh another tool made of object ``spec``: rose.toml's ``mesh``, else
         ``perception/<Name>.<glb|gltf|obj|ply|stl>``, else, for a case with one object, the only mesh
         in ``perception/`` or in ``mesh/`` (FoundationPose's demo layout). A ``mesh`` that rose.toml
-        names and that is missing, or is no mesh format's file, is an error, not a fallback."""
+        names and that is missing, or is no mesh format's file, is an error, not a fallback; so is
+        a ``perception/`` or ``mesh/`` with several meshes where rose.toml names none."""
         override = spec.overrides.get("mesh")
         if override is not None:
             path = (self.folder / override).resolve()
@@ -491,6 +492,14 @@ class Case:
                 )
                 if len(found) == 1:
                     return found[0]
+                if len(found) > 1:  # deepac-cat-rgb's mesh/ holds Cat_m.obj and Cat_mm.obj
+                    names = ", ".join(p.name for p in found)
+                    raise InputError(
+                        f"object {self.config.objects[0].name!r}: {folder.name}/ holds {len(found)} meshes"
+                        f" ({names}) and rose.toml names none",
+                        path=self.settings_file,
+                        hint=f'name the one to use: mesh = "{folder.name}/{found[0].name}" under [[objects]]',
+                    )
         return None
 
     def pose_dir(self, name: str) -> Path:

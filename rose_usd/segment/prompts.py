@@ -56,6 +56,10 @@ def all_or_none(specs, where) -> None:
         )
 
 
+MIN_BOX_PX = 2
+"""A prompt box narrower or lower than this [px] holds no object to segment."""
+
+
 def _check_prompt_inside(spec, width: int, height: int, where) -> None:
     p = spec.prompt
     if p.box is not None:
@@ -65,6 +69,14 @@ def _check_prompt_inside(spec, width: int, height: int, where) -> None:
                 f"prompt box of {spec.name!r} {list(p.box)} has its corners swapped or no area",
                 path=where,
                 hint="give the top left corner first: x0, y0, x1, y1 with x0 < x1 and y0 < y1",
+            )
+        if x1 - x0 < MIN_BOX_PX or y1 - y0 < MIN_BOX_PX:
+            fractions = max(p.box) <= 1.0
+            raise InputError(
+                f"prompt box of {spec.name!r} {list(p.box)} is {x1 - x0:g} x {y1 - y0:g} px,"
+                f" under {MIN_BOX_PX} px a side" + (" (fractions of the image?)" if fractions else ""),
+                path=where,
+                hint=f"give the box in pixels of the {width}x{height} frame, around the whole object",
             )
         sides = (("left", -x0), ("top", -y0), ("right", x1 - width), ("bottom", y1 - height))
         past = [f"{side} edge by {d:g} px" for side, d in sides if d > 0]
