@@ -416,11 +416,11 @@ class Pipeline:
             return
         later = {s.layer for s in stages}
         left = [s.name for s in registry.STAGES if s.layer in outcome.removed and s.layer not in later]
-        again = " or ".join(f"`rose-usd run {name} ...`" for name in left)
+        # `run STAGE` makes the missing layers before it too: the last one left makes them all
         say(
             f"[{outcome.name}] removed the layers it made stale: {', '.join(outcome.removed)}"
             + (
-                f" (make them again with {again}, or `rose-usd reconstruct`)"
+                f" (make them again with `rose-usd run {left[-1]} ...` or `rose-usd reconstruct`)"
                 if left
                 else " (this run makes them again)"
             )

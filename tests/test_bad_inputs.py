@@ -489,6 +489,13 @@ def test_a_mesh_folder_of_two_meshes_asks_which_one(capsys, case_copy, tmp_path)
     code, err = run_cli(capsys, "reconstruct", str(case_copy), "-o", str(tmp_path / "out"))
     assert_one_line_error(code, err, "rose.toml", "mesh/ holds 2 meshes (Box_m.obj, Box_mm.obj)", 'mesh = "mesh/')
     assert not (tmp_path / "out").exists()
+    # one mesh in perception/ is the one, whatever mesh/ holds
+    (case_copy / "perception").mkdir()
+    (case_copy / "perception" / "Box.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    from rose_usd.case.layout import load_case
+
+    case = load_case(case_copy)
+    assert case.mesh_file(case.config.objects[0]).name == "Box.obj"
 
 
 def test_mesh_units_that_make_no_object_are_refused(capsys, case_copy, tmp_path):

@@ -308,14 +308,15 @@ def test_a_thin_pen_lying_on_the_table_is_held_near_the_pads_tips():
     """An 11 mm pen: held at the pads' centre, their tips (9.25 mm past it) would be 4 mm into the
     table; the grasps found hold the chord nearer the tips, close level and come straight down,
     every fingertip above the table, the pen's axis between the pads, the fingers pre-shaped to its
-    width plus 1.5 cm a side."""
+    width plus 1.5 cm a side (past its farther side)."""
     from rose_usd.collect import grasping
     from rose_usd.sim import panda
 
     cands = _lying_pen_candidates(0.0055)
     assert len(cands) > 0
     assert set(np.round(cands.depth_m, 4)) <= set(grasping.GRASP_DEPTHS_M) - {0.0}
-    np.testing.assert_allclose(cands.opening_m, cands.width_m + 0.03)
+    # evenly about the tcp, 1.5 cm past the pen's farther side: at least its width plus 3 cm
+    assert np.all(cands.opening_m >= cands.width_m + 0.03 - 1e-9) and np.all(cands.opening_m < 0.06)
     assert np.all((cands.width_m > 0.010) & (cands.width_m < 0.02))  # flat pads: the pen's extent across them
     assert np.all(cands.approach_up < -0.99)
     for frame, opening in zip(cands.object_from_tcp, cands.opening_m, strict=True):
@@ -339,6 +340,18 @@ def test_a_pen_beside_another_is_grasped_only_with_the_fingers_pre_shaped():
         _lying_pen_candidates(0.0055, clearance_m=0.04, neighbour_m=0.06)
 
 
+def test_the_smallest_clearance_still_leaves_grasps():
+    """At collect.grasp_clearance_m's lower limit (5 mm) the pads open 5 mm past the object's
+    farther side, centred on it or not, and grasps remain (at 0 the fingers would touch it)."""
+    from rose_usd.collect.config import CollectConfig
+    from rose_usd.errors import ConfigError
+    from rose_usd.stage_config import build_config
+
+    with pytest.raises(ConfigError, match="grasp_clearance_m"):
+        build_config("collect", CollectConfig, {"grasp_clearance_m": 0.0}, source="--set")
+    assert len(_lying_pen_candidates(0.0055, clearance_m=0.005)) > 0
+
+
 def test_a_thick_object_is_held_at_the_pads_centre_where_it_can_be():
     """A 4 cm cylinder lying on the table: grasps at the pads' centre exist; the pre-shape opens
     the fingers to 4 + 3 cm, at most 8; of two grasps alike but for the depth, the centred ranks first."""
@@ -346,7 +359,8 @@ def test_a_thick_object_is_held_at_the_pads_centre_where_it_can_be():
 
     cands = _lying_pen_candidates(0.02)
     assert np.any(cands.depth_m == 0.0)
-    np.testing.assert_allclose(cands.opening_m, np.minimum(0.08, cands.width_m + 0.03))
+    assert np.all(cands.opening_m >= np.minimum(0.08, cands.width_m + 0.03) - 1e-9)
+    assert np.all(cands.opening_m <= 0.08)
     two = cands.take(np.array([0, 0]))
     two = grasping.Candidates(**{**two.__dict__, "depth_m": np.array([0.007, 0.0])})
     assert list(two.prior_order()) == [1, 0]

@@ -87,10 +87,10 @@ def test_removed_layers_are_left_to_be_made_again_only_when_the_run_will_not(cap
     Pipeline._say_removed(outcome, [registry.get(n) for n in ("capture", "segment", "scene", "object")])
     whole, until_object = capsys.readouterr().err.splitlines()
     assert whole.endswith("object, trajectory, gate (this run makes them again)"), whole
-    assert until_object.endswith(
-        "(make them again with `rose-usd run trajectory ...` or `rose-usd run gate ...`, or `rose-usd reconstruct`)"
-    ), until_object
+    assert until_object.endswith("(make them again with `rose-usd run gate ...` or `rose-usd reconstruct`)"), (
+        until_object
+    )
     # a layer is named for what it holds, a stage for what it does: the robot layer is collect's
     gate = StageOutcome("gate", "ran", 1.0, "mitsuba-newton", removed=("robot",))
     Pipeline._say_removed(gate, [registry.get("gate")])
-    assert capsys.readouterr().err.strip().endswith("with `rose-usd run collect ...`, or `rose-usd reconstruct`)")
+    assert capsys.readouterr().err.strip().endswith("with `rose-usd run collect ...` or `rose-usd reconstruct`)")

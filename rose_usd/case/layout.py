@@ -486,20 +486,23 @@ class Case:
             if (self.perception_dir / f"{spec.name}{suffix}").is_file():
                 return self.perception_dir / f"{spec.name}{suffix}"
         if len(self.config.objects) == 1:
+            several = None
             for folder in (self.perception_dir, self.folder / "mesh"):
                 found = (
                     sorted(p for p in folder.glob("*") if p.suffix.lower() in MESH_SUFFIXES) if folder.is_dir() else []
                 )
                 if len(found) == 1:
                     return found[0]
-                if len(found) > 1:  # deepac-cat-rgb's mesh/ holds Cat_m.obj and Cat_mm.obj
-                    names = ", ".join(p.name for p in found)
-                    raise InputError(
-                        f"object {self.config.objects[0].name!r}: {folder.name}/ holds {len(found)} meshes"
-                        f" ({names}) and rose.toml names none",
-                        path=self.settings_file,
-                        hint=f'name the one to use: mesh = "{folder.name}/{found[0].name}" under [[objects]]',
-                    )
+                if len(found) > 1 and several is None:
+                    several = (folder, found)
+            if several is not None:  # deepac-cat-rgb's mesh/ holds Cat_m.obj and Cat_mm.obj
+                folder, found = several
+                raise InputError(
+                    f"object {self.config.objects[0].name!r}: {folder.name}/ holds {len(found)} meshes"
+                    f" ({', '.join(p.name for p in found)}) and rose.toml names none",
+                    path=self.settings_file,
+                    hint=f'name the one to use: mesh = "{folder.name}/{found[0].name}" under [[objects]]',
+                )
         return None
 
     def pose_dir(self, name: str) -> Path:

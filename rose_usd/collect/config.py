@@ -88,9 +88,10 @@ class CollectConfig:
     """The object is carried this far above its reconstructed path, clear of the support [m] (default 0.01)."""
     max_width_m: float = 0.076
     """Widest grasp: the Panda opens 0.08 m, less a clearance (default 0.076)."""
-    grasp_clearance_m: float = field(default=0.015, metadata=limits(0.0, 0.04))
-    """The fingers open this much wider than the object on each side before they close (their
-    pre-shape), at most to the Panda's 0.08 m [m] (default 0.015)."""
+    grasp_clearance_m: float = field(default=0.015, metadata=limits(0.005, 0.04))
+    """Before they close, the fingers open evenly about the grasp this far past the object's
+    farther side (their pre-shape), at most to the Panda's 0.08 m [m] (default 0.015, at least
+    0.005: the pose perturbation's size)."""
     grasp_friction: float = 0.5
     """Friction coefficient of the antipodal test (the cone's half angle is its arctangent) [-] (default 0.5)."""
     surface_points: int = 400

@@ -32,8 +32,8 @@ REACH_POS_M = 0.005
 REACH_ROT_DEG = 3.0
 GRASP_DEPTHS_M = (0.0, 0.004, 0.007)
 """Where the chord may sit along the approach, from the tcp (the pads' centre) toward their tips,
-tried in this order [m]: the pads reach 9.25 mm past the tcp, so a pen 11 mm thick held at its
-middle puts the fingertips 4 mm into the desk it lies on; at 7 mm they stay 1.7 mm above it."""
+tried in this order [m]: the fingers reach 9.5 mm past the tcp, so a pen 11 mm thick held at its
+middle puts the fingertips 4 mm into the desk it lies on; at 7 mm they stay 3 mm above it."""
 
 
 class NoGrasp(Exception):
@@ -49,8 +49,8 @@ class Candidates:
     width_m: np.ndarray
     """(G,) how far the pads must open: the object's extent across them [m]."""
     opening_m: np.ndarray
-    """(G,) how far the pads open before they close (the pre-shape): the width plus the clearance
-    on each side, at most the Panda's 8 cm [m]."""
+    """(G,) how far the pads open before they close (the pre-shape), evenly about the tcp: the
+    clearance past the object's farther side on each side, at most the Panda's 8 cm [m]."""
     com_distance_m: np.ndarray
     """(G,) from the grasp centre to the centre of mass [m]."""
     depth_m: np.ndarray
@@ -209,9 +209,10 @@ def _free_at_depths(
         shifted = frames[todo].copy()
         shifted[:, :3, 3] -= depth * shifted[:, :3, 2]
         # flat pads open as wide as the object is across them, which may exceed the pair's chord
-        width = antipodal.closing_extent(shifted, object_cloud, panda.PAD_HALF_X, panda.PAD_Z)
+        width, far = antipodal.closing_extent(shifted, object_cloud, panda.PAD_HALF_X, panda.PAD_Z, reach=True)
         narrowest = min(narrowest, float(width[width > 0].min(initial=np.inf)))
-        opening = np.minimum(panda.MAX_OPENING_M, width + 2 * clearance_m)
+        # the pads open evenly about the tcp: past the object's farther side by the clearance
+        opening = np.minimum(panda.MAX_OPENING_M, 2 * (far + clearance_m))
         free = (width > 0) & (width <= max_width_m)
         free[free] = _collision_free(shifted[free], opening[free], object_cloud, scene_points, path, lift_m)
         index.append(todo[free])

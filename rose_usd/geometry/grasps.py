@@ -191,16 +191,24 @@ def boxes_hit(
 
 
 def closing_extent(
-    frames: np.ndarray, points: np.ndarray, half_x: float, z_range: tuple[float, float], *, chunk: int = 128
-) -> np.ndarray:
+    frames: np.ndarray,
+    points: np.ndarray,
+    half_x: float,
+    z_range: tuple[float, float],
+    *,
+    chunk: int = 128,
+    reach: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """How far apart flat pads must open to take the object at each frame: the extent along the
     closing axis (y) of the points between the pads (|x| <= ``half_x``, z in ``z_range`` in the
     tool frame). A chord inside the friction cone can be shorter than that: flat pads touch the
     object where it is widest across them, not at the chord's ends. (G,) [m], 0 where no point
-    lies between the pads."""
+    lies between the pads. With ``reach``, also (G,) how far the object reaches from the tool
+    frame's origin along the closing axis, to the farther side [m]: the pads, opening evenly about
+    the origin, must open twice that to pass it."""
     frames = np.asarray(frames, dtype=np.float32)
     points = np.asarray(points, dtype=np.float32)
-    out = np.zeros(len(frames))
+    out, far = np.zeros(len(frames)), np.zeros(len(frames))
     for start in range(0, len(frames), chunk):
         f = frames[start : start + chunk]
         local = (points[None, :, :] - f[:, None, :3, 3]) @ f[:, :3, :3]
@@ -209,4 +217,5 @@ def closing_extent(
         hi = np.where(between, y, -np.inf).max(axis=1)
         lo = np.where(between, y, np.inf).min(axis=1)
         out[start : start + chunk] = np.where(np.isfinite(hi), hi - lo, 0.0)
-    return out
+        far[start : start + chunk] = np.where(np.isfinite(hi), np.maximum(hi, -lo), 0.0)
+    return (out, far) if reach else out
