@@ -134,7 +134,7 @@ def test_flat_pads_open_as_wide_as_the_object_across_them():
     assert len(pairs) > 0 and pairs.width.max() <= 0.076  # chords that pass a width test on their own
     frames, _ = grasps.grasp_frames(pairs, 2)
     cloud, _ = grasps.sample_surface(vertices, faces, 4000, np.random.default_rng(3))
-    extent = grasps.closing_extent(frames, cloud, 0.00875, (-0.00925, 0.00925))
+    extent, _ = grasps.closing_extent(frames, cloud, 0.00875, (-0.00925, 0.00925))
     horizontal = np.abs(frames[:, 2, 1]) < 0.1  # closing across the axis, not along it
     assert np.all(extent[horizontal] > 0.076)
     assert np.median(extent[horizontal]) == pytest.approx(0.08, abs=0.001)

@@ -3,12 +3,12 @@
 1. Antipodal pairs on the object's visual mesh (``rose_usd.geometry.grasps``), and the same
    pairs closing level where that keeps them antipodal, each turned into tool frames at several
    approach directions, the first the nearest straight down.
-2. Rejected where the gripper (hand and fingers as boxes, the fingers pre-shaped: opened to the
-   object's width across the pads plus a clearance) holds a point of the scene collider or of the
-   object: at the grasp, on the way in from the pre-grasp, and, carried with the object, along its
-   path. A grasp that fails with the chord between the pads' centres is tried with the chord
-   nearer the pads' tips (``GRASP_DEPTHS_M``): an object thinner than the pads are long, lying on
-   the support, is only held that way.
+2. Rejected where the gripper (hand and fingers as boxes, the fingers pre-shaped: opened evenly
+   about the grasp to a clearance past the object's farther side between the pads) holds a point
+   of the scene collider or of the object: at the grasp, on the way in from the pre-grasp, and,
+   carried with the object, along its path. A grasp that fails with the chord between the pads'
+   centres is tried with the chord nearer the pads' tips (``GRASP_DEPTHS_M``): an object thinner
+   than the pads are long, lying on the support, is only held that way.
 3. The base: candidates on the support's height on rings around the path, facing it; each
    scored by how much of the path the best few grasps reach (batched IK), unless rose.toml fixes it.
 4. Ranking: reachable along the whole path (batched IK) first, then the grasp centre's distance
@@ -164,17 +164,14 @@ def _collision_free(
     hit = _gripper_hit(frames, opening_m, object_cloud)
     # on the way in: the hand and fingers backed off along the approach
     for back in (0.03, 0.06, motion.PREGRASP_M):
-        shifted = frames.copy()
-        shifted[:, :3, 3] -= back * frames[:, :3, 2]
-        hit |= _gripper_hit(shifted, opening_m, object_cloud)
+        hit |= _gripper_hit(motion.backed_off(frames, back), opening_m, object_cloud)
     free = ~hit
     if len(scene_points):
         # the scene at the grasp and on the way in (world frame at frame 0), and along the path
         local_scene = se3.transform_points(se3.invert(path[0]), scene_points)
         for back in (0.0, 0.05, motion.PREGRASP_M):
             idx = np.flatnonzero(free)
-            shifted = frames[idx].copy()
-            shifted[:, :3, 3] -= back * shifted[:, :3, 2]
+            shifted = motion.backed_off(frames[idx], back)
             free[idx[_gripper_hit(shifted, opening_m[idx], local_scene)]] = False
         for pose in _along_path(motion.lifted(path, lift_m), 8)[1:]:
             idx = np.flatnonzero(free)
@@ -206,10 +203,9 @@ def _free_at_depths(
     index, moved, depths, widths, openings = [], [], [], [], []
     todo, narrowest = np.arange(len(frames)), np.inf
     for depth in GRASP_DEPTHS_M:
-        shifted = frames[todo].copy()
-        shifted[:, :3, 3] -= depth * shifted[:, :3, 2]
+        shifted = motion.backed_off(frames[todo], depth)
         # flat pads open as wide as the object is across them, which may exceed the pair's chord
-        width, far = antipodal.closing_extent(shifted, object_cloud, panda.PAD_HALF_X, panda.PAD_Z, reach=True)
+        width, far = antipodal.closing_extent(shifted, object_cloud, panda.PAD_HALF_X, panda.PAD_Z)
         narrowest = min(narrowest, float(width[width > 0].min(initial=np.inf)))
         # the pads open evenly about the tcp: past the object's farther side by the clearance
         opening = np.minimum(panda.MAX_OPENING_M, 2 * (far + clearance_m))
@@ -302,8 +298,7 @@ def reach_cost(base_poses: np.ndarray, path: np.ndarray, object_from_tcp: np.nda
     base_poses = np.asarray(base_poses, dtype=float).reshape(-1, 4, 4)
     poses = _along_path(path, samples)
     world = np.einsum("sij,gjk->gsik", poses, object_from_tcp)  # (G, S, 4, 4)
-    pre = np.einsum("ij,gjk->gik", path[0], object_from_tcp)
-    pre[:, :3, 3] -= motion.PREGRASP_M * pre[:, :3, 2]
+    pre = motion.backed_off(np.einsum("ij,gjk->gik", path[0], object_from_tcp), motion.PREGRASP_M)
     world = np.concatenate([world, pre[:, None]], axis=1)
     base_tcp = np.einsum("bij,gsjk->bgsik", se3.invert(base_poses), world)
     shape = base_tcp.shape[:3]
@@ -360,8 +355,7 @@ def chained_reach(
     sets the object down there reaches every pose, and the table stops it in the simulation."""
     g = len(object_from_tcp)
     base_inv = se3.invert(base_pose)
-    pre = np.einsum("ij,gjk->gik", path[0], object_from_tcp)
-    pre[:, :3, 3] -= motion.PREGRASP_M * pre[:, :3, 2]
+    pre = motion.backed_off(np.einsum("ij,gjk->gik", path[0], object_from_tcp), motion.PREGRASP_M)
     q, pos_err, rot_err = ik.solve(np.einsum("ij,gjk->gik", base_inv, pre), panda.HOME_Q, n_seeds=8, iterations=80)
     poses = np.einsum("nij,gjk->gnik", motion.lifted(path, lift_m), object_from_tcp)  # (G, N, 4, 4)
     poses = np.concatenate([np.einsum("ij,gjk->gik", path[0], object_from_tcp)[:, None], poses], axis=1)

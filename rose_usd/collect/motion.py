@@ -73,6 +73,13 @@ def lifted(poses: np.ndarray, height_m: float) -> np.ndarray:
     return out
 
 
+def backed_off(tcp: np.ndarray, distance_m: float) -> np.ndarray:
+    """Tool poses (..., 4, 4) moved back along their approach (their z axis) by ``distance_m``."""
+    out = np.array(tcp, dtype=float, copy=True)
+    out[..., :3, 3] -= distance_m * out[..., :3, 2]
+    return out
+
+
 def cartesian(start: np.ndarray, end: np.ndarray, n: int) -> np.ndarray:
     """``n`` poses from ``start`` (excluded) to ``end`` (included): smoothstep in time, linear
     in position, slerp in rotation. (n, 4, 4)."""
@@ -248,8 +255,7 @@ def approach_plan(
     (``ArmChecker.route``)."""
     plan = Plan(rate_hz, opening_m=min(float(opening_m), panda.MAX_OPENING_M))
     open_, closed = plan.opening_m / 2, 0.0
-    pre = grasp_tcp.copy()
-    pre[:3, 3] -= PREGRASP_M * grasp_tcp[:3, 2]
+    pre = backed_off(grasp_tcp, PREGRASP_M)
     q_pre, pos_err, rot_err = ik.solve((se3.invert(base_pose) @ pre)[None], panda.HOME_Q, n_seeds=16, iterations=80)
     plan.ik_error_m, plan.ik_error_deg = float(pos_err[0]), float(rot_err[0])
     plan.hold(panda.HOME_Q, 0.2, "home", open_, np.full((4, 4), np.nan))
@@ -280,6 +286,5 @@ def carry_plan(plan: Plan, base_pose: np.ndarray, follow_tcp: np.ndarray, lift_m
     placed = lifted(follow_tcp[-1], -lift_m)
     q = plan.path(base_pose, cartesian(follow_tcp[-1], placed, ticks(PLACE_S, rate)), q, "place", closed)
     plan.fingers_to(q, closed, open_, RELEASE_S, "release", placed)
-    back = placed.copy()
-    back[:3, 3] -= RETREAT_M * placed[:3, 2]
+    back = backed_off(placed, RETREAT_M)
     plan.path(base_pose, cartesian(placed, back, ticks(RETREAT_S, rate)), q, "retreat", open_)

@@ -197,15 +197,14 @@ def closing_extent(
     z_range: tuple[float, float],
     *,
     chunk: int = 128,
-    reach: bool = False,
-) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray]:
     """How far apart flat pads must open to take the object at each frame: the extent along the
     closing axis (y) of the points between the pads (|x| <= ``half_x``, z in ``z_range`` in the
     tool frame). A chord inside the friction cone can be shorter than that: flat pads touch the
     object where it is widest across them, not at the chord's ends. (G,) [m], 0 where no point
-    lies between the pads. With ``reach``, also (G,) how far the object reaches from the tool
-    frame's origin along the closing axis, to the farther side [m]: the pads, opening evenly about
-    the origin, must open twice that to pass it."""
+    lies between the pads; and (G,) how far the object reaches from the tool frame's origin along
+    the closing axis, to the farther side [m]: the pads, opening evenly about the origin, must open
+    twice that to pass it."""
     frames = np.asarray(frames, dtype=np.float32)
     points = np.asarray(points, dtype=np.float32)
     out, far = np.zeros(len(frames)), np.zeros(len(frames))
@@ -218,4 +217,4 @@ def closing_extent(
         lo = np.where(between, y, np.inf).min(axis=1)
         out[start : start + chunk] = np.where(np.isfinite(hi), hi - lo, 0.0)
         far[start : start + chunk] = np.where(np.isfinite(hi), np.maximum(hi, -lo), 0.0)
-    return (out, far) if reach else out
+    return out, far
